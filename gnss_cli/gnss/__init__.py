@@ -1,0 +1,1 @@
+"""GNSS models: time scales, frames, broadcast orbits and clocks, atmosphere, geometry."""
