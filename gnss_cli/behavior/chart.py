@@ -1,0 +1,136 @@
+"""Affine charts on the set of kernels: the free parameters of the STLS outer problem.
+
+The misfit depends only on the row space of ``R`` (``M(S R) = M(R)`` for invertible ``S``),
+so the optimizer works in local coordinates ``theta``:
+
+* :class:`FullChart` -- ``R = [X  -I]`` after a column permutation (``g`` identity columns
+  chosen by column-pivoted QR); ``theta = vec(X)``, ``g (q(l+1) - g)`` parameters. When
+  ``X`` grows (the identity block of the current kernel becomes ill-conditioned) the
+  optimizer re-charts: it picks new identity columns with pivoted QR and rewrites ``theta``.
+* :class:`SharedChart` -- ``R(z) = r(z) I_q`` with ``r(z) = f(z) r~(z)``, ``f`` a fixed monic
+  polynomial (e.g. ``z - 1``) and one coefficient of ``r~`` pinned to 1; ``theta`` are the
+  other coefficients of ``r~`` (``lag - deg f`` parameters).
+
+Both provide ``(dG/dtheta_k) w_hat`` for the pseudo-Jacobian of the whitened residual.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+__all__ = ["FullChart", "SharedChart"]
+
+
+class FullChart:
+    """``R = [X -I]`` (columns permuted) for a general kernel with ``g`` rows.
+
+    Parameters
+    ----------
+    R : ndarray, shape (g, q(l+1))
+        A kernel whose row space defines the chart point (full row rank).
+    q : int
+        Number of variables.
+    """
+
+    def __init__(self, R: NDArray[np.float64], q: int) -> None:
+        self.g, n_col = R.shape
+        self.q = q
+        self.n_blk = n_col // q
+        _, _, piv = scipy.linalg.qr(R, mode="economic", pivoting=True)
+        self.ident = np.sort(piv[: self.g])
+        self.free = np.setdiff1d(np.arange(n_col), self.ident)
+        self.n_params = self.g * self.free.size
+
+    def coordinates(self, R: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Chart coordinates of (the row space of) ``R``; raises LinAlgError if the identity block is singular."""
+        norm = -np.linalg.solve(R[:, self.ident], R)
+        return norm[:, self.free].reshape(-1)
+
+    def kernel(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``R(theta)``, shape ``(g, q(l+1))``."""
+        R = np.zeros((self.g, self.free.size + self.g))
+        R[:, self.ident] = -np.eye(self.g)
+        R[:, self.free] = theta.reshape(self.g, self.free.size)
+        return R
+
+    def blocks(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``R(theta)`` as blocks ``(l+1, g, q)``."""
+        return self.kernel(theta).reshape(self.g, self.n_blk, self.q).transpose(1, 0, 2).copy()
+
+    def shared_r(self, theta: NDArray[np.float64]) -> None:
+        """No scalar fast path for a general kernel."""
+        return None
+
+    def jacobian_rhs(self, w_hat: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``D[:, k] = (dG/dtheta_k) vec(w_hat)``, shape ``(g (T-l), n_params)``."""
+        win = np.lib.stride_tricks.sliding_window_view(w_hat, self.n_blk, axis=0)  # (n, q, l+1)
+        n = win.shape[0]
+        h_t = win.transpose(0, 2, 1).reshape(n, self.n_blk * self.q)[:, self.free]  # (n, nf)
+        nf = self.free.size
+        d = np.zeros((n, self.g, self.g, nf))
+        for a in range(self.g):
+            d[:, a, a, :] = h_t
+        return d.reshape(n * self.g, self.g * nf)
+
+    def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
+        """Whether ``|theta|`` is large enough that another identity block is better conditioned."""
+        return bool(np.max(np.abs(theta), initial=0.0) > threshold)
+
+
+class SharedChart:
+    """``R(z) = f(z) r~(z) I_q`` with ``r~`` of degree ``lag - deg f`` and ``r~[c] = 1``.
+
+    Parameters
+    ----------
+    fixed : ndarray, shape (n_fixed + 1,)
+        Ascending coefficients of the fixed factor ``f`` (``[1.0]`` for none).
+    r_tilde : ndarray, shape (lag - n_fixed + 1,)
+        Starting coefficients of ``r~`` (ascending powers, not all zero).
+    q : int
+        Number of variables.
+    """
+
+    def __init__(self, fixed: NDArray[np.float64], r_tilde: NDArray[np.float64], q: int) -> None:
+        self.fixed = np.asarray(fixed, dtype=np.float64)
+        self.q = q
+        self.deg_free = r_tilde.size - 1
+        self.n_blk = self.fixed.size + self.deg_free
+        # conv matrix: r = C r~,  C[i, j] = f[i - j]
+        self.conv = np.zeros((self.n_blk, self.deg_free + 1))
+        for j in range(self.deg_free + 1):
+            self.conv[j : j + self.fixed.size, j] = self.fixed
+        self.pin = int(np.argmax(np.abs(r_tilde)))
+        self.free = np.setdiff1d(np.arange(self.deg_free + 1), [self.pin])
+        self.n_params = self.free.size
+        self.g = q
+
+    def coordinates_tilde(self, r_tilde: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Chart coordinates of ``r~`` (scaled so that ``r~[pin] = 1``)."""
+        return (r_tilde / r_tilde[self.pin])[self.free]
+
+    def r_tilde(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``r~(theta)``, ascending coefficients."""
+        rt = np.empty(self.deg_free + 1)
+        rt[self.pin] = 1.0
+        rt[self.free] = theta
+        return rt
+
+    def shared_r(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``r = f * r~``, ascending coefficients ``(lag+1,)``."""
+        return self.conv @ self.r_tilde(theta)
+
+    def blocks(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Blocks ``(lag+1, q, q)`` of ``r(z) I_q``."""
+        return self.shared_r(theta)[:, None, None] * np.eye(self.q)[None]
+
+    def jacobian_rhs(self, w_hat: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``D[:, k] = (dG/dtheta_k) vec(w_hat)``, shape ``(q (T-l), n_params)``."""
+        win = np.lib.stride_tricks.sliding_window_view(w_hat, self.n_blk, axis=0)  # (n, q, l+1)
+        n = win.shape[0]
+        return (win @ self.conv[:, self.free]).reshape(n * self.q, self.n_params)
+
+    def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
+        """Whether a free coefficient outgrew the pinned one."""
+        return bool(np.max(np.abs(theta), initial=0.0) > threshold)

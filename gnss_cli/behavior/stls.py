@@ -1,0 +1,399 @@
+"""Weighted Hankel structured low-rank approximation (STLS) of a vector time series.
+
+Problem (DESIGN.md section 5)::
+
+    minimize over w_hat, R   sum_t (w(t) - w_hat(t))^T Sigma_t^{-1} (w(t) - w_hat(t))
+    subject to               R H_{l+1}(w_hat) = 0,  R of full row rank.
+
+*Inner problem* (fixed ``R``, :func:`misfit`): with ``G = G(R)`` the block-banded matrix of the
+constraint ``G vec(w_hat) = 0`` and ``Gamma = G Sigma G^T = L L^T`` (banded Cholesky)::
+
+    M(R) = e^T Gamma^{-1} e = ||L^{-1} e||^2,   e = G vec(w),
+    w_hat = w - Sigma G^T Gamma^{-1} e,
+
+in O(T) time and memory (:mod:`gnss_cli.behavior.banded`).
+
+*Outer problem* (:func:`stls`): Levenberg--Marquardt on the whitened residual
+``f(theta) = L^{-1} e`` in the chart coordinates ``theta`` of :mod:`gnss_cli.behavior.chart`,
+started from the WTLS kernel. The Jacobian is the structured pseudo-Jacobian
+``J = L^{-1} (dG/dtheta) vec(w_hat)``: it gives the *exact* gradient
+(``dM = 2 lambda^T dG w_hat = 2 f^T J dtheta`` with ``lambda = Gamma^{-1} e``) and
+``J^T J`` is the Gauss--Newton part of the Hessian (the neglected terms are of the order
+of the residual). Steps where ``Gamma`` is singular or the misfit does not decrease are
+rejected (larger damping); when the chart degenerates the optimizer re-charts (new identity
+columns by pivoted QR), so the search never divides by a vanishing block.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+from gnss_cli.behavior.banded import BandedGram, SingularGramError, project, solve_lower
+from gnss_cli.behavior.chart import FullChart, SharedChart
+from gnss_cli.behavior.covariance import EpochCovariance
+from gnss_cli.behavior.hankel import as_series
+from gnss_cli.behavior.kernel import KernelRepresentation, kernel_from
+from gnss_cli.behavior.result import STATUS_MESSAGES, StlsResult, StlsStatus
+from gnss_cli.behavior.wtls import full_wtls_kernel, shared_wtls_tilde, validate_problem
+from gnss_cli.errors import UsageError
+
+__all__ = ["misfit", "stls", "projection_matrix"]
+
+#: Largest ``T * q`` for which :func:`projection_matrix` builds its dense result.
+PROJECTION_MAX_SIZE = 6000
+
+
+def _shared_fast_path(kernel: KernelRepresentation) -> NDArray[np.float64] | None:
+    return kernel.blocks[:, 0, 0].copy() if kernel.is_shared() else None
+
+
+def misfit(
+    w: ArrayLike, kernel: KernelRepresentation | ArrayLike, cov: ArrayLike | None = None
+) -> tuple[float, NDArray[np.float64]]:
+    """Misfit of a fixed kernel and the closest trajectory of its behavior (the inner problem).
+
+    Parameters
+    ----------
+    w : array_like, shape (T, q)
+        Data (e.g. ENU positions in metres), ``T > lag``.
+    kernel : KernelRepresentation or array_like (p, q(l+1))
+        The kernel ``R``.
+    cov : array_like, optional
+        Covariances ``(T, q, q)``, variances ``(T, q)`` or None (identity).
+
+    Returns
+    -------
+    misfit : float
+        ``min sum_t (w - w_hat)^T Sigma_t^{-1} (w - w_hat)`` over trajectories of the kernel
+        (dimensionless with covariances of ``w``; unit of ``w`` squared for ``cov=None``).
+    w_hat : ndarray, shape (T, q)
+        The minimizer, ``w - Sigma G^T (G Sigma G^T)^{-1} G vec(w)``.
+
+    Raises
+    ------
+    UsageError
+        Invalid shapes or values.
+    SingularGramError
+        ``G Sigma G^T`` is singular for this kernel (a :class:`~gnss_cli.errors.NoSolutionError`),
+        e.g. more kernel rows than the data can satisfy.
+
+    Notes
+    -----
+    O(T) time and memory: ``G Sigma G^T`` is block banded and factored by a banded Cholesky.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> w = np.array([[0.0], [1.0], [0.0], [1.0]])
+    >>> m, w_hat = misfit(w, KernelRepresentation.static(1))
+    >>> round(m, 12), w_hat.ravel().round(12).tolist()
+    (1.0, [0.5, 0.5, 0.5, 0.5])
+    """
+    arr = as_series(w)
+    n_t, q = arr.shape
+    ker = kernel_from(kernel, q)
+    if n_t <= ker.lag:
+        raise UsageError(f"w: expected more than lag = {ker.lag} samples, received {n_t}")
+    covariance = EpochCovariance.from_arg(cov, n_t, q)
+    proj = project(arr, np.asarray(ker.blocks), covariance, _shared_fast_path(ker))
+    return proj.misfit, proj.w_hat
+
+
+def projection_matrix(
+    kernel: KernelRepresentation | ArrayLike, n_t: int, cov: ArrayLike | None = None
+) -> NDArray[np.float64]:
+    """First-order sensitivity ``d vec(w_hat) / d vec(w)`` of the fixed-kernel projection.
+
+    Parameters
+    ----------
+    kernel : KernelRepresentation or array_like (p, q(l+1))
+        The (fixed) kernel.
+    n_t : int
+        Number of epochs ``T`` (``T * q <= 6000``: the result is dense).
+    cov : array_like, optional
+        Covariances ``(T, q, q)``, ``(T, q)`` or None.
+
+    Returns
+    -------
+    P : ndarray, shape (T q, T q)
+        ``P = I - Sigma G^T (G Sigma G^T)^{-1} G``, the ``Sigma^{-1}``-orthogonal projector onto
+        the trajectories of the kernel (``vec`` stacks epochs: index ``t q + i``). For a fixed
+        kernel ``w_hat = P w`` exactly; for an identified kernel it is the first-order gain with
+        the kernel held fixed. The covariance of ``w_hat`` is ``P Sigma P^T = P Sigma``, whose
+        ``(t, t)`` blocks give a multi-epoch DOP of the smoothed trajectory.
+
+    Raises
+    ------
+    UsageError
+        Invalid arguments or ``T q > 6000``.
+    SingularGramError
+        ``G Sigma G^T`` is singular.
+    """
+    if isinstance(n_t, bool) or not isinstance(n_t, (int, np.integer)) or n_t < 1:
+        raise UsageError(f"n_t: expected a positive integer, received {n_t!r}")
+    if isinstance(kernel, KernelRepresentation):
+        ker = kernel
+    else:
+        ker = KernelRepresentation(np.asarray(kernel, dtype=np.float64))
+    q, lag, g = ker.q, ker.lag, ker.p
+    if n_t <= lag:
+        raise UsageError(f"n_t: expected more than lag = {lag} epochs, received {n_t}")
+    if n_t * q > PROJECTION_MAX_SIZE:
+        raise UsageError(f"n_t: the dense projector needs T q <= {PROJECTION_MAX_SIZE}, received {n_t * q}")
+    covariance = EpochCovariance.from_arg(cov, n_t, q)
+    n = n_t - lag
+    big_g = np.zeros((n * g, n_t * q))
+    for j in range(n):
+        big_g[j * g : (j + 1) * g, j * q : (j + lag + 1) * q] = ker.R
+    # factor Gamma with a zero data series (only the factor is used)
+    chol = project(np.zeros((n_t, q)), np.asarray(ker.blocks), covariance, _shared_fast_path(ker)).chol
+    x = solve_lower(chol, solve_lower(chol, big_g), transpose=True)  # Gamma^{-1} G
+    y = (big_g.T @ x).reshape(n_t, q, n_t * q)
+    if covariance.kind == "identity":
+        sy = y
+    elif covariance.kind == "diag":
+        assert covariance.values is not None
+        sy = covariance.values[:, :, None] * y
+    else:
+        assert covariance.values is not None
+        sy = np.einsum("tab,tbk->tak", covariance.values, y)
+    return np.eye(n_t * q) - sy.reshape(n_t * q, n_t * q)
+
+
+# ---------------------------------------------------------------------- outer problem
+def _evaluate(w: NDArray[np.float64], chart: FullChart | SharedChart, theta: NDArray[np.float64],
+              cov: EpochCovariance) -> BandedGram:
+    return project(w, chart.blocks(theta), cov, chart.shared_r(theta))
+
+
+def _start_candidates(
+    arr: NDArray[np.float64], lag: int, g: int, fixed: NDArray[np.float64], cov: EpochCovariance,
+    structure: str, kernel0: KernelRepresentation | ArrayLike | None,
+) -> list[NDArray[np.float64]]:
+    """Starting points: ``R`` ``(g, q(l+1))`` (full) or ``r~`` (shared), best first."""
+    q = arr.shape[1]
+    out: list[NDArray[np.float64]] = []
+    deg = lag - (fixed.size - 1)
+    if structure == "shared":
+        if kernel0 is not None:
+            k0 = kernel_from(kernel0, q) if not np.ndim(kernel0) == 1 else None
+            r0 = np.asarray(kernel0, dtype=np.float64) if k0 is None else k0.shared_coefficients()
+            if r0.size != lag + 1:
+                raise UsageError(f"kernel0: expected a shared kernel of lag {lag}, received {r0.size - 1}")
+            quot, rem = np.polydiv(r0[::-1], fixed[::-1])
+            out.append(np.asarray(quot[::-1], dtype=np.float64))
+        out.append(shared_wtls_tilde(arr, lag, fixed, cov))
+        out.append(np.array([float(np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[i]) for i in range(deg + 1)]))
+        return out
+    if kernel0 is not None:
+        k0 = kernel_from(kernel0, q)
+        if k0.lag != lag or k0.p != g:
+            raise UsageError(f"kernel0: expected {g} rows and lag {lag}, received {k0.p} rows and lag {k0.lag}")
+        out.append(np.array(k0.R))
+    out.append(full_wtls_kernel(arr, lag, g, cov))
+    if g == q:
+        out.append(np.array(KernelRepresentation.shared(np.polynomial.polynomial.polypow([-1.0, 1.0], lag), q).R))
+    return out
+
+
+def stls(
+    w: ArrayLike,
+    lag: int,
+    order: int | None = None,
+    cov: ArrayLike | None = None,
+    kernel0: KernelRepresentation | ArrayLike | None = None,
+    tol: float = 1e-10,
+    max_iter: int = 200,
+    *,
+    structure: str = "full",
+    fixed_roots: Sequence[complex] = (),
+    rechart_threshold: float = 10.0,
+) -> StlsResult:
+    """Identify a kernel of lag ``lag`` by weighted Hankel structured low-rank approximation.
+
+    Parameters
+    ----------
+    w : array_like, shape (T, q)
+        Uniformly sampled time series (e.g. ENU positions in metres; never raw ECEF).
+    lag : int
+        Kernel lag ``l >= 1``; ``T >= l + 2``.
+    order : int, optional
+        Full structure: rank ``q(l+1) - g`` of the Hankel matrix, i.e. the kernel has
+        ``g = q(l+1) - order`` rows; default ``q * lag`` (``g = q``). Feasible only when
+        ``g (T - l) <= q T`` (roughly ``g <= q``), otherwise ``UsageError``. Shared
+        structure: must be None or ``q * lag``.
+    cov : array_like, optional
+        Per-epoch covariances ``(T, q, q)``, variances ``(T, q)`` or None (identity), in the
+        unit of ``w`` squared.
+    kernel0 : KernelRepresentation or array_like, optional
+        Starting kernel (default: the WTLS kernel). For the shared structure also a 1-D
+        array ``[r_0 .. r_l]``; it must contain the fixed roots.
+    tol : float
+        Stop when an accepted step decreases the misfit by less than ``tol`` relative, or
+        changes the chart coordinates by less than ``tol`` relative (default 1e-10).
+    max_iter : int
+        Limit on outer iterations (default 200).
+    structure : {"full", "shared"}
+        ``"full"``: general kernel with ``g`` rows, chart ``R = [X -I]``.
+        ``"shared"``: ``R(z) = r(z) I_q``, ``lag`` free parameters (fewer with fixed roots).
+    fixed_roots : sequence of complex
+        Shared structure: roots kept fixed in ``r(z) = prod (z - z_i) r~(z)``; ``(1.0,)``
+        keeps constants in the behavior, which makes the fit translation invariant.
+        Complex roots must come in conjugate pairs.
+    rechart_threshold : float
+        Re-chart when a chart coordinate exceeds this magnitude (default 10).
+
+    Returns
+    -------
+    StlsResult
+        ``kernel``, ``w_hat`` ``(T, q)``, ``misfit``, ``iterations``, ``status``, ...
+        On ``INFEASIBLE`` (no starting kernel with a regular ``G Sigma G^T``) ``misfit`` is
+        ``inf`` and ``w_hat`` a copy of ``w``.
+
+    Raises
+    ------
+    UsageError
+        Invalid arguments or an infeasible full-structure dimension.
+
+    Notes
+    -----
+    See the module docstring for the algorithm. The misfit never increases from the
+    starting kernel (only decreasing steps are accepted), so ``stls`` is never worse than
+    ``wtls`` on the same data.
+
+    References
+    ----------
+    I. Markovsky, K. Usevich, "Software for weighted structured low-rank approximation",
+    J. Comput. Appl. Math. 256 (2014) 278-292.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = np.arange(30.0)
+    >>> w = np.stack([np.cos(0.1 * t), np.sin(0.1 * t), 0.5 * t], axis=1)
+    >>> res = stls(w, lag=3, structure="shared")
+    >>> res.success, bool(res.misfit < 1e-20)
+    (True, True)
+    """
+    arr, covariance, g, fixed = validate_problem(w, lag, order, cov, structure, fixed_roots)
+    lag = int(lag)
+    if not (isinstance(tol, (float, int)) and 0.0 < tol < 1.0):
+        raise UsageError(f"tol: expected a number in (0, 1), received {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
+        raise UsageError(f"max_iter: expected a non-negative integer, received {max_iter!r}")
+    q = arr.shape[1]
+    data_norm2 = covariance.weighted_norm2(arr)
+    exact_level = (64.0 * np.finfo(float).eps) ** 2 * max(data_norm2, np.finfo(float).tiny)
+
+    chart: FullChart | SharedChart | None = None
+    theta = np.zeros(0)
+    state: BandedGram | None = None
+    last_error = ""
+    n_eval = 0
+    for cand in _start_candidates(arr, lag, g, fixed, covariance, structure, kernel0):
+        try:
+            if structure == "shared":
+                chart = SharedChart(fixed, cand, q)
+                theta = chart.coordinates_tilde(cand)
+            else:
+                chart = FullChart(cand, q)
+                theta = chart.coordinates(cand)
+            n_eval += 1
+            state = _evaluate(arr, chart, theta, covariance)
+            break
+        except (SingularGramError, np.linalg.LinAlgError) as exc:
+            last_error = str(exc)
+            state = None
+    if state is None or chart is None:
+        ker = KernelRepresentation(np.asarray(chart.blocks(theta)) if chart is not None else np.zeros((lag + 1, g, q)))
+        return StlsResult(ker, arr.copy(), float("inf"), 0, StlsStatus.INFEASIBLE,
+                          f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {last_error}", "stls", structure, n_eval, 0.0)
+
+    status = StlsStatus.ITERATION_LIMIT
+    iterations = 0
+    grad_norm = 0.0
+    mu = 1e-3
+    nu = 2.0
+    if chart.n_params == 0:
+        status = StlsStatus.DIRECT
+    while status == StlsStatus.ITERATION_LIMIT and iterations < max_iter:
+        if state.misfit <= exact_level:
+            status = StlsStatus.EXACT
+            break
+        jac = solve_lower(state.chol, chart.jacobian_rhs(state.w_hat))
+        a_mat = jac.T @ jac
+        grad = jac.T @ state.f
+        grad_norm = float(np.max(np.abs(grad)))
+        iterations += 1
+        if grad_norm == 0.0:
+            status = StlsStatus.CONVERGED
+            break
+        diag = np.diag(a_mat).copy()
+        diag = np.maximum(diag, 1e-12 * max(float(np.max(diag)), np.finfo(float).tiny))
+        while True:
+            try:
+                step = scipy.linalg.solve(a_mat + mu * np.diag(diag), -grad, assume_a="pos", check_finite=False)
+            except (np.linalg.LinAlgError, ValueError):
+                step = np.full_like(grad, np.nan)
+            predicted = float(-2.0 * grad @ step - step @ a_mat @ step) if np.all(np.isfinite(step)) else -1.0
+            trial: BandedGram | None = None
+            if predicted > 0.0:
+                try:
+                    n_eval += 1
+                    trial = _evaluate(arr, chart, theta + step, covariance)
+                except SingularGramError:
+                    trial = None
+            if trial is not None and trial.misfit < state.misfit:
+                rho = (state.misfit - trial.misfit) / predicted
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                decrease = state.misfit - trial.misfit
+                theta = theta + step
+                state = trial
+                small_step = float(np.linalg.norm(step)) <= tol * (float(np.linalg.norm(theta)) + tol)
+                if (decrease <= tol * state.misfit and rho > 0.25) or small_step:
+                    status = StlsStatus.CONVERGED
+                elif chart.needs_rechart(theta, rechart_threshold):
+                    chart, theta = _rechart(chart, theta, fixed, q)
+                break
+            mu *= nu
+            nu *= 2.0
+            if mu > 1e16 or not np.all(np.isfinite(step)) or float(np.linalg.norm(step)) <= 1e-15 * (
+                float(np.linalg.norm(theta)) + 1e-15
+            ):
+                status = StlsStatus.NO_FURTHER_DECREASE
+                break
+    if status == StlsStatus.ITERATION_LIMIT and state.misfit <= exact_level:
+        status = StlsStatus.EXACT
+    kernel = _final_kernel(chart, theta, q)
+    return StlsResult(kernel, state.w_hat, state.misfit, iterations, status, STATUS_MESSAGES[status],
+                      "stls", structure, n_eval, grad_norm)
+
+
+def _rechart(chart: FullChart | SharedChart, theta: NDArray[np.float64], fixed: NDArray[np.float64],
+             q: int) -> tuple[FullChart | SharedChart, NDArray[np.float64]]:
+    """Move to the chart whose identity block (or pinned coefficient) is best conditioned."""
+    if isinstance(chart, SharedChart):
+        rt = chart.r_tilde(theta)
+        new_s = SharedChart(fixed, rt, q)
+        return new_s, new_s.coordinates_tilde(rt)
+    r_mat = chart.kernel(theta)
+    new_f = FullChart(r_mat, q)
+    if np.array_equal(new_f.ident, chart.ident):
+        return chart, theta
+    try:
+        return new_f, new_f.coordinates(r_mat)
+    except np.linalg.LinAlgError:  # pragma: no cover - pivoted QR picks a regular block
+        return chart, theta
+
+
+def _final_kernel(chart: FullChart | SharedChart, theta: NDArray[np.float64], q: int) -> KernelRepresentation:
+    if isinstance(chart, SharedChart):
+        r = chart.shared_r(theta)
+        scale = r[-1] if abs(r[-1]) > 1e-8 * np.max(np.abs(r)) else np.linalg.norm(r)
+        return KernelRepresentation.shared(r / scale, q)
+    return KernelRepresentation(chart.kernel(theta), q=q).normalized()
