@@ -25,6 +25,12 @@ Implicit differentiation of the stationarity condition ``Aᵀ r ψ = ‖r‖² D
 
 Holding ``s`` fixed drops the second term; for TLS this is the paper's
 ``J Jᵀ = (AᵀA − s²I)⁻¹ AᵀA (AᵀA − s²I)⁻¹`` (:func:`gnss_cli.solvers.dop.tls_paper_cov`).
+The two gains differ, but their products ``J Jᵀ`` coincide: expanding the exact one, the
+cross terms ``−2(Aᵀr xᵀ + x rᵀA)/ψ = −4 s² D x xᵀ D/ψ`` (using ``Aᵀr = s² D x``) cancel the
+quadratic term ``4 ||r||² D x xᵀ D/ψ²``. So the unweighted ``cov`` of TLS equals the paper's
+formula (the tests check it; for WTLS the same holds on the whitened system); the
+difference shows only in ``gain`` and in ``J Σ Jᵀ`` for a noise covariance ``Σ`` other
+than the one the weights whiten.
 
 References
 ----------
