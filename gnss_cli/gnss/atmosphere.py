@@ -103,7 +103,7 @@ def saastamoinen_delay_m(
     lat = np.asarray(lat_rad, dtype=np.float64)
     h = np.asarray(h_m, dtype=np.float64)
     el = np.asarray(el_rad, dtype=np.float64)
-    hgt = np.maximum(h, 0.0)
+    hgt = np.clip(h, 0.0, 1e4)
     pres = 1013.25 * (1.0 - 2.2557e-5 * hgt) ** 5.2568
     temp = 15.0 - 6.5e-3 * hgt + 273.16
     e = 6.108 * humidity * np.exp((17.15 * temp - 4684.0) / (temp - 38.45))

@@ -89,20 +89,28 @@ class KeplerEphemeris:
     health: F64
     fit_interval_h: F64
     iode: F64
+    ura_m: F64 | None = None
+    """Broadcast user range accuracy (m, the RINEX SV accuracy field); None when unknown."""
 
     def __len__(self) -> int:
         return int(self.sv.shape[0])
 
     def subset(self, rows: NDArray[np.bool_] | NDArray[np.intp]) -> "KeplerEphemeris":
         """Records selected by a boolean mask or index array."""
-        return replace(self, **{f.name: getattr(self, f.name)[rows] for f in fields(self)})
+        return replace(
+            self, **{f.name: (None if getattr(self, f.name) is None else getattr(self, f.name)[rows]) for f in fields(self)}
+        )
 
     @staticmethod
     def concatenate(parts: "list[KeplerEphemeris]") -> "KeplerEphemeris":
         """Records of several tables, in order."""
-        return KeplerEphemeris(
-            **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(KeplerEphemeris)}
-        )
+        out: dict[str, object] = {}
+        for f in fields(KeplerEphemeris):
+            arrays = [getattr(p, f.name) for p in parts]
+            if any(a is None for a in arrays):
+                arrays = [np.full(len(p), np.nan) if a is None else a for p, a in zip(parts, arrays)]
+            out[f.name] = np.concatenate(arrays)
+        return KeplerEphemeris(**out)  # type: ignore[arg-type]
 
     @classmethod
     def from_dataset(cls, nav: xr.Dataset, system: str = "G") -> "KeplerEphemeris":
@@ -154,15 +162,16 @@ class KeplerEphemeris:
             health=optional("health", 0.0),
             fit_interval_h=fit,
             iode=optional("IODE", -1.0),
+            ura_m=optional("SVacc", np.nan),
             **values,
         )
 
     @classmethod
     def empty(cls) -> "KeplerEphemeris":
         """A table with no records."""
-        kwargs = {f.name: np.zeros(0) for f in fields(cls)}
+        kwargs: dict[str, object] = {f.name: np.zeros(0) for f in fields(cls)}
         kwargs["sv"] = np.zeros(0, dtype="<U3")
-        return cls(**kwargs)
+        return cls(**kwargs)  # type: ignore[arg-type]
 
 
 def select_ephemeris(

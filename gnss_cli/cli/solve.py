@@ -1,0 +1,126 @@
+"""``gnss-solve OBS NAV [NAV ...] [options]``: RINEX in, positions / errors / DOP tables out.
+
+Data go to stdout (or ``-o FILE`` / ``--out-dir DIR``); progress, warnings and the summary
+go to stderr. Exit codes: 0 ok, 1 bug, 2 usage, 3 bad configuration, 4 bad input file,
+5 no epoch solved.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from gnss_cli.cli.exits import run_app
+from gnss_cli.config import load_config
+from gnss_cli.errors import ConfigError, UsageError
+from gnss_cli.pipeline import run
+from gnss_cli.report import (
+    dop_table,
+    errors_table,
+    parse_reference,
+    positions_table,
+    reference_from_sinex,
+    summary_table,
+    to_csv_text,
+    write_atomic,
+)
+
+app = typer.Typer(add_completion=False, help=__doc__)
+
+
+class _Progress:
+    """Progress lines on stderr, only when stderr is a terminal and not ``--quiet``."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if self.enabled:
+            sys.stderr.write(f"\r[{time.perf_counter() - self.t0:6.1f} s] {stage:<32} {100 * fraction:5.1f} %")
+            sys.stderr.flush()
+
+    def done(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+@app.command()
+def solve(
+    files: list[Path] = typer.Argument(..., help="OBS NAV [NAV ...]: a RINEX observation file and one or more navigation files."),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, a comma list, or all [config: wls]."),
+    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations, comma list of RINEX letters [config: G]."),
+    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | none [config: klobuchar]."),
+    tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none [config: saastamoinen]."),
+    elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees [config: 10]."),
+    reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns."),
+    reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name."),
+    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see configs/default.toml)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout, the default)."),
+    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
+) -> None:
+    """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
+    if len(files) < 2:
+        raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
+    if reference and reference_sinex:
+        raise UsageError("give --reference or --reference-sinex, not both")
+    if output not in (None, "-") and out_dir is not None:
+        raise UsageError("give -o/--output or --out-dir, not both")
+    overrides: dict[str, object] = {
+        "methods": method,
+        "iono": iono,
+        "tropo": tropo,
+        "elevation_mask_deg": elevation_mask,
+        "systems": [s.strip().upper() for s in systems.split(",") if s.strip()] if systems else None,
+    }
+    cfg = load_config(config, overrides)
+    ref = parse_reference(reference) if reference else None
+    progress = _Progress(not quiet)
+    result = run(files[0], files[1:], cfg, progress=progress)
+    progress.done()
+    if reference_sinex is not None:
+        if not result.epochs.marker_name:
+            raise ConfigError(f"--reference-sinex: {files[0]} has no MARKER NAME to look up")
+        ref = reference_from_sinex(reference_sinex, result.epochs.marker_name)
+    positions = positions_table(result, ref)
+    if not quiet:
+        for w in result.warnings:
+            sys.stderr.write(f"gnss-solve: warning: {w}\n")
+    summary = summary_table(result, ref)
+    if out_dir is not None:
+        write_atomic(out_dir / "positions.csv", to_csv_text(positions))
+        if ref is not None:
+            write_atomic(out_dir / "errors.csv", to_csv_text(errors_table(positions)))
+        write_atomic(out_dir / "dop.csv", to_csv_text(dop_table(positions)))
+        write_atomic(out_dir / "summary.csv", to_csv_text(summary))
+    elif output not in (None, "-"):
+        write_atomic(output, to_csv_text(positions))
+    else:
+        sys.stdout.write(to_csv_text(positions))
+        sys.stdout.flush()
+    if not quiet:
+        _print_summary(summary, ref is not None)
+
+
+def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]
+    for _, row in summary.iterrows():
+        line = f"gnss-solve: {row['method']}: {row['epochs_solved']}/{row['epochs']} epochs solved"
+        if with_errors:
+            line += f", 3D RMS {row['rms_3d_m']:.3f} m (E {row['rms_e_m']:.3f} N {row['rms_n_m']:.3f} U {row['rms_u_m']:.3f})"
+        line += f", mean GDOP {row['mean_gdop']:.2f}"
+        sys.stderr.write(line + "\n")
+
+
+def main() -> None:
+    """Console entry point of ``gnss-solve``."""
+    run_app(app, "gnss-solve")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,162 @@
+"""Processing configuration: defaults from ``configs/default.toml``, a user TOML, and flags.
+
+Precedence: command-line flags > ``--config FILE`` > the packaged defaults.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from gnss_cli.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+METHOD_NAMES = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "configs" / "default.toml"
+
+
+@dataclass(frozen=True)
+class WeightConfig:
+    """Pseudorange variance model (see ``configs/default.toml``)."""
+
+    model: str = "rtklib"
+    a_m: float = 0.3
+    b_m: float = 0.3
+    code_bias_m: float = 0.3
+    iono_factor: float = 0.5
+    saas_sigma_m: float = 0.3
+    iono_off_sigma_m: float = 5.0
+    tropo_off_sigma_m: float = 3.0
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    """Every processing option, with units in the names."""
+
+    methods: tuple[str, ...] = ("wls",)
+    systems: tuple[str, ...] = ("G",)
+    elevation_mask_deg: float = 10.0
+    iono: str = "klobuchar"
+    tropo: str = "saastamoinen"
+    max_iterations: int = 10
+    convergence_m: float = 1e-4
+    min_satellites: int = 4
+    healthy_only: bool = True
+    weights: WeightConfig = field(default_factory=WeightConfig)
+    signals: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    orbit_sigma_m: float = 1.7
+
+    def validated(self) -> "ProcessingConfig":
+        """Self, after checking every value; raises :class:`ConfigError` naming the option."""
+        bad = [m for m in self.methods if m not in METHOD_NAMES]
+        if bad or not self.methods:
+            raise ConfigError(f"methods: expected some of {', '.join(METHOD_NAMES)} or 'all'; received {list(self.methods)}")
+        if self.iono not in ("klobuchar", "none"):
+            raise ConfigError(f"iono: expected 'klobuchar' or 'none'; received {self.iono!r}")
+        if self.tropo not in ("saastamoinen", "none"):
+            raise ConfigError(f"tropo: expected 'saastamoinen' or 'none'; received {self.tropo!r}")
+        if not 0.0 <= self.elevation_mask_deg < 90.0:
+            raise ConfigError(f"elevation_mask_deg: expected 0 <= value < 90; received {self.elevation_mask_deg}")
+        if self.max_iterations < 1:
+            raise ConfigError(f"max_iterations: expected >= 1; received {self.max_iterations}")
+        if not self.convergence_m > 0:
+            raise ConfigError(f"convergence_m: expected > 0; received {self.convergence_m}")
+        if self.min_satellites < 4:
+            raise ConfigError(f"min_satellites: expected >= 4; received {self.min_satellites}")
+        if self.weights.model not in ("rtklib", "elevation", "equal"):
+            raise ConfigError(f"weights.model: expected 'rtklib', 'elevation' or 'equal'; received {self.weights.model!r}")
+        unsupported = [s for s in self.systems if s != "G"]
+        if unsupported or not self.systems:
+            raise ConfigError(f"systems: this version processes GPS ('G') only; received {list(self.systems)}")
+        if self.orbit_sigma_m < 0:
+            raise ConfigError(f"orbit_sigma_m: expected >= 0; received {self.orbit_sigma_m}")
+        return self
+
+
+def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """``"ls,wls"`` / ``"all"`` / a list -> a tuple of method keys (order kept, no duplicates)."""
+    items = text.split(",") if isinstance(text, str) else list(text)
+    out: list[str] = []
+    for item in (i.strip().lower() for i in items):
+        if not item:
+            continue
+        for m in METHOD_NAMES if item == "all" else (item,):
+            if m not in METHOD_NAMES:
+                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(METHOD_NAMES)} or all")
+            if m not in out:
+                out.append(m)
+    if not out:
+        raise ConfigError("--method: no method given")
+    return tuple(out)
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: configuration file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML ({exc})") from None
+
+
+def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
+    known_sections = {"processing", "weights", "signals", "stls"}
+    unknown = set(data) - known_sections
+    if unknown:
+        raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
+    proc = dict(data.get("processing", {}))
+    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "orbit_sigma_m"}
+    bad = set(proc) - names
+    if bad:
+        raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
+    try:
+        if "methods" in proc:
+            proc["methods"] = parse_methods(proc["methods"])
+        if "systems" in proc:
+            proc["systems"] = tuple(str(s).upper() for s in proc["systems"])
+        for key in ("elevation_mask_deg", "convergence_m"):
+            if key in proc:
+                proc[key] = float(proc[key])
+        for key in ("max_iterations", "min_satellites"):
+            if key in proc:
+                proc[key] = int(proc[key])
+        cfg = replace(cfg, **proc)
+        w = dict(data.get("weights", {}))
+        wbad = set(w) - {f.name for f in fields(WeightConfig)}
+        if wbad:
+            raise ConfigError(f"{source}: unknown [weights] key(s) {sorted(wbad)}")
+        cfg = replace(cfg, weights=replace(cfg.weights, **{k: (v if k == "model" else float(v)) for k, v in w.items()}))
+        if "signals" in data:
+            sig = dict(cfg.signals)
+            sig.update({str(k).upper(): tuple(str(c) for c in v) for k, v in data["signals"].items()})
+            cfg = replace(cfg, signals=sig)
+        if "stls" in data:
+            sbad = set(data["stls"]) - {"orbit_sigma_m"}
+            if sbad:
+                raise ConfigError(f"{source}: unknown [stls] key(s) {sorted(sbad)}")
+            cfg = replace(cfg, orbit_sigma_m=float(data["stls"].get("orbit_sigma_m", cfg.orbit_sigma_m)))
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"{source}: bad value ({exc})") from None
+    return cfg
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> ProcessingConfig:
+    """Packaged defaults, then ``path`` (TOML), then ``overrides`` (``[processing]`` keys), validated."""
+    cfg = ProcessingConfig()
+    if DEFAULT_CONFIG_PATH.exists():
+        cfg = _apply(cfg, _read_toml(DEFAULT_CONFIG_PATH), str(DEFAULT_CONFIG_PATH))
+    if path is not None:
+        cfg = _apply(cfg, _read_toml(Path(path)), str(path))
+    if overrides:
+        cfg = _apply(cfg, {"processing": {k: v for k, v in overrides.items() if v is not None}}, "command line")
+    return cfg.validated()

@@ -1,0 +1,107 @@
+"""Choosing one pseudorange per satellite and epoch from a RINEX observation dataset.
+
+Signal priority per system (first present wins, per satellite and epoch). RINEX 2 codes
+are listed beside their RINEX 3 equivalents: ``C1`` is the L1 C/A code (= ``C1C``),
+``P1`` the L1 P(Y) code (= ``C1W``). The defaults follow RTKLIB's L1 priority (C/A first),
+so both programs use the same observable on the same file; ``configs/default.toml``
+can change them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import xarray as xr
+from numpy.typing import NDArray
+
+from gnss_cli.gnss.time import datetime2gps_s
+
+DEFAULT_SIGNAL_PRIORITY: dict[str, tuple[str, ...]] = {
+    "G": ("C1C", "C1", "C1W", "P1", "C1X", "C1P"),
+    "E": ("C1C", "C1X", "C1B", "C1"),
+    "C": ("C2I", "C1I", "C2X", "C1", "C2"),
+    "J": ("C1C", "C1X", "C1"),
+    "R": ("C1C", "C1", "C1P", "P1"),
+}
+
+
+@dataclass(frozen=True)
+class Pseudoranges:
+    """One pseudorange per satellite and epoch.
+
+    Attributes
+    ----------
+    time_gps_s : ``(T,)`` reception epochs (receiver time tags), s since the GPS epoch.
+    sv : ``(n,)`` satellite ids.
+    pr_m : ``(T, n)`` pseudoranges, m (NaN where missing).
+    code : ``(T, n)`` observation code used ('' where missing).
+    """
+
+    time_gps_s: NDArray[np.float64]
+    sv: NDArray[np.str_]
+    pr_m: NDArray[np.float64]
+    code: NDArray[np.str_]
+
+
+def codes_for(systems: Sequence[str], priority: Mapping[str, Sequence[str]] | None = None) -> list[str]:
+    """All observation codes the priority lists name for ``systems`` (for filtered reading)."""
+    prio = DEFAULT_SIGNAL_PRIORITY if priority is None else priority
+    out: list[str] = []
+    for s in systems:
+        for c in prio.get(s, ()):
+            if c not in out:
+                out.append(c)
+    return out
+
+
+def select_pseudoranges(
+    obs: xr.Dataset,
+    systems: Sequence[str],
+    priority: Mapping[str, Sequence[str]] | None = None,
+) -> Pseudoranges:
+    """Pick, per satellite and epoch, the first available code of the system's priority list.
+
+    Parameters
+    ----------
+    obs
+        Observation dataset (dims ``time, sv``; one variable per code).
+    systems
+        System letters to keep.
+    priority
+        Code priority per system letter (default :data:`DEFAULT_SIGNAL_PRIORITY`).
+
+    Returns
+    -------
+    Pseudoranges
+        Only satellites of ``systems`` with at least one pseudorange; sorted by id.
+    """
+    prio = DEFAULT_SIGNAL_PRIORITY if priority is None else priority
+    svs = np.asarray(obs["sv"].values).astype(str)
+    keep = np.isin(np.array([s[:1] for s in svs]), list(systems))
+    svs = svs[keep]
+    t = datetime2gps_s(obs["time"].values)
+    pr = np.full((t.size, svs.size), np.nan)
+    code = np.full((t.size, svs.size), "", dtype="<U3")
+    sys_of = np.array([s[:1] for s in svs])
+    for system in systems:
+        cols = np.flatnonzero(sys_of == system)
+        if cols.size == 0:
+            continue
+        sub = obs.isel(sv=np.flatnonzero(keep)[cols])
+        for c in prio.get(system, ()):
+            if c not in sub:
+                continue
+            vals = np.asarray(sub[c].values, dtype=np.float64)
+            vals = np.where(vals > 1e6, vals, np.nan)  # zero/blank fields are missing
+            take = np.isnan(pr[:, cols]) & np.isfinite(vals)
+            block = pr[:, cols]
+            block[take] = vals[take]
+            pr[:, cols] = block
+            cblock = code[:, cols]
+            cblock[take] = c
+            code[:, cols] = cblock
+    have = np.isfinite(pr).any(axis=0)
+    order = np.argsort(svs[have], kind="stable")
+    return Pseudoranges(t, svs[have][order], pr[:, have][:, order], code[:, have][:, order])

@@ -1,0 +1,1 @@
+"""Input and output: RINEX in (validated xarray datasets), tables out."""

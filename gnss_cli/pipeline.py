@@ -1,0 +1,472 @@
+"""Files -> epochs -> solutions: the per-epoch positioning run (no terminal I/O).
+
+For every method the same Gauss-Newton iteration runs on all epochs at once (DESIGN.md
+section 2): linearize the pseudoranges at the current position, solve the linear step with
+the method, update, until the step is below ``convergence_m``. Corrections (Klobuchar,
+Saastamoinen), the elevation mask and the weights are evaluated at the current position
+once it is near the Earth's surface (the first iterations from the Earth's centre use none
+of them, as in RTKLIB).
+
+Observations are padded to a common satellite axis; rows of unusable satellites are masked,
+so every epoch is one slice of stacked ``(T, n, 4)`` arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.constants import C_M_S
+from gnss_cli.errors import NoSolutionError, RinexFormatError
+from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
+from gnss_cli.gnss.ephemeris import KeplerEphemeris, select_ephemeris
+from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
+from gnss_cli.gnss.geometry import sagnac_range
+from gnss_cli.gnss.observables import DEFAULT_SIGNAL_PRIORITY, codes_for, select_pseudoranges
+from gnss_cli.gnss.orbits import transmit_time_states
+from gnss_cli.gnss.time import gps_s2datetime
+from gnss_cli.io.rinex import klobuchar_coefficients, read_nav, read_obs
+from gnss_cli.solvers import Status, solve_batch
+from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
+
+F64 = NDArray[np.float64]
+Progress = Callable[[str, float], None]
+
+# Methods whose definition includes row weights get the configured pseudorange variances.
+WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
+# URA index table of IS-GPS-200 (m), as RTKLIB uses it for the ephemeris variance.
+_URA_TABLE_M = np.array([2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0])
+_EARTH_SURFACE_BAND_M = (6.0e6, 7.0e6)
+
+STATUS_OK = "ok"
+
+
+@dataclass(frozen=True)
+class EpochData:
+    """Everything the estimators need, prepared once per run.
+
+    Attributes
+    ----------
+    time_gps_s : ``(T,)`` epochs, s since the GPS epoch.
+    sv : ``(n,)`` satellite ids.
+    pr_corrected_m : ``(T, n)`` pseudorange + c (satellite clock - TGD), m (NaN = unusable).
+    sat_ecef_m : ``(T, n, 3)`` satellite positions at transmit time, m.
+    ura_m : ``(T, n)`` broadcast URA, m.
+    usable : ``(T, n)`` observation with a usable ephemeris.
+    klobuchar : ``(alpha, beta)`` or None.
+    approx_ecef_m : ``(3,)`` header approximate position or None.
+    marker_name : from the observation header.
+    """
+
+    time_gps_s: F64
+    sv: NDArray[np.str_]
+    pr_corrected_m: F64
+    sat_ecef_m: F64
+    ura_m: F64
+    usable: NDArray[np.bool_]
+    klobuchar: tuple[F64, F64] | None
+    approx_ecef_m: F64 | None
+    marker_name: str = ""
+    obs_path: str = ""
+    nav_paths: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class MethodSolution:
+    """Per-epoch results of one method.
+
+    Attributes
+    ----------
+    method : registry key.
+    x_ecef_m : ``(T, 3)`` receiver positions (NaN where the epoch failed).
+    clock_m : ``(T,)`` receiver clock bias, m.
+    n_sat : ``(T,)`` satellites used.
+    gdop, pdop, hdop, vdop, tdop : ``(T,)`` DOPs from the method's noise gain ``J J^T``
+        at the solution, position rotated to local ENU (unitless).
+    gdop_paper : ``(T,)`` for TLS: the paper's ``(A^T A - s^2 I)^-1 A^T A (...)^-1``; else None.
+    cov_m2 : ``(T, 4, 4)`` the estimator covariance ``J Sigma J^T`` for the configured
+        pseudorange variances (ECEF position, clock), m^2.
+    status : ``(T,)`` status words (``ok``, ``iteration_limit``, ``too_few_satellites``, ...).
+    iterations : ``(T,)`` Gauss-Newton iterations.
+    residuals_m : ``(T, n)`` post-fit residuals of the used rows (NaN elsewhere).
+    """
+
+    method: str
+    x_ecef_m: F64
+    clock_m: F64
+    n_sat: NDArray[np.int64]
+    gdop: F64
+    pdop: F64
+    hdop: F64
+    vdop: F64
+    tdop: F64
+    gdop_paper: F64 | None
+    cov_m2: F64
+    status: NDArray[np.str_]
+    iterations: NDArray[np.int64]
+    residuals_m: F64
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """A whole run: the prepared epochs and one solution per method."""
+
+    epochs: EpochData
+    solutions: dict[str, MethodSolution] = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return self.epochs.warnings
+
+
+def _status_word(code: int) -> str:
+    try:
+        return Status(code).name.lower()
+    except ValueError:
+        return f"status_{code}"
+
+
+def load_epochs(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig) -> EpochData:
+    """Read and validate the files, select pseudoranges, and compute satellite states.
+
+    Raises
+    ------
+    InputError
+        Unreadable, malformed or mismatched files (no common time span, no ephemeris).
+    """
+    systems = list(config.systems)
+    priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
+    obs = read_obs(obs_path, systems=systems, codes=codes_for(systems, priority))
+    nav = read_nav(list(nav_paths), systems=systems)
+    nav_name = ",".join(Path(p).name for p in nav_paths)
+    warnings: list[str] = []
+
+    prs = select_pseudoranges(obs, systems, priority)
+    if prs.sv.size == 0:
+        raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, priority))})")
+    eph = KeplerEphemeris.from_dataset(nav, "G")
+    if len(eph) == 0:
+        raise RinexFormatError(f"{nav_name}: no GPS ephemeris records")
+    t = prs.time_gps_s
+    t_lo, t_hi = eph.toe_gps_s.min() - 4 * 3600.0, eph.toe_gps_s.max() + 4 * 3600.0
+    if t.max() < t_lo or t.min() > t_hi:
+        span = lambda a, b: f"{np.datetime_as_string(gps_s2datetime(a), 'm')} to {np.datetime_as_string(gps_s2datetime(b), 'm')}"  # noqa: E731
+        raise RinexFormatError(
+            f"{nav_name}: no common time span with {Path(obs_path).name} "
+            f"(observations {span(t.min(), t.max())}, ephemerides {span(eph.toe_gps_s.min(), eph.toe_gps_s.max())} GPST)"
+        )
+    idx = select_ephemeris(eph, prs.sv, t, healthy_only=config.healthy_only)
+    have_obs = np.isfinite(prs.pr_m)
+    usable = have_obs & (idx >= 0)
+    if not usable.any():
+        raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {Path(obs_path).name}")
+    missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~usable.any(axis=0)]))
+    if missing:
+        warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
+    idx = np.where(usable, idx, -1)
+    states = transmit_time_states(eph, idx, t[:, None], np.where(usable, prs.pr_m, np.nan))
+    pr_corr = prs.pr_m + C_M_S * (states.clock_s - states.tgd_s)
+    pr_corr = np.where(usable, pr_corr, np.nan)
+    ura = np.where(usable, eph.ura_m[np.where(idx >= 0, idx, 0)] if eph.ura_m is not None else np.nan, np.nan)
+    klob = klobuchar_coefficients(nav)
+    if klob is None and config.iono == "klobuchar":
+        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; continuing without ionospheric correction")
+    approx = np.asarray(obs.attrs.get("position", []) or [], dtype=np.float64).ravel()
+    approx_ok = approx.size == 3 and _EARTH_SURFACE_BAND_M[0] < np.linalg.norm(approx) < _EARTH_SURFACE_BAND_M[1]
+    return EpochData(
+        time_gps_s=t,
+        sv=prs.sv,
+        pr_corrected_m=pr_corr,
+        sat_ecef_m=states.pos_ecef_m,
+        ura_m=ura,
+        usable=usable,
+        klobuchar=klob,
+        approx_ecef_m=approx if approx_ok else None,
+        marker_name=str(obs.attrs.get("marker_name", "") or ""),
+        obs_path=str(obs_path),
+        nav_paths=tuple(str(p) for p in nav_paths),
+        warnings=tuple(warnings),
+    )
+
+
+def _ura_from_index_table(ura_m: F64) -> F64:
+    """Broadcast URA (m) rounded up to the IS-GPS-200 URA table, as RTKLIB does; NaN -> 2.4 m."""
+    u = np.where(np.isfinite(ura_m), ura_m, 0.0)
+    k = np.searchsorted(_URA_TABLE_M, u - 1e-9)
+    return np.where(k < _URA_TABLE_M.size, _URA_TABLE_M[np.minimum(k, _URA_TABLE_M.size - 1)], 6144.0)
+
+
+def pseudorange_variance_m2(config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64) -> F64:
+    """Pseudorange variances (m^2) of the configured weight model (see ``configs/default.toml``)."""
+    w = config.weights
+    sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))
+    if w.model == "equal":
+        return np.full_like(el_rad, w.a_m**2)
+    if w.model == "elevation":
+        return w.a_m**2 + w.b_m**2 / sin_el**2
+    var = w.a_m**2 + w.b_m**2 / sin_el
+    var = var + _ura_from_index_table(ura_m) ** 2 + w.code_bias_m**2
+    var = var + ((w.iono_factor * iono_m) ** 2 if config.iono == "klobuchar" else w.iono_off_sigma_m**2)
+    var = var + ((w.saas_sigma_m / (sin_el + 0.1)) ** 2 if config.tropo == "saastamoinen" else w.tropo_off_sigma_m**2)
+    return var
+
+
+@dataclass
+class _Linearization:
+    A: F64
+    q: F64
+    mask: NDArray[np.bool_]
+    var_m2: F64
+    unit: F64
+    range_m: F64
+    rot: F64
+
+
+def _linearize(data: EpochData, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig) -> _Linearization:
+    sat = data.sat_ecef_m[rows]
+    usable = data.usable[rows]
+    sat_safe = np.where(usable[..., None], sat, 0.0)
+    rng, unit = sagnac_range(np.where(usable[..., None], sat_safe, x[:, None, :] + 1.0), x)
+    radius = np.linalg.norm(x, axis=1)
+    near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
+    lat, lon, h = ecef2geodetic(x)
+    rot = ecef2enu_rotation(lat, lon)
+    los_enu = np.einsum("tij,tnj->tni", rot, unit)
+    az, el = azimuth_elevation(los_enu)
+    mask = usable & (~near[:, None] | (el >= np.deg2rad(config.elevation_mask_deg)))
+    iono = np.zeros_like(rng)
+    tropo = np.zeros_like(rng)
+    if config.iono == "klobuchar" and data.klobuchar is not None:
+        alpha, beta = data.klobuchar
+        iono = klobuchar_delay_m(alpha, beta, lat[:, None], lon[:, None], az, el, data.time_gps_s[rows][:, None])
+    if config.tropo == "saastamoinen":
+        tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el)
+    iono = np.where(near[:, None] & mask, iono, 0.0)
+    tropo = np.where(near[:, None] & mask, tropo, 0.0)
+    q = data.pr_corrected_m[rows] - (rng + b[:, None] + iono + tropo)
+    A = np.concatenate([-unit, np.ones_like(rng)[..., None]], axis=-1)
+    var = np.where(near[:, None], pseudorange_variance_m2(config, el, data.ura_m[rows], iono), 1.0)
+    q = np.where(mask, q, 0.0)
+    A = np.where(mask[..., None], A, 0.0)
+    return _Linearization(A, q, mask, np.where(mask, var, 1.0), unit, rng, rot)
+
+
+def _stls_row_cov(lin: _Linearization, config: ProcessingConfig) -> F64:
+    """Row covariances ``(T, n, 4, 4)`` of ``[e_x, e_y, e_z, q]`` for single-epoch STLS."""
+    var_orb = config.orbit_sigma_m**2 / 3.0
+    unit = lin.unit
+    perp = np.eye(3) - unit[..., :, None] * unit[..., None, :]
+    T, n = lin.q.shape
+    cov = np.zeros((T, n, 4, 4))
+    cov[..., :3, :3] = var_orb * perp / np.maximum(lin.range_m, 1.0)[..., None, None] ** 2
+    cov[..., 3, 3] = lin.var_m2 + var_orb
+    return cov
+
+
+ITERATED_METHODS = frozenset({"ls", "wls"})
+
+
+def _solver_options(method: str, lin: _Linearization, config: ProcessingConfig) -> dict[str, object]:
+    kwargs: dict[str, object] = {}
+    if method in WEIGHTED_METHODS:
+        kwargs["weights"] = 1.0 / lin.var_m2
+    if method in ("mtls", "stls"):
+        kwargs["exact_columns"] = [3]
+    if method == "stls":
+        kwargs.pop("weights", None)
+        kwargs["row_cov"] = _stls_row_cov(lin, config)
+    return kwargs
+
+
+def solve_method(
+    data: EpochData,
+    method: str,
+    config: ProcessingConfig,
+    progress: Progress | None = None,
+    linearization: MethodSolution | None = None,
+) -> MethodSolution:
+    """Solve every epoch with one method of the solver family.
+
+    ``ls`` and ``wls`` iterate Gauss-Newton to convergence (DESIGN.md section 2). The other
+    methods solve the linear system once, linearized at the converged WLS fix
+    (``linearization``; computed when not given): iterating them with their own steps does
+    not work on pseudorange data. TLS, DLS, MTLS and WTLS treat the unit-vector columns of
+    ``A`` as being as noisy as the pseudoranges in metres, so ``sigma_min(A) < sigma_min([A q])``
+    and the iteration overshoots without converging (measured on rtklib-0759: no epoch
+    converged in 60 iterations); where the steps do vanish (TLS, MTLS, STLS) they vanish at
+    the (W)LS point. One solve at a common linearization point is what tells the estimators
+    apart, and it is the comparison the paper makes.
+
+    Returns
+    -------
+    MethodSolution
+        Failed epochs keep a row: NaN position and a status word.
+    """
+    if method not in ITERATED_METHODS:
+        base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
+        return _solve_once(data, method, config, base)
+    T = data.time_gps_s.size
+    n = data.sv.size
+    x = np.zeros((T, 3))
+    if data.approx_ecef_m is not None:
+        x[:] = data.approx_ecef_m
+    b = np.zeros(T)
+    status = np.full(T, "iteration_limit", dtype="<U24")
+    iterations = np.zeros(T, dtype=np.int64)
+    active = np.ones(T, dtype=bool)
+    out = _Accumulator(T, n, method)
+    n_min = config.min_satellites
+    for it in range(config.max_iterations):
+        rows = np.flatnonzero(active)
+        if rows.size == 0:
+            break
+        lin = _linearize(data, rows, x[rows], b[rows], config)
+        n_used = lin.mask.sum(axis=1)
+        enough = n_used >= n_min
+        res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
+        ok = (res.status > 0) & enough
+        step = np.where(ok[:, None], res.x, 0.0)
+        x[rows] += step[:, :3]
+        b[rows] += step[:, 3]
+        iterations[rows] = it + 1
+        radius = np.linalg.norm(x[rows], axis=1)
+        near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
+        converged = ok & near & (np.linalg.norm(step, axis=1) < config.convergence_m)
+        out.record(rows, lin, res, n_used)
+        _set_status(status, rows, converged, enough, ok, res.status)
+        active[rows[converged | ~ok]] = False
+        if progress is not None:
+            progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
+    return out.finish(x, b, status, iterations)
+
+
+def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDArray[np.bool_],
+                enough: NDArray[np.bool_], ok: NDArray[np.bool_], codes: NDArray[np.int8]) -> None:
+    status[rows[converged]] = STATUS_OK
+    status[rows[~enough]] = "too_few_satellites"
+    solver_failed = ~ok & enough
+    for r, code in zip(rows[solver_failed], codes[solver_failed]):
+        status[r] = _status_word(int(code))
+
+
+def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
+    T, n = data.time_gps_s.size, data.sv.size
+    x = base.x_ecef_m.copy()
+    b = base.clock_m.copy()
+    status = base.status.copy()
+    iterations = np.where(status == STATUS_OK, 1, 0).astype(np.int64)
+    out = _Accumulator(T, n, method)
+    rows = np.flatnonzero(status == STATUS_OK)
+    if rows.size:
+        lin = _linearize(data, rows, x[rows], b[rows], config)
+        n_used = lin.mask.sum(axis=1)
+        enough = n_used >= config.min_satellites
+        res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
+        ok = (res.status > 0) & enough
+        step = np.where(ok[:, None], res.x, 0.0)
+        x[rows] += step[:, :3]
+        b[rows] += step[:, 3]
+        out.record(rows, lin, res, n_used)
+        _set_status(status, rows, ok, enough, ok, res.status)
+    return out.finish(x, b, status, iterations)
+
+
+class _Accumulator:
+    """Keeps the last linear-step quantities of every epoch and builds the MethodSolution."""
+
+    def __init__(self, T: int, n: int, method: str) -> None:
+        self.method = method
+        self.cov = np.full((T, 4, 4), np.nan)
+        self.gain_q = np.full((T, 4, 4), np.nan)
+        self.paper_cov = np.full((T, 4, 4), np.nan) if method == "tls" else None
+        self.residuals = np.full((T, n), np.nan)
+        self.n_sat = np.zeros(T, dtype=np.int64)
+        self.rot = np.full((T, 3, 3), np.nan)
+
+    def record(self, rows: NDArray[np.intp], lin: _Linearization, res, n_used: NDArray[np.int64]) -> None:  # type: ignore[no-untyped-def]
+        self.cov[rows] = res.cov
+        self.gain_q[rows] = np.einsum("tmn,tkn->tmk", res.gain, res.gain)
+        if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
+            self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
+        self.residuals[rows] = np.where(lin.mask, res.residuals, np.nan)
+        self.n_sat[rows] = n_used
+        self.rot[rows] = lin.rot
+
+    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
+        bad = status != STATUS_OK
+        x = np.where(bad[:, None], np.nan, x)
+        b = np.where(bad, np.nan, b)
+        gain_q = np.where(bad[:, None, None], np.eye(4), self.gain_q)
+        rot = np.where(bad[:, None, None], np.eye(3), self.rot)
+        dop = dop_from_cov(gain_q, rot)
+        gdop_paper = None
+        if self.paper_cov is not None:
+            gdop_paper = np.sqrt(np.clip(np.trace(self.paper_cov, axis1=1, axis2=2), 0.0, None))
+            gdop_paper = np.where(bad, np.nan, gdop_paper)
+
+        def masked(v: F64) -> F64:
+            return np.where(bad, np.nan, v)
+
+        return MethodSolution(
+            method=self.method,
+            x_ecef_m=x,
+            clock_m=b,
+            n_sat=self.n_sat,
+            gdop=masked(dop.gdop),
+            pdop=masked(dop.pdop),
+            hdop=masked(dop.hdop),
+            vdop=masked(dop.vdop),
+            tdop=masked(dop.tdop),
+            gdop_paper=gdop_paper,
+            cov_m2=np.where(bad[:, None, None], np.nan, self.cov),
+            status=status,
+            iterations=iterations,
+            residuals_m=np.where(bad[:, None], np.nan, self.residuals),
+        )
+
+
+def run(
+    obs_path: str | Path,
+    nav_paths: Sequence[str | Path],
+    config: ProcessingConfig,
+    progress: Progress | None = None,
+) -> RunResult:
+    """Read, validate and solve every epoch with every configured method.
+
+    Raises
+    ------
+    InputError
+        Bad input files.
+    NoSolutionError
+        No epoch could be solved by any method.
+    """
+    if progress:
+        progress("reading", 0.0)
+    data = load_epochs(obs_path, nav_paths, config)
+    solutions: dict[str, MethodSolution] = {}
+    base: MethodSolution | None = None
+    for m in config.methods:
+        if progress:
+            progress(f"solving {m}", 0.0)
+        if m not in ITERATED_METHODS and base is None:
+            base = solutions.get("wls") or solve_method(data, "wls", config, progress)
+        solutions[m] = solve_method(data, m, config, progress, linearization=base)
+        if m == "wls":
+            base = solutions[m]
+    if not any((s.status == STATUS_OK).any() for s in solutions.values()):
+        raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({_status_summary(solutions)})")
+    return RunResult(data, solutions)
+
+
+def _status_summary(solutions: dict[str, MethodSolution]) -> str:
+    parts = []
+    for m, s in solutions.items():
+        words, counts = np.unique(s.status, return_counts=True)
+        parts.append(f"{m}: " + ", ".join(f"{c} {w}" for w, c in zip(words, counts)))
+    return "; ".join(parts)

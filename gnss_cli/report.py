@@ -1,0 +1,208 @@
+"""Solutions -> tables and statistics (pandas lives here and in io, not in the numerics).
+
+Tables
+------
+positions : one row per epoch and method (the default CSV).
+errors    : E/N/U and 3D errors against a reference (m).
+dop       : satellites used and the five DOPs (+ ``gdop_paper`` for TLS).
+summary   : one row per method: epochs, mean/std/RMS of E, N, U, 3D errors, the E/N/U
+            error covariance, mean/median/max of every DOP.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from gnss_cli.errors import ConfigError, InputFileNotFoundError
+from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
+from gnss_cli.gnss.time import gps_s2datetime, gps_s2week_tow
+from gnss_cli.pipeline import STATUS_OK, MethodSolution, RunResult
+
+F64 = NDArray[np.float64]
+
+POSITION_COLUMNS = [
+    "time", "gps_week", "tow_s", "method", "x_m", "y_m", "z_m", "lat_deg", "lon_deg", "height_m",
+    "clock_m", "n_sat", "gdop", "pdop", "hdop", "vdop", "tdop", "status",
+]
+ERROR_COLUMNS = ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"]
+DOP_NAMES = ["gdop", "pdop", "hdop", "vdop", "tdop"]
+FLOAT_FORMATS = {
+    "tow_s": "{:.3f}", "x_m": "{:.4f}", "y_m": "{:.4f}", "z_m": "{:.4f}", "lat_deg": "{:.9f}",
+    "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}",
+}
+
+
+def enu_errors(x_ecef_m: F64, reference_ecef_m: F64) -> F64:
+    """E/N/U errors ``(T, 3)`` (m) of positions against a reference ``(3,)`` or ``(T, 3)``.
+
+    The rotation is taken at the reference point (each epoch's, for a moving reference).
+    """
+    ref = np.broadcast_to(np.asarray(reference_ecef_m, dtype=np.float64), x_ecef_m.shape)
+    lat, lon, _ = ecef2geodetic(ref)
+    rot = ecef2enu_rotation(lat, lon)
+    return np.einsum("tij,tj->ti", rot, x_ecef_m - ref)
+
+
+def _iso(t_gps_s: F64) -> NDArray[np.str_]:
+    return np.datetime_as_string(gps_s2datetime(t_gps_s), unit="ms")
+
+
+def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
+    """One row per epoch and method (see the README for every column and unit)."""
+    t = result.epochs.time_gps_s
+    week, tow = gps_s2week_tow(t)
+    iso = _iso(t)
+    frames = []
+    with_paper = "tls" in result.solutions
+    for method, s in result.solutions.items():
+        lat, lon, h = ecef2geodetic(s.x_ecef_m)
+        df = pd.DataFrame(
+            {
+                "time": iso, "gps_week": week, "tow_s": tow, "method": method,
+                "x_m": s.x_ecef_m[:, 0], "y_m": s.x_ecef_m[:, 1], "z_m": s.x_ecef_m[:, 2],
+                "lat_deg": np.rad2deg(lat), "lon_deg": np.rad2deg(lon), "height_m": h,
+                "clock_m": s.clock_m, "n_sat": s.n_sat,
+                "gdop": s.gdop, "pdop": s.pdop, "hdop": s.hdop, "vdop": s.vdop, "tdop": s.tdop,
+                "status": s.status,
+            }
+        )
+        if with_paper:
+            df.insert(df.columns.get_loc("status"), "gdop_paper", s.gdop_paper if s.gdop_paper is not None else np.nan)
+        if reference_ecef_m is not None:
+            enu = enu_errors(s.x_ecef_m, reference_ecef_m)
+            df["e_err_m"], df["n_err_m"], df["u_err_m"] = enu[:, 0], enu[:, 1], enu[:, 2]
+            df["err_3d_m"] = np.linalg.norm(enu, axis=1)
+        frames.append(df)
+    return pd.concat(frames, ignore_index=True)
+
+
+def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
+    """One row per method: error statistics (m, m^2) and DOP statistics over solved epochs."""
+    rows = []
+    for method, s in result.solutions.items():
+        ok = s.status == STATUS_OK
+        row: dict[str, object] = {"method": method, "epochs": int(s.status.size), "epochs_solved": int(ok.sum())}
+        if reference_ecef_m is not None:
+            enu = enu_errors(s.x_ecef_m, reference_ecef_m)[ok]
+            err3 = np.linalg.norm(enu, axis=1)
+            for k, name in enumerate("enu"):
+                row[f"mean_{name}_m"] = _stat(np.mean, enu[:, k])
+                row[f"std_{name}_m"] = _stat(np.std, enu[:, k])
+                row[f"rms_{name}_m"] = _stat(lambda v: np.sqrt(np.mean(v**2)), enu[:, k])
+            row["mean_3d_m"] = _stat(np.mean, err3)
+            row["std_3d_m"] = _stat(np.std, err3)
+            row["rms_3d_m"] = _stat(lambda v: np.sqrt(np.mean(v**2)), err3)
+            cov = np.cov(enu.T, ddof=0) if enu.shape[0] > 1 else np.full((3, 3), np.nan)
+            for i, a in enumerate("enu"):
+                for j, b in enumerate("enu"):
+                    if j >= i:
+                        row[f"cov_{a}{b}_m2"] = cov[i, j]
+        dops = {d: getattr(s, d) for d in DOP_NAMES}
+        if s.gdop_paper is not None:
+            dops["gdop_paper"] = s.gdop_paper
+        for d, v in dops.items():
+            v = v[ok]
+            row[f"mean_{d}"] = _stat(np.mean, v)
+            row[f"median_{d}"] = _stat(np.median, v)
+            row[f"max_{d}"] = _stat(np.max, v)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _stat(fn, v: F64) -> float:  # type: ignore[no-untyped-def]
+    v = v[np.isfinite(v)]
+    return float(fn(v)) if v.size else float("nan")
+
+
+def to_csv_text(df: pd.DataFrame) -> str:
+    """CSV text with fixed float formats, empty cells for missing values, header always."""
+    out = df.copy()
+    for col in out.columns:
+        if out[col].dtype.kind == "f":
+            fmt = FLOAT_FORMATS.get(col, "{:.3f}" if col in DOP_NAMES or col == "gdop_paper" else "{:.4f}")
+            vals = out[col].to_numpy()
+            out[col] = [fmt.format(v) if np.isfinite(v) else "" for v in vals]
+    return out.to_csv(index=False, lineterminator="\n")
+
+
+def write_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename (no half-written file)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def parse_reference(text: str) -> F64:
+    """``"X,Y,Z"`` (ECEF m) -> ``(3,)``; raises :class:`ConfigError`."""
+    try:
+        vals = np.array([float(v) for v in text.replace(" ", "").split(",")])
+    except ValueError:
+        raise ConfigError(f"--reference: expected X,Y,Z in metres; received {text!r}") from None
+    if vals.size != 3 or not np.all(np.isfinite(vals)) or not 6.0e6 < np.linalg.norm(vals) < 7.0e6:
+        raise ConfigError(f"--reference: expected an ECEF position X,Y,Z near the Earth's surface (m); received {text!r}")
+    return vals
+
+
+def reference_from_sinex(path: str | Path, station: str) -> F64:
+    """Station ECEF position (m) from a SINEX ``SOLUTION/ESTIMATE`` block (STAX/STAY/STAZ).
+
+    ``station`` is matched on its first four characters, case-insensitively.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileNotFoundError(f"{p}: no such SINEX file")
+    code = station.strip()[:4].upper()
+    if len(code) < 4:
+        raise ConfigError(f"--reference-sinex: the observation file's marker name {station!r} is not a 4-character station code")
+    found: dict[str, float] = {}
+    inside = False
+    with open(p, errors="replace") as f:
+        for line in f:
+            if line.startswith("+SOLUTION/ESTIMATE"):
+                inside = True
+                continue
+            if line.startswith("-SOLUTION/ESTIMATE"):
+                break
+            if inside and not line.startswith("*"):
+                parts = line.split()
+                if len(parts) >= 9 and parts[1] in ("STAX", "STAY", "STAZ") and parts[2].upper() == code:
+                    found.setdefault(parts[1], float(parts[8]))
+    if len(found) != 3:
+        raise ConfigError(f"{p}: station {code} not found in SOLUTION/ESTIMATE")
+    return np.array([found["STAX"], found["STAY"], found["STAZ"]])
+
+
+def errors_table(positions: pd.DataFrame) -> pd.DataFrame:
+    return positions[["time", "gps_week", "tow_s", "method", *ERROR_COLUMNS, "status"]]
+
+
+def dop_table(positions: pd.DataFrame) -> pd.DataFrame:
+    cols = ["time", "gps_week", "tow_s", "method", "n_sat", *DOP_NAMES]
+    if "gdop_paper" in positions:
+        cols.append("gdop_paper")
+    return positions[[*cols, "status"]]
+
+
+def method_solution_ok(s: MethodSolution) -> NDArray[np.bool_]:
+    return s.status == STATUS_OK
+
+
+__all__: Sequence[str] = [
+    "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text", "write_atomic",
+    "parse_reference", "reference_from_sinex", "enu_errors",
+]
