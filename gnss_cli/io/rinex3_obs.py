@@ -124,23 +124,26 @@ def parse_uint_columns(chars: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDA
     Parameters
     ----------
     chars : numpy.ndarray of uint8, shape (n, width)
-        One field per row: leading blanks then at least one digit.
+        One field per row: one run of digits with blanks before or after it.
 
     Returns
     -------
     values : numpy.ndarray of int64, shape (n,)
         Decoded integers (0 where invalid).
     ok : numpy.ndarray of bool, shape (n,)
-        False where the field is blank or holds anything but leading blanks and digits.
+        False where the field is blank or holds anything but one run of digits and blanks.
     """
     is_digit = (chars >= _DIGIT0) & (chars <= _DIGIT0 + 9)
     is_space = chars == _SPACE
-    # digits must form one right-aligned run: once a digit appears, no blank may follow
-    seen_digit = np.cumsum(is_digit, axis=1) > 0
-    ok = np.all(is_digit | (is_space & ~seen_digit), axis=1) & is_digit[:, -1]
+    # exactly one run of digits, blanks around it (trailing blanks occur in the wild
+    # when a line is cut short, e.g. '  0 2' for flag 0 and 2 satellites)
+    run_starts = np.count_nonzero(is_digit[:, 1:] & ~is_digit[:, :-1], axis=1) + is_digit[:, 0]
+    ok = np.all(is_digit | is_space, axis=1) & (run_starts == 1)
     digits = np.where(is_digit, chars - _DIGIT0, 0).astype(np.int64)
+    # the value is the digit run read right-aligned: drop the trailing blanks' weights
+    n_trailing = np.argmax(is_digit[:, ::-1], axis=1)
     weights = 10 ** np.arange(chars.shape[1] - 1, -1, -1, dtype=np.int64)
-    return digits @ weights, ok
+    return (digits @ weights) // 10 ** n_trailing.astype(np.int64), ok
 
 
 def civil2datetime64(
