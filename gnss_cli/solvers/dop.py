@@ -82,8 +82,8 @@ def dop_from_cov(
     Examples
     --------
     >>> import numpy as np
-    >>> dop_from_cov(np.diag([1.0, 1.0, 4.0, 1.0])).vdop
-    array(2.)
+    >>> float(dop_from_cov(np.diag([1.0, 1.0, 4.0, 1.0])).vdop)
+    2.0
     """
     Q = np.asarray(cov, dtype=np.float64)
     if Q.ndim < 2 or Q.shape[-1] != Q.shape[-2] or Q.shape[-1] < 4:
