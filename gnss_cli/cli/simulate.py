@@ -1,0 +1,130 @@
+"""``gnss-simulate``: write simulated RINEX observation and navigation files with their truth.
+
+A thin shell over :mod:`gnss_cli.sim.scenario`: options -> :class:`ScenarioConfig`
+(flags > ``--config`` TOML > built-in defaults, which equal ``configs/simulate.toml``),
+then ``run_scenario`` and ``write_scenario``. The list of files written goes to stderr
+unless ``--quiet``.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from gnss_cli.cli.exits import run_app
+from gnss_cli.errors import UsageError
+from gnss_cli.sim.error_sources import parse_error_list
+from gnss_cli.sim.scenario import ScenarioConfig, load_config, parse_systems, run_scenario, write_scenario
+
+app = typer.Typer(add_completion=False, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
+
+_RINEX_VERSIONS = {"3": "3.04", "3.04": "3.04", "3.05": "3.05", "2": "2.11", "2.11": "2.11"}
+
+
+@app.command()
+def simulate(
+    out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
+    trajectory: Annotated[Optional[str], typer.Option(help="static | flight | semicircle | csv:FILE")] = None,
+    start: Annotated[Optional[str], typer.Option(help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
+    duration: Annotated[Optional[float], typer.Option(help="Duration, s.")] = None,
+    interval: Annotated[Optional[float], typer.Option(help="Epoch interval, s.")] = None,
+    systems: Annotated[Optional[str], typer.Option(help="Systems, comma list of G, E, C.")] = None,
+    seed: Annotated[Optional[int], typer.Option(help="Seed of the random generator.")] = None,
+    errors: Annotated[
+        Optional[str],
+        typer.Option(help="none | all | comma list of clock,noise,iono,tropo,orbit,multipath,outliers."),
+    ] = None,
+    noise_sigma: Annotated[Optional[float], typer.Option(help="Zenith std of the white pseudorange noise, m.")] = None,
+    noise_model: Annotated[
+        Optional[str], typer.Option(help="elevation (sigma grows as 1/sin el) | constant.")
+    ] = None,
+    orbit_rms: Annotated[Optional[float], typer.Option(help="3-D RMS of the broadcast orbit error, m.")] = None,
+    iono_factor: Annotated[Optional[float], typer.Option(help="True ionosphere / Klobuchar.")] = None,
+    outlier_sats: Annotated[Optional[str], typer.Option(help="Satellites with injected outliers, e.g. G05,G07.")] = None,
+    outlier_m: Annotated[Optional[float], typer.Option(help="Outlier size, m.")] = None,
+    elevation_mask: Annotated[Optional[float], typer.Option(help="Elevation mask of what is written, deg.")] = None,
+    position: Annotated[
+        Optional[str], typer.Option(help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
+    ] = None,
+    rinex_version: Annotated[Optional[str], typer.Option(help="3 (3.04), 3.05 or 2 (2.11).")] = None,
+    dual_frequency: Annotated[
+        Optional[bool], typer.Option("--dual-frequency/--single-frequency", help="Also C2W / C7Q / C7I.")
+    ] = None,
+    truth_ranges: Annotated[
+        Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", help="Also write truth_ranges.csv.")
+    ] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML settings (see configs/simulate.toml).")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No summary on stderr.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="Tracebacks for internal errors.")] = False,
+) -> None:
+    """Write obs.rnx, nav.rnx and truth.csv for a simulated receiver."""
+    cfg = load_config(config) if config is not None else ScenarioConfig()
+    changes: dict[str, object] = {}
+    if trajectory is not None:
+        changes["trajectory"] = trajectory
+    if start is not None:
+        changes["start"] = start
+    if duration is not None:
+        changes["duration_s"] = duration
+    if interval is not None:
+        changes["interval_s"] = interval
+    if systems is not None:
+        changes["systems"] = parse_systems(systems)
+    if seed is not None:
+        changes["seed"] = seed
+    if elevation_mask is not None:
+        changes["elevation_mask_deg"] = elevation_mask
+    if position is not None:
+        parts = position.split(",")
+        try:
+            lat, lon, h = (float(v) for v in parts)
+        except ValueError as exc:
+            raise UsageError(f"--position: expected LAT_DEG,LON_DEG,HEIGHT_M, got {position!r}") from exc
+        changes.update(latitude_deg=lat, longitude_deg=lon, height_m=h)
+    if rinex_version is not None:
+        if rinex_version not in _RINEX_VERSIONS:
+            raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
+        changes["rinex_version"] = _RINEX_VERSIONS[rinex_version]
+    if dual_frequency is not None:
+        changes["layout"] = replace(cfg.layout, dual_frequency=dual_frequency)
+    if truth_ranges is not None:
+        changes["truth_ranges"] = truth_ranges
+    err = cfg.errors
+    if errors is not None:
+        err = err.with_sources(parse_error_list(errors))
+    if noise_sigma is not None:
+        err = replace(err, noise_sigma_m=noise_sigma)
+    if noise_model is not None:
+        if noise_model not in ("elevation", "constant"):
+            raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
+        err = replace(err, noise_elevation_dependent=noise_model == "elevation")
+    if orbit_rms is not None:
+        err = replace(err, orbit_rms_m=orbit_rms)
+    if iono_factor is not None:
+        err = replace(err, iono_factor=iono_factor)
+    if outlier_sats is not None:
+        err = replace(err, outlier_sats=tuple(s.strip().upper() for s in outlier_sats.split(",") if s.strip()))
+    if outlier_m is not None:
+        err = replace(err, outlier_m=outlier_m)
+    cfg = replace(cfg, errors=err, **changes)  # type: ignore[arg-type]
+    scenario = run_scenario(cfg)
+    written = write_scenario(scenario, out_dir)
+    if not quiet:
+        n_obs = int(scenario.observations.visible.sum())
+        sys.stderr.write(
+            f"gnss-simulate: {scenario.observations.t_gps_s.size} epochs, {n_obs} satellite observations, "
+            f"errors: {','.join(sorted(cfg.errors.enabled)) or 'none'}; wrote {', '.join(str(p) for p in written)}\n"
+        )
+
+
+def main() -> None:
+    """Console-script entry point."""
+    run_app(app, "gnss-simulate")
+
+
+if __name__ == "__main__":
+    main()
