@@ -13,6 +13,8 @@ so every epoch is one slice of stacked ``(T, n, 4)`` arrays.
 
 from __future__ import annotations
 
+import time
+
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -132,14 +134,22 @@ def _status_word(code: int) -> str:
         return f"status_{code}"
 
 
-def load_epochs(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig) -> EpochData:
+def load_epochs(
+    obs_path: str | Path,
+    nav_paths: Sequence[str | Path],
+    config: ProcessingConfig,
+    timings: dict[str, float] | None = None,
+) -> EpochData:
     """Read and validate the files, select pseudoranges, and compute satellite states.
+
+    ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
 
     Raises
     ------
     InputError
         Unreadable, malformed or mismatched files (no common time span, no ephemeris).
     """
+    clock = time.perf_counter()
     systems = list(config.systems)
     priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
     obs = read_obs(obs_path, systems=systems, codes=codes_for(systems, priority))
@@ -147,6 +157,9 @@ def load_epochs(obs_path: str | Path, nav_paths: Sequence[str | Path], config: P
     nav_name = ",".join(Path(p).name for p in nav_paths)
     warnings: list[str] = []
 
+    if timings is not None:
+        timings["read"] = time.perf_counter() - clock
+        clock = time.perf_counter()
     prs = select_pseudoranges(obs, systems, priority)
     if prs.sv.size == 0:
         raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, priority))})")
@@ -177,6 +190,8 @@ def load_epochs(obs_path: str | Path, nav_paths: Sequence[str | Path], config: P
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
         warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; continuing without ionospheric correction")
+    if timings is not None:
+        timings["orbits"] = time.perf_counter() - clock
     approx = np.asarray(obs.attrs.get("position", []) or [], dtype=np.float64).ravel()
     approx_ok = approx.size == 3 and _EARTH_SURFACE_BAND_M[0] < np.linalg.norm(approx) < _EARTH_SURFACE_BAND_M[1]
     return EpochData(
