@@ -74,6 +74,14 @@ class FullChart:
             d[:, a, a, :] = h_t
         return d.reshape(n * self.g, self.g * nf)
 
+    def basis_blocks(self) -> NDArray[np.float64]:
+        """``dR/dtheta_k`` as blocks, shape ``(n_params, l+1, g, q)``."""
+        out = np.zeros((self.g, self.free.size, self.n_blk, self.g, self.q))
+        for a in range(self.g):
+            for c, col in enumerate(self.free):
+                out[a, c, col // self.q, a, col % self.q] = 1.0
+        return out.reshape(self.n_params, self.n_blk, self.g, self.q)
+
     def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
         """Whether ``|theta|`` is large enough that another identity block is better conditioned."""
         return bool(np.max(np.abs(theta), initial=0.0) > threshold)
@@ -130,6 +138,11 @@ class SharedChart:
         win = np.lib.stride_tricks.sliding_window_view(w_hat, self.n_blk, axis=0)  # (n, q, l+1)
         n = win.shape[0]
         return (win @ self.conv[:, self.free]).reshape(n * self.q, self.n_params)
+
+    def basis_blocks(self) -> NDArray[np.float64]:
+        """``dR/dtheta_k`` as blocks, shape ``(n_params, l+1, q, q)``."""
+        coef = self.conv[:, self.free].T  # (n_params, l+1)
+        return coef[:, :, None, None] * np.eye(self.q)[None, None]
 
     def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
         """Whether a free coefficient outgrew the pinned one."""

@@ -96,6 +96,15 @@ class EpochCovariance:
             return self.values * u
         return np.einsum("tab,tb->ta", self.values, u)
 
+    def apply_batch(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``Sigma_t u(t, :, k)`` for every epoch and column: ``u`` ``(T, q, k)`` -> ``(T, q, k)``."""
+        if self.kind == "identity":
+            return u
+        assert self.values is not None
+        if self.kind == "diag":
+            return self.values[:, :, None] * u
+        return np.matmul(self.values, u)
+
     def weighted_norm2(self, d: NDArray[np.float64]) -> float:
         """``sum_t d(t)^T Sigma_t^{-1} d(t)`` for ``d`` ``(T, q)``."""
         if self.kind == "identity":
