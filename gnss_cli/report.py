@@ -90,7 +90,10 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
         ok = s.status == STATUS_OK
         row: dict[str, object] = {"method": method, "epochs": int(s.status.size), "epochs_solved": int(ok.sum())}
         if reference_ecef_m is not None:
-            enu = enu_errors(s.x_ecef_m, reference_ecef_m)[ok]
+            enu = enu_errors(s.x_ecef_m, reference_ecef_m)
+            ok = ok & np.isfinite(enu).all(axis=1)
+            row["epochs_with_reference"] = int(ok.sum())
+            enu = enu[ok]
             err3 = np.linalg.norm(enu, axis=1)
             for k, name in enumerate("enu"):
                 row[f"mean_{name}_m"] = _stat(np.mean, enu[:, k])
@@ -185,6 +188,39 @@ def reference_from_sinex(path: str | Path, station: str) -> F64:
     if len(found) != 3:
         raise ConfigError(f"{p}: station {code} not found in SOLUTION/ESTIMATE")
     return np.array([found["STAX"], found["STAY"], found["STAZ"]])
+
+
+def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
+    """Per-epoch reference positions ``(T, 3)`` (ECEF m) from a CSV with ``time, x_m, y_m, z_m``.
+
+    ``time`` is ISO-8601 in the GPS time scale (as ``truth.csv`` of ``gnss-simulate`` and the
+    positions CSV of ``gnss-solve``); epochs are matched to 1 ms. Epochs without a reference
+    row get NaN (their error cells stay empty).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileNotFoundError(f"{p}: no such reference file")
+    try:
+        df = pd.read_csv(p)
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise ConfigError(f"{p}: not a CSV file ({exc})") from None
+    missing = [c for c in ("time", "x_m", "y_m", "z_m") if c not in df.columns]
+    if missing:
+        raise ConfigError(f"{p}: reference CSV lacks column(s) {missing}; expected time, x_m, y_m, z_m")
+    from gnss_cli.gnss.time import datetime2gps_s
+
+    try:
+        t_ref = datetime2gps_s(pd.to_datetime(df["time"]).to_numpy(dtype="datetime64[ns]"))
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{p}: bad time column ({exc})") from None
+    xyz = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
+    order = np.argsort(t_ref)
+    t_ref, xyz = t_ref[order], xyz[order]
+    k = np.clip(np.searchsorted(t_ref, time_gps_s), 1, max(t_ref.size - 1, 1)) if t_ref.size > 1 else np.zeros(time_gps_s.size, dtype=int)
+    k = np.where(np.abs(t_ref[k - 1] - time_gps_s) < np.abs(t_ref[k] - time_gps_s), k - 1, k) if t_ref.size > 1 else k
+    out = xyz[k].copy()
+    out[np.abs(t_ref[k] - time_gps_s) > 1e-3] = np.nan
+    return out
 
 
 def errors_table(positions: pd.DataFrame) -> pd.DataFrame:

@@ -23,6 +23,7 @@ from gnss_cli.report import (
     errors_table,
     parse_reference,
     positions_table,
+    reference_from_csv,
     reference_from_sinex,
     summary_table,
     to_csv_text,
@@ -59,6 +60,7 @@ def solve(
     elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees [config: 10]."),
     reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns."),
     reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name."),
+    reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv)."),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see configs/default.toml)."),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout, the default)."),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here."),
@@ -68,8 +70,8 @@ def solve(
     """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
     if len(files) < 2:
         raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
-    if reference and reference_sinex:
-        raise UsageError("give --reference or --reference-sinex, not both")
+    if sum(r is not None for r in (reference, reference_sinex, reference_csv)) > 1:
+        raise UsageError("give one of --reference, --reference-sinex, --reference-csv")
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
     overrides: dict[str, object] = {
@@ -88,6 +90,8 @@ def solve(
         if not result.epochs.marker_name:
             raise ConfigError(f"--reference-sinex: {files[0]} has no MARKER NAME to look up")
         ref = reference_from_sinex(reference_sinex, result.epochs.marker_name)
+    if reference_csv is not None:
+        ref = reference_from_csv(reference_csv, result.epochs.time_gps_s)
     positions = positions_table(result, ref)
     if not quiet:
         for w in result.warnings:
