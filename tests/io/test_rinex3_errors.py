@@ -93,6 +93,23 @@ def test_good_tiny_file_reads(tmp_path: Path) -> None:
     assert np.isnan(obs["L1C"].sel(sv="E01").item())
 
 
+def test_event_epochs_are_skipped(tmp_path: Path) -> None:
+    body = (
+        GOOD_EPOCH
+        + ">                              4  2\n"
+        + "SITE MOVED                                                  COMMENT\n"
+        + "G05  NOT AN OBSERVATION                                     COMMENT\n"
+        + "> 2020 06 25 00 01 00.0000000  1  1\n"  # flag 1 (power failure): data follow
+        + "G05  20947330.000 8\n"
+    )
+    obs = read_obs3(_write(tmp_path, "events.rnx", OBS3_HEADER + body))
+    np.testing.assert_array_equal(
+        obs.time.values, np.array(["2020-06-25T00:00:30", "2020-06-25T00:01:00"], dtype="datetime64[ns]")
+    )
+    assert obs["C1C"].sel(sv="G05").values.tolist() == [20947300.931, 20947330.0]
+    assert obs.attrs["interval"] == 30.0  # no INTERVAL record: median spacing
+
+
 @pytest.mark.parametrize(
     ("body", "message"),
     [
