@@ -51,7 +51,7 @@ def test_identify_writes_fit_and_prediction(tmp_path: Path) -> None:
 def test_accepts_plain_xyz_columns_and_wtls(tmp_path: Path) -> None:
     src = tmp_path / "plain.csv"
     write_track(src, 15, names=("x", "y", "z"))
-    result = CliRunner().invoke(app, [str(src), "--lag", "1", "--order", "3", "--method", "wtls"])
+    result = CliRunner().invoke(app, [str(src), "--lag", "3", "--structure", "shared", "--method", "wtls"])
     assert result.exit_code == 0, result.output
     assert result.stdout.count("\n") == 16
 
