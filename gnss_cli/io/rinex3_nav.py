@@ -108,11 +108,6 @@ _N_FIELDS = 31
 _SPACE = 32
 
 
-def _floats(text: str) -> NDArray[np.float64]:
-    """Decode blank-separated or fixed RINEX floats (``D`` exponents allowed)."""
-    return np.array([float(t) for t in text.upper().replace("D", "E").split()], dtype=np.float64)
-
-
 def _read_nav_header(header: str, name: str) -> dict[str, Any]:
     lines = header.splitlines()
     version, file_type, _ = parse_version_line(lines[0], name)
@@ -196,48 +191,13 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     n_header_lines = header.count("\n")
 
     buf, starts, lengths = split_lines(content[hdr_end:])
-    n = starts.size
-    lineno = np.arange(n, dtype=np.int64) + n_header_lines + 1
-    first = np.where(lengths > 0, buf[np.minimum(starts, max(buf.size - 1, 0))], _SPACE) if n else np.zeros(0, np.uint8)
+    lineno = np.arange(starts.size, dtype=np.int64) + n_header_lines + 1
     head = gather_columns(buf, starts, lengths, 0, 14)
-
     if attrs["version"] >= 4.0:
-        is_marker = first == ord(">")
-        markers = np.flatnonzero(is_marker)
-        owner = np.cumsum(is_marker) - 1
-        stray = (owner < 0) & (lengths > 0) & np.any(head != _SPACE, axis=1)
-        if np.any(stray):
-            raise RinexFormatError(f"{name}: unexpected text on line {int(lineno[np.flatnonzero(stray)[0]])} before the first record")
-        rec_type = [head[m, 2:5].tobytes().decode("ascii", "replace") for m in markers]
-        rec_sys = [chr(head[m, 6]) for m in markers]
-        rec_msg = [head[m, 10:14].tobytes().decode("ascii", "replace").strip() for m in markers]
-        eph_ok = np.array(
-            [t == "EPH" and m in _RINEX4_EPH_TYPES.get(s, ()) for t, s, m in zip(rec_type, rec_sys, rec_msg)],
-            dtype=bool,
-        )
-        for m_i, (t, s, m) in enumerate(zip(rec_type, rec_sys, rec_msg)):
-            key = _ION_ATTRS.get((s, m))
-            if t == "ION" and key is not None and key not in attrs:
-                attrs[key] = _ion_record(buf, starts, lengths, markers, m_i, n, key, name, lineno)
-        if eph_ok.size == 0:
-            raise RinexFormatError(f"{name}: no navigation records")
-        in_record = (owner >= 0) & ~is_marker
-        in_record &= eph_ok[np.maximum(owner, 0)]
-        line_idx = np.flatnonzero(in_record)
-        ordinal = line_idx - markers[owner[line_idx]] - 1
-        rec_of_line = owner[line_idx]
-        first_lines = line_idx[ordinal == 0]
+        layout = _layout_v4(buf, starts, lengths, head, lineno, attrs, name)
     else:
-        is_start = (lengths > 0) & (first != _SPACE)
-        owner = np.cumsum(is_start) - 1
-        stray = (owner < 0) & np.any(head != _SPACE, axis=1)
-        if np.any(stray):
-            raise RinexFormatError(f"{name}: unexpected text on line {int(lineno[np.flatnonzero(stray)[0]])} before the first record")
-        line_idx = np.flatnonzero(owner >= 0)
-        record_first = np.flatnonzero(is_start)
-        ordinal = line_idx - record_first[owner[line_idx]]
-        rec_of_line = owner[line_idx]
-        first_lines = record_first
+        layout = _layout_v3(head, lineno, name)
+    line_idx, ordinal, rec_of_line, first_lines = layout
 
     if first_lines.size == 0:
         raise RinexFormatError(f"{name}: no navigation records")
@@ -257,7 +217,9 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     if not np.all(ok):
         i = int(np.flatnonzero(~ok)[0])
         text = fl[i].tobytes().decode("ascii", "replace").rstrip()
-        raise RinexFormatError(f"{name}: bad record start (satellite / epoch) on line {int(lineno[first_lines[i]])}: {text!r}")
+        raise RinexFormatError(
+            f"{name}: bad record start (satellite / epoch) on line {int(lineno[first_lines[i]])}: {text!r}"
+        )
     toc = civil2datetime64(year, month, day, ((hour * 60 + minute) * 60 + sec) * 1_000_000_000)
     c1 = (prn // 10) + 48
     c2 = (prn % 10) + 48
@@ -266,8 +228,9 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     # field grid: first line fields at columns 23, 42, 61; later lines at 4, 23, 42, 61
     n_rec = first_lines.size
     col0 = np.where(ordinal == 0, 23, 4).astype(np.int64)
+    l_starts, l_lengths = starts[line_idx], lengths[line_idx]
     grid = np.stack(
-        [gather_columns(buf, starts[line_idx], lengths[line_idx], col0 + _FIELD_WIDTH * m, _FIELD_WIDTH) for m in range(4)],
+        [gather_columns(buf, l_starts, l_lengths, col0 + _FIELD_WIDTH * m, _FIELD_WIDTH) for m in range(4)],
         axis=1,
     )  # (n_lines, 4, 19)
     field_no = np.where(ordinal == 0, 0, 3 + 4 * (ordinal - 1))[:, None] + np.arange(4)
@@ -285,6 +248,75 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     if systems is not None:
         keep = np.isin(sys_chars, np.frombuffer("".join(sorted(systems)).encode(), dtype=np.uint8))
     return _Records(sv_code[keep], toc[keep], values[keep]), attrs
+
+
+def _stray_check(
+    owner: NDArray[np.int64], head: NDArray[np.uint8], lineno: NDArray[np.int64], name: str
+) -> None:
+    """Refuse non-blank text between the header and the first record."""
+    stray = (owner < 0) & np.any(head != _SPACE, axis=1)
+    if np.any(stray):
+        line = int(lineno[np.flatnonzero(stray)[0]])
+        raise RinexFormatError(f"{name}: unexpected text on line {line} before the first record")
+
+
+_Layout = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]
+
+
+def _layout_v3(head: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -> _Layout:
+    """RINEX 3 records: a record starts on each line whose first column is not blank.
+
+    Returns the body lines of the records, their ordinal within the record (0 = the
+    satellite / toc line), their record number and the first line of each record.
+    """
+    is_start = head[:, 0] != _SPACE
+    owner = np.cumsum(is_start) - 1
+    _stray_check(owner, head, lineno, name)
+    line_idx = np.flatnonzero(owner >= 0)
+    record_first = np.flatnonzero(is_start)
+    ordinal = line_idx - record_first[owner[line_idx]]
+    return line_idx, ordinal, owner[line_idx], record_first
+
+
+def _layout_v4(
+    buf: NDArray[np.uint8],
+    starts: NDArray[np.int64],
+    lengths: NDArray[np.int64],
+    head: NDArray[np.uint8],
+    lineno: NDArray[np.int64],
+    attrs: dict[str, Any],
+    name: str,
+) -> _Layout:
+    """RINEX 4 records: ``> EPH G01 LNAV`` lines open records; keep the readable EPH types.
+
+    ION records of known types are decoded into ``attrs`` on the way. Returns the same
+    arrays as :func:`_layout_v3`.
+    """
+    is_marker = head[:, 0] == ord(">")
+    markers = np.flatnonzero(is_marker)
+    owner = np.cumsum(is_marker) - 1
+    _stray_check(owner, head, lineno, name)
+    kinds = [
+        (head[m, 2:5].tobytes().decode("ascii", "replace"), chr(head[m, 6]),
+         head[m, 10:14].tobytes().decode("ascii", "replace").strip())
+        for m in markers
+    ]  # fmt: skip
+    eph_ok = np.array([t == "EPH" and msg in _RINEX4_EPH_TYPES.get(s, ()) for t, s, msg in kinds], dtype=bool)
+    for m_i, (t, s, msg) in enumerate(kinds):
+        key = _ION_ATTRS.get((s, msg))
+        if t == "ION" and key is not None and key not in attrs:
+            attrs[key] = _ion_record(buf, starts, lengths, markers, m_i, starts.size, key, name, lineno)
+    if not eph_ok.any():
+        found = sorted({f"{t} {msg}" for t, _, msg in kinds})
+        raise RinexFormatError(
+            f"{name}: no navigation records of a readable type (LNAV, INAV, FNAV, D1, D2, FDMA, SBAS); "
+            f"found {found}"
+        )
+    in_record = (owner >= 0) & ~is_marker
+    in_record &= eph_ok[np.maximum(owner, 0)]
+    line_idx = np.flatnonzero(in_record)
+    ordinal = line_idx - markers[owner[line_idx]] - 1
+    return line_idx, ordinal, owner[line_idx], line_idx[ordinal == 0]
 
 
 def _ion_record(
@@ -316,7 +348,9 @@ def _ion_record(
     return vals
 
 
-def _validate_paths(path_or_paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> list[str | os.PathLike[str]]:
+def _validate_paths(
+    path_or_paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+) -> list[str | os.PathLike[str]]:
     if isinstance(path_or_paths, (str, os.PathLike)):
         return [path_or_paths]
     paths = list(path_or_paths)
@@ -396,7 +430,9 @@ def read_nav3(
             systems = [s.strip() for s in systems.replace(",", " ").split()]
         systems = list(systems)
         if not systems or any(not isinstance(s, str) or len(s) != 1 or s not in SYSTEM_CHARS for s in systems):
-            raise UsageError(f"systems: expected RINEX system letters from {SYSTEM_CHARS!r}, got {systems!r}")
+            raise UsageError(
+                f"systems: expected RINEX system letters from {SYSTEM_CHARS!r}, got {systems!r}"
+            )
     wanted = set(systems) if systems is not None else None
 
     parts = [_read_one(p, wanted) for p in paths]
@@ -405,14 +441,20 @@ def read_nav3(
     values = np.concatenate([r.values for r, _ in parts], axis=0)
     if sv_code.size == 0:
         names = ", ".join(Path(p).name for p in paths)
-        raise RinexFormatError(f"{names}: no navigation records" + (f" of the systems {''.join(systems or [])}" if systems else ""))
+        which = f" of the systems {''.join(systems)}" if systems else ""
+        raise RinexFormatError(f"{names}: no navigation records{which}")
 
     # drop exact duplicates (same sv, toc and every value, NaN-aware), keep the first
     key = np.concatenate(
-        [sv_code[:, None].view(np.float64), toc.astype(np.int64)[:, None].view(np.float64), np.nan_to_num(values, nan=np.inf)],
+        [
+            sv_code[:, None].view(np.float64),
+            toc.astype(np.int64)[:, None].view(np.float64),
+            np.nan_to_num(values, nan=np.inf),
+        ],
         axis=1,
-    )
-    _, first_idx = np.unique(key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel(), return_index=True)
+    )  # one row of raw bytes per record
+    row_bytes = np.ascontiguousarray(key).view(np.dtype((np.void, key.dtype.itemsize * key.shape[1])))
+    _, first_idx = np.unique(row_bytes.ravel(), return_index=True)
     first_idx = np.sort(first_idx)
     sv_code, toc, values = sv_code[first_idx], toc[first_idx], values[first_idx]
 

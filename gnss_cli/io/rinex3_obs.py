@@ -300,7 +300,9 @@ def _read_obs_header(
                     ) from None
                 obs_types[current_sys] = []
             elif not current_sys:
-                raise RinexFormatError(f"{name}: continuation of 'SYS / # / OBS TYPES' without a system on line {lineno}")
+                raise RinexFormatError(
+                    f"{name}: continuation of 'SYS / # / OBS TYPES' without a system on line {lineno}"
+                )
             obs_types[current_sys] += text[7:60].split()
         elif label == "APPROX POSITION XYZ" and "position" not in attrs:
             try:
@@ -432,7 +434,9 @@ def _validate_selection(
         codes = [c.strip() for c in codes]
         bad = [c for c in codes if not c or len(c) > 3 or not c.isalnum()]
         if bad or not codes:
-            raise UsageError(f"codes: expected observation codes such as 'C1C' or prefixes 'C1', got {codes!r}")
+            raise UsageError(
+                f"codes: expected observation codes such as 'C1C' or prefixes 'C1', got {codes!r}"
+            )
     return systems, codes
 
 
