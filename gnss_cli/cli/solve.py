@@ -64,6 +64,12 @@ def solve(
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see configs/default.toml)."),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout, the default)."),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here."),
+    lag: int = typer.Option(0, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods."),
+    model: str = typer.Option("identify", "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag)."),
+    kernel: str = typer.Option("shared", "--kernel", help="shared | full: structure of the identified kernel (with --lag)."),
+    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel [3 L]."),
+    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments [15]."),
+    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
 ) -> None:
@@ -84,7 +90,14 @@ def solve(
     cfg = load_config(config, overrides)
     ref = parse_reference(reference) if reference else None
     progress = _Progress(not quiet)
-    result = run(files[0], files[1:], cfg, progress=progress)
+    if lag < 0:
+        raise UsageError(f"--lag: expected an integer >= 0, received {lag}")
+    if lag > 0 and "stls" not in cfg.methods:
+        raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
+    if lag > 0:
+        result = _smooth_stls(files, cfg, progress, lag, model, kernel, order, window, model_out)
+    else:
+        result = run(files[0], files[1:], cfg, progress=progress)
     progress.done()
     if reference_sinex is not None:
         if not result.epochs.marker_name:
@@ -110,6 +123,28 @@ def solve(
         sys.stdout.flush()
     if not quiet:
         _print_summary(summary, ref is not None)
+
+
+def _smooth_stls(files, cfg, progress, lag: int, model: str, kernel: str, order: Optional[int],  # type: ignore[no-untyped-def]
+                 window: Optional[int], model_out: Optional[Path]):
+    """Run the other methods (and WLS), then make the stls rows the behavioral smoothing of the WLS fixes."""
+    import dataclasses
+    import json
+
+    from gnss_cli.kinematic import DEFAULT_WINDOW, smooth
+
+    others = tuple(m for m in cfg.methods if m != "stls")
+    result = run(files[0], files[1:], dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",))),
+                 progress=progress)
+    if progress is not None:
+        progress(f"stls: smoothing, lag {lag}", 0.0)
+    sol, models = smooth(result.epochs, result.solutions["wls"], cfg, lag, model=model, kernel=kernel, order=order,
+                         window=DEFAULT_WINDOW if window is None else window)
+    if model_out is not None:
+        text = json.dumps({"lag": lag, "model": model, "kernel": kernel, "windows": models}, indent=1)
+        write_atomic(model_out, text + "\n")
+    solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in cfg.methods}
+    return dataclasses.replace(result, solutions=solutions)
 
 
 def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]
