@@ -1,0 +1,151 @@
+"""Galileo, GPS and GLONASS broadcast orbits against GFZ precise orbits (esbc-2020177);
+BeiDou (GEO/IGSO/MEO), QZSS, GPS, Galileo and GLONASS against RTKLIB's own routines."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gnss_cli.constants import C_M_S
+from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_states, select_glonass_ephemeris
+from gnss_cli.gnss.multi_gnss import (
+    ephemeris_for_system,
+    is_bds_geo,
+    select_forward_ephemeris,
+    select_system_ephemeris,
+    system_states,
+)
+from gnss_cli.gnss.time import datetime2gps_s
+from gnss_cli.io.rinex import read_nav
+
+NAV = "esbc-2020177/ESBC00DNK_R_20201770000_01D_MN.rnx.gz"
+SP3 = "esbc-2020177/GRG0MGXFIN_20201770000_01D_15M_ORB.SP3.gz"
+
+
+@pytest.fixture(scope="module")
+def nav(rinex_dir):
+    return read_nav(rinex_dir / NAV)
+
+
+@pytest.fixture(scope="module")
+def sp3(rinex_dir):
+    import georinex
+
+    path = rinex_dir / SP3
+    import gzip
+
+    with gzip.open(path, "rt") as f:
+        head = [next(f) for _ in range(20)]
+    time_system = [line for line in head if line.startswith("%c")][0][9:12]
+    assert time_system == "GPS"  # SP3 epochs are GPST: no conversion needed
+    return georinex.load_sp3(path, None)
+
+
+def _compare(nav, sp3, system):
+    svs = np.array([s for s in sp3.sv.values.astype(str) if s.startswith(system)])
+    sub = sp3.sel(sv=svs)
+    t = datetime2gps_s(sub.time.values)
+    if system == "R":
+        eph = GlonassEphemeris.from_dataset(nav)
+        idx = select_glonass_ephemeris(eph, svs, t)
+        states = glonass_states(eph, idx, t[:, None])
+    else:
+        eph = ephemeris_for_system(nav, system)
+        idx = select_system_ephemeris(eph, svs, t, system)
+        states = system_states(eph, idx, t[:, None], system)
+    precise = sub.position.values * 1e3  # km -> m
+    clock = sub.clock.values
+    clock = np.where(np.abs(clock) >= 999999.0, np.nan, clock) * 1e-6  # us; 999999.999999 = bad
+    return states, precise, clock
+
+
+@pytest.mark.parametrize(
+    ("system", "rms_max_m", "max_max_m", "radial_range_m", "min_samples"),
+    [
+        ("G", 2.5, 7.0, (-1.5, -0.3), 2000),
+        ("E", 1.5, 2.5, (-1.5, -0.3), 1200),
+        ("R", 5.0, 10.0, (-3.0, -1.0), 900),
+    ],
+)
+def test_broadcast_orbits_match_precise_orbits_whole_day(nav, sp3, system, rms_max_m, max_max_m, radial_range_m, min_samples):
+    states, precise, _ = _compare(nav, sp3, system)
+    diff = states.pos_ecef_m - precise
+    err = np.linalg.norm(diff, axis=-1)
+    ok = np.isfinite(err)
+    assert ok.sum() >= min_samples
+    rms = np.sqrt(np.mean(err[ok] ** 2))
+    assert rms <= rms_max_m, rms
+    assert err[ok].max() <= max_max_m, err[ok].max()
+    # Broadcast orbits refer to the antenna phase centre, SP3 to the centre of mass.
+    radial = np.sum(diff * precise / np.linalg.norm(precise, axis=-1, keepdims=True), axis=-1)
+    assert radial_range_m[0] < np.mean(radial[ok]) < radial_range_m[1]
+
+
+@pytest.mark.parametrize(("system", "rms_max_m"), [("G", 1.0), ("E", 1.0), ("R", 4.0)])
+def test_broadcast_clocks_match_precise_clocks(nav, sp3, system, rms_max_m):
+    states, _, clock = _compare(nav, sp3, system)
+    # SP3 clocks exclude the periodic relativistic term (GLONASS: included in TauN, 0 here).
+    d = (states.clock_s - states.relativistic_s - clock) * C_M_S
+    d = d - np.nanmean(d, axis=1, keepdims=True)  # the reference clock is common
+    assert np.isfinite(d).sum() > 900
+    assert np.sqrt(np.nanmean(d**2)) <= rms_max_m
+
+
+def test_galileo_records_never_used_before_toe(nav):
+    eph = ephemeris_for_system(nav, "E")
+    sv = np.unique(eph.sv)
+    t = eph.toe_gps_s.min() + np.arange(0.0, 86400.0, 300.0)
+    idx = select_system_ephemeris(eph, sv, t, "E")
+    ok = idx >= 0
+    age = t[:, None] - eph.toe_gps_s[np.where(ok, idx, 0)]
+    assert ok.sum() > 1000
+    assert (age[ok] >= 0).all() and (age[ok] <= 3 * 3600 + 1e-6).all()
+    # I/NAV only: the E1-E5b group delay is non-zero, and every id is a plain 'Exx'
+    assert np.all(np.char.str_len(eph.sv.astype(str)) == 3)
+    assert np.count_nonzero(eph.tgd_s) > 0.9 * len(eph)
+
+
+def test_beidou_times_are_gpst_and_geo_flagged(nav):
+    eph = ephemeris_for_system(nav, "C")
+    assert len(eph) > 0
+    # BeiDou toe are whole hours of BDT: in GPST they end in 14 s.
+    assert np.allclose(np.mod(eph.toe_gps_s, 3600.0), 14.0)
+    assert is_bds_geo(np.array(["C01", "C05", "C06", "C59", "C63", "G01"])).tolist() == [
+        True, True, False, True, True, False]
+    idx = select_forward_ephemeris(eph, np.array(["C06"]), eph.toe_gps_s[:1] - 1.0)
+    assert idx[0, 0] == -1 or eph.toe_gps_s[idx[0, 0]] <= eph.toe_gps_s[0] - 1.0
+
+
+def test_glonass_velocity_is_derivative_of_position(nav):
+    eph = GlonassEphemeris.from_dataset(nav)
+    sv = np.unique(eph.sv)
+    t = eph.toe_gps_s.min() + np.arange(600.0, 86400.0, 450.0)
+    idx = select_glonass_ephemeris(eph, sv, t)
+    s0 = glonass_states(eph, idx, t[:, None])
+    sp = glonass_states(eph, idx, t[:, None] + 0.5)
+    sm = glonass_states(eph, idx, t[:, None] - 0.5)
+    fd = sp.pos_ecef_m - sm.pos_ecef_m
+    ok = np.isfinite(fd).all(axis=-1)
+    assert ok.sum() > 50
+    assert np.max(np.abs(fd[ok] - s0.vel_ecef_m_s[ok])) < 1e-3
+    assert set(np.unique(eph.freq_num)) <= set(range(-7, 7))
+
+
+def test_beidou_geo_velocity_is_derivative_of_position(nav):
+    eph = ephemeris_for_system(nav, "C")
+    sv = np.unique(eph.sv)
+    assert is_bds_geo(sv).any()
+    t = eph.toe_gps_s.min() + np.arange(600.0, 86400.0, 1800.0)
+    idx = select_system_ephemeris(eph, sv, t, "C")
+    s0 = system_states(eph, idx, t[:, None], "C")
+    sp = system_states(eph, idx, t[:, None] + 0.5, "C")
+    sm = system_states(eph, idx, t[:, None] - 0.5, "C")
+    fd = sp.pos_ecef_m - sm.pos_ecef_m
+    ok = np.isfinite(fd).all(axis=-1)
+    assert ok[:, is_bds_geo(sv)].sum() > 10
+    assert np.max(np.abs(fd[ok] - s0.vel_ecef_m_s[ok])) < 1e-3
+    # GEO: nearly fixed in ECEF (inclined by a few degrees: tens of m/s), radius ~42164 km
+    geo = ok & is_bds_geo(sv)[None, :]
+    r = np.linalg.norm(s0.pos_ecef_m[geo], axis=-1)
+    assert np.all(np.abs(r - 42_164e3) < 100e3)
+    assert np.all(np.linalg.norm(s0.vel_ecef_m_s[geo], axis=-1) < 200.0)
