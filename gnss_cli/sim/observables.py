@@ -15,7 +15,8 @@ Signal model (the convention a standard single-frequency receiver inverts, e.g. 
 - ``TGD``: GPS TGD (L1 C/A), Galileo BGD E5b/E1 (equal to BGD E5a/E1 here), BeiDou TGD1.
 - Second signals: GPS L2 P(Y) ``+ gamma c TGD`` (``gamma = (f1/f2)^2``), Galileo E5b
   ``+ (f1/f7)^2 c BGD``, BeiDou B2I ``+ c TGD2``; ionosphere scaled by ``(f_L1/f)^2``.
-- Doppler ``D = -(d rho/dt + b_dot - c dt_sv_dot) / lambda`` (Hz).
+- Doppler ``D = -(d rho/dt + b_dot - c dt_sv_dot) / lambda`` (Hz), the derivatives by central
+  differences over 1 s of the light-time range and of the broadcast clock.
 """
 
 from __future__ import annotations
@@ -192,10 +193,9 @@ def simulate_observations(
     for system, eph in truth.items():
         spec = SYSTEMS[system]
         sv = np.unique(eph.sv)
-        t_tx, pos, pos_rot, vel_rot, clk_s = light_time_states(eph, sv, system, t_rx, rx_pos)
+        t_tx, pos, pos_rot, _, clk_s = light_time_states(eph, sv, system, t_rx, rx_pos)
         los = pos_rot - rx_pos[:, None, :]
         rho = np.linalg.norm(los, axis=-1)
-        unit = los / rho[..., None]
         az, el = azimuth_elevation(np.einsum("tij,tnj->tni", rot_enu, los))
         idx = select_ephemeris(eph, sv, t_rx, healthy_only=False)
         tgd = eph.tgd_s[idx]
@@ -203,7 +203,15 @@ def simulate_observations(
         # satellite clock rate by a central difference of the broadcast clock
         cp = broadcast_states(eph, idx, t_tx + 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
         cm = broadcast_states(eph, idx, t_tx - 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
-        range_rate = np.sum(unit * (vel_rot - trajectory.vel_ecef_m_s[:, None, :]), axis=-1)
+        # range rate: central difference of the light-time range itself (h = 0.5 s, error
+        # h^2/6 |d3 rho/dt3| < 1e-5 m/s); it keeps the Earth-rotation terms that los . v drops
+        half_s = 0.5
+        rho_pm = []
+        for sgn in (1.0, -1.0):
+            r_shift = rx_pos + sgn * half_s * trajectory.vel_ecef_m_s
+            rot_shift = light_time_states(eph, sv, system, t_rx + sgn * half_s, r_shift)[2]
+            rho_pm.append(np.linalg.norm(rot_shift - r_shift[:, None, :], axis=-1))
+        range_rate = (rho_pm[0] - rho_pm[1]) / (2.0 * half_s)
         rate = range_rate + drift_m_s[:, None] - C_M_S * (cp - cm)
 
         f1, f2 = spec.freqs_hz
