@@ -149,3 +149,98 @@ def test_beidou_geo_velocity_is_derivative_of_position(nav):
     r = np.linalg.norm(s0.pos_ecef_m[geo], axis=-1)
     assert np.all(np.abs(r - 42_164e3) < 100e3)
     assert np.all(np.linalg.norm(s0.vel_ecef_m_s[geo], axis=-1) < 200.0)
+
+
+# --- RTKLIB's own routines (pyrtklib, test-only dependency) ---------------------------
+
+GPS_UNIX_OFFSET_S = 315_964_800.0  # 1980-01-06 minus 1970-01-01 (RTKLIB gtime_t counts from 1970)
+_RTKLIB_SYS = {1: "G", 4: "R", 8: "E", 16: "J", 32: "C"}
+
+
+@pytest.fixture(scope="module")
+def rtklib_nav(rinex_dir, tmp_path_factory):
+    p = pytest.importorskip("pyrtklib", reason="pyrtklib (RTKLIB's routines) not installed: pip install pyrtklib")
+    import gzip
+    import shutil
+
+    plain = tmp_path_factory.mktemp("rtklib") / "esbc.rnx"
+    with gzip.open(rinex_dir / NAV, "rb") as src, open(plain, "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    nav = p.nav_t()
+    assert p.readrnx(str(plain), 1, "", p.obs_t(), nav, p.sta_t()) == 1
+    return p, nav
+
+
+def _sv_id(p, sat):
+    prn = p.Arr1Dint(1)
+    sys = p.satsys(sat, prn)
+    number = prn[0] - 192 if sys == 16 else prn[0]  # RTKLIB numbers QZSS as PRN 193..
+    return f"{_RTKLIB_SYS.get(sys, '?')}{number:02d}"
+
+
+def _gtime2gps_s(t):
+    return t.time - GPS_UNIX_OFFSET_S + t.sec
+
+
+OFFSETS_S = np.array([0.0, 450.0, 1234.5, 3600.0, 7199.0])
+
+
+@pytest.mark.parametrize("system", ["G", "E", "C", "J"])
+def test_kepler_orbits_and_clocks_equal_rtklib(nav, rtklib_nav, system):
+    p, rnav = rtklib_nav
+    eph = ephemeris_for_system(nav, system)
+    key = {(s, round(toe), round(toc), int(iode)): i for i, (s, toe, toc, iode) in
+           enumerate(zip(eph.sv, eph.toe_gps_s, eph.toc_gps_s, eph.iode))}
+    rs, dts, var = p.Arr1Ddouble(6), p.Arr1Ddouble(2), p.Arr1Ddouble(1)
+    ours_i, ours_t, ref_pos, ref_clk, geo = [], [], [], [], []
+    for n in range(rnav.n):
+        e = rnav.eph[n]
+        sv = _sv_id(p, e.sat)
+        if sv[0] != system or (system == "E" and not e.code & 0b101):
+            continue
+        i = key.get((sv, round(_gtime2gps_s(e.toe)), round(_gtime2gps_s(e.toc)), int(e.iode)))
+        assert i is not None, f"RTKLIB record {sv} toe {_gtime2gps_s(e.toe)} not in our table"
+        for dt in OFFSETS_S:
+            p.eph2pos(p.timeadd(e.toe, float(dt)), e, rs, dts, var)
+            ours_i.append(i)
+            ours_t.append(_gtime2gps_s(e.toe) + dt)
+            ref_pos.append([rs[0], rs[1], rs[2]])
+            ref_clk.append(dts[0])
+            geo.append(bool(is_bds_geo(np.array([sv]))[0]))
+    assert len(ours_i) >= (50 if system == "J" else 500)  # QZSS: 15 records that day
+    states = system_states(eph, np.array(ours_i), np.array(ours_t), system)
+    err = np.linalg.norm(states.pos_ecef_m - np.array(ref_pos), axis=-1)
+    print(f"{system}: {len(err)} samples, max |dpos| {np.max(err):.2e} m, "
+          f"max |dclk| {np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S:.2e} m")
+    assert np.max(err) <= 0.01, np.max(err)
+    assert np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S <= 0.01
+    if system == "C":
+        assert np.count_nonzero(geo) > 20  # GEO satellites included
+        assert np.max(err[np.array(geo)]) <= 0.01
+
+
+def test_glonass_orbits_and_clocks_equal_rtklib(nav, rtklib_nav):
+    p, rnav = rtklib_nav
+    eph = GlonassEphemeris.from_dataset(nav)
+    key = {(s, round(toe)): i for i, (s, toe) in enumerate(zip(eph.sv, eph.toe_gps_s))}
+    rs, dts, var = p.Arr1Ddouble(6), p.Arr1Ddouble(2), p.Arr1Ddouble(1)
+    ours_i, ours_t, ref_pos, ref_clk = [], [], [], []
+    for n in range(rnav.ng):
+        g = rnav.geph[n]
+        sv = _sv_id(p, g.sat)
+        i = key.get((sv, round(_gtime2gps_s(g.toe))))
+        assert i is not None, f"RTKLIB record {sv} toe {_gtime2gps_s(g.toe)} not in our table"
+        assert eph.freq_num[i] == g.frq
+        for dt in (-1799.0, -900.0, -30.5, 0.0, 61.0, 900.0, 1800.0):
+            p.geph2pos(p.timeadd(g.toe, dt), g, rs, dts, var)
+            ours_i.append(i)
+            ours_t.append(_gtime2gps_s(g.toe) + dt)
+            ref_pos.append([rs[0], rs[1], rs[2]])
+            ref_clk.append(dts[0])
+    assert len(ours_i) > 100
+    states = glonass_states(eph, np.array(ours_i), np.array(ours_t))
+    err = np.linalg.norm(states.pos_ecef_m - np.array(ref_pos), axis=-1)
+    print(f"R: {len(err)} samples, max |dpos| {np.max(err):.2e} m, "
+          f"max |dclk| {np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S:.2e} m")
+    assert np.max(err) <= 0.01, np.max(err)
+    assert np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S <= 0.01
