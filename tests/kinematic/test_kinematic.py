@@ -1,0 +1,201 @@
+"""Kinematic positioning by behavioral smoothing: multi-epoch DOP, static and flight
+simulations, real static and kinematic data."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from gnss_cli.behavior import KernelRepresentation
+from gnss_cli.cli.exits import run_app
+from gnss_cli.cli.solve import app
+from gnss_cli.config import load_config
+from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
+from gnss_cli.kinematic import behavior_basis, multi_epoch_cov, segments, smooth, windows
+from gnss_cli.pipeline import load_epochs, solve_method
+from gnss_cli.report import reference_from_csv
+
+RTKLIB_0759_ECEF_M = np.array([-3976219.1879, 3382371.6041, 3652511.1428])
+
+
+def _simulate(out: Path, trajectory: str) -> Path:
+    cmd = [sys.executable, "-m", "gnss_cli.cli.simulate", "--trajectory", trajectory, "--duration", "600",
+           "--interval", "1", "--systems", "G", "--seed", "3", "--errors", "noise", "--noise-sigma", "1",
+           "--out-dir", str(out)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def static_set(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    d = _simulate(tmp_path_factory.mktemp("static"), "static")
+    cfg = load_config(None, {"iono": "none", "tropo": "none", "methods": "ls,wls"})
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    ref = np.asarray(reference_from_csv(d / "truth.csv", data.time_gps_s))
+    return cfg, data, solve_method(data, "ls", cfg), solve_method(data, "wls", cfg), ref
+
+
+@pytest.fixture(scope="module")
+def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _simulate(tmp_path_factory.mktemp("flight"), "flight")
+
+
+def _rms_3d(x: np.ndarray, ref: np.ndarray) -> float:
+    e = x - ref
+    ok = np.all(np.isfinite(e), axis=1)
+    return float(np.sqrt(np.mean(np.sum(e[ok] ** 2, axis=1))))
+
+
+def _cli_positions(args: list[str]) -> dict[str, np.ndarray]:
+    import io
+
+    import pandas as pd
+
+    res = CliRunner().invoke(app, [*args, "-q"])
+    assert res.exit_code == 0, res.output
+    df = pd.read_csv(io.StringIO(res.stdout))
+    return {m: g for m, g in df.groupby("method")}
+
+
+# ------------------------------------------------------------------ building blocks
+def test_multi_epoch_cov_equals_dense_stacked_inverse() -> None:
+    """The clock-eliminated formula equals the blocks of (G_N^T W G_N)^-1 built densely."""
+    rng = np.random.default_rng(1)
+    n_t, n_sv = 7, 6
+    u = rng.normal(size=(n_t, n_sv, 3))
+    p_m = -u / np.linalg.norm(u, axis=2, keepdims=True)
+    wgt = rng.uniform(0.5, 2.0, size=(n_t, n_sv))
+    from gnss_cli.kinematic import _epoch_information
+
+    info, h, cv = _epoch_information(p_m, wgt)
+    for ker in (KernelRepresentation.static(3), KernelRepresentation.pva(3),
+                KernelRepresentation.shared(np.poly([1.0, 0.9, 0.8])[::-1], 3)):
+        basis = behavior_basis(ker, n_t)
+        assert np.allclose(ker.residual(basis[:, :, 0]), 0.0, atol=1e-9)
+        k = basis.shape[2]
+        g = np.zeros((n_t * n_sv, k + n_t))
+        for t in range(n_t):
+            g[t * n_sv:(t + 1) * n_sv, :k] = p_m[t] @ basis[t]
+            g[t * n_sv:(t + 1) * n_sv, k + t] = 1.0
+        q_x = np.linalg.inv(g.T @ (wgt.reshape(-1, 1) * g))
+        got = multi_epoch_cov(basis, info, h, cv)
+        for t in range(n_t):
+            jac = np.zeros((4, k + n_t))
+            jac[:3, :k] = basis[t]
+            jac[3, k + t] = 1.0
+            assert np.allclose(got[t], jac @ q_x @ jac.T, rtol=1e-9, atol=1e-12)
+
+
+def test_segments_and_windows() -> None:
+    t = np.array([0.0, 1, 2, 3, 5, 6, 7, 8, 9, 10])
+    solved = np.ones(10, dtype=bool)
+    solved[7] = False
+    segs = segments(t, solved)
+    assert [s.tolist() for s in segs] == [[0, 1, 2, 3], [4, 5, 6], [8, 9]]
+    bounds, owner = windows(20, 8)
+    assert bounds == [(0, 8), (4, 12), (8, 16), (12, 20)]
+    assert owner[0] == 0 and owner[-1] == 3 and owner.size == 20
+    assert windows(20, 0)[0] == [(0, 20)]
+
+
+# ------------------------------------------------------------------ simulated static receiver
+def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: ignore[no-untyped-def]
+    cfg, data, ls, wls, ref = static_set
+    mean_gdop, rms = [], []
+    for window in (4, 16, 64, 0):
+        sol, models = smooth(data, wls, cfg, 1, model="static", window=window)
+        assert (sol.status == "ok").all()
+        assert all(m["status"] == "direct" for m in models)
+        assert np.all(sol.gdop <= ls.gdop * (1 + 1e-9))
+        assert np.all(sol.pdop <= ls.pdop * (1 + 1e-9))
+        mean_gdop.append(float(np.mean(sol.gdop)))
+        rms.append(_rms_3d(sol.x_ecef_m, ref))
+    rms_ls = _rms_3d(ls.x_ecef_m, ref)
+    assert all(a > b for a, b in zip(mean_gdop, mean_gdop[1:])), mean_gdop
+    assert all(a > b for a, b in zip(rms, rms[1:])), rms
+    assert rms[0] < rms_ls
+    # whole segment of 601 epochs: noise averages out to about 1/sqrt(601) of the snapshot error
+    assert rms[-1] < 0.15 * rms_ls, (rms, rms_ls)
+
+
+# ------------------------------------------------------------------ simulated flight
+def test_flight_stls_lag3_defaults_beat_ls(flight_dir: Path, tmp_path: Path) -> None:
+    d = flight_dir
+    model_out = tmp_path / "models.json"
+    rows = _cli_positions([str(d / "obs.rnx"), str(d / "nav.rnx"), "--method", "ls,stls", "--lag", "3",
+                           "--reference-csv", str(d / "truth.csv"), "--iono", "none", "--tropo", "none",
+                           "--model-out", str(model_out)])
+    err = {m: g["err_3d_m"].to_numpy() for m, g in rows.items()}
+    assert (rows["stls"]["status"] == "ok").all()
+    rms = {m: float(np.sqrt(np.mean(e**2))) for m, e in err.items()}
+    ratio = rms["stls"] / rms["ls"]
+    print(f"flight: stls lag 3 3D RMS {rms['stls']:.3f} m, LS {rms['ls']:.3f} m, ratio {ratio:.3f}")
+    assert ratio <= 0.6
+    assert np.all(rows["stls"]["gdop"].to_numpy() <= rows["ls"]["gdop"].to_numpy() * (1 + 1e-6) + 1e-3)
+    models = json.loads(model_out.read_text())
+    assert models["lag"] == 3 and len(models["windows"]) > 10
+    w0 = models["windows"][0]
+    assert {"kernel_R", "order", "poles", "misfit", "status"} <= set(w0)
+    # the shared kernel keeps its root at z = 1
+    assert np.isclose(sum(w0["shared_coefficients"]), 0.0, atol=1e-9)
+
+
+def test_lag_without_stls_is_a_usage_error(flight_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = flight_dir
+    with pytest.raises(SystemExit) as exc:
+        run_app(app, "gnss-solve", [str(d / "obs.rnx"), str(d / "nav.rnx"), "--method", "wls", "--lag", "3", "-q"])
+    assert exc.value.code == 2
+    assert "--lag: needs --method stls" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ real data
+def test_rtklib_0759_static_and_lag3(rinex_dir: Path) -> None:
+    d = rinex_dir / "rtklib-0759"
+    if not d.is_dir():
+        pytest.skip("rtklib-0759 missing")
+    base = [str(d / "07590920.05o"), str(d / "07590920.05n"), "--method", "ls,stls",
+            "--reference", ",".join(str(v) for v in RTKLIB_0759_ECEF_M)]
+    rows = _cli_positions([*base, "--lag", "1", "--model", "static"])
+    rms = {m: float(np.sqrt(np.mean(g["err_3d_m"] ** 2))) for m, g in rows.items()}
+    print(f"rtklib-0759 static: stls {rms['stls']:.3f} m, LS {rms['ls']:.3f} m")
+    assert rms["stls"] <= rms["ls"]
+    rows = _cli_positions([*base, "--lag", "3"])
+    assert len(rows["stls"]) == 120 and (rows["stls"]["status"] == "ok").all()
+
+
+def _read_rtklib_pos_ecef(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    rows = [line.split() for line in path.read_text().splitlines() if line.strip() and not line.startswith("%")]
+    t = np.array([int(r[0]) * 604800.0 + float(r[1]) for r in rows])
+    x = np.array([[float(v) for v in r[2:5]] for r in rows])
+    return t, x
+
+
+def test_yamatogawa_kinematic_lag3(rinex_dir: Path) -> None:
+    d = rinex_dir / "yamatogawa-2010006-kinematic"
+    if not d.is_dir():
+        pytest.skip("yamatogawa-2010006-kinematic missing")
+    t_ref, x_ref = _read_rtklib_pos_ecef(d / "rtk_ref_rover.pos")
+    cfg = load_config(None, {"methods": "ls,wls"})
+    data = load_epochs(d / "yamatogawa_rover.obs", [d / "brdc0060.10n"], cfg)
+    ls = solve_method(data, "ls", cfg)
+    wls = solve_method(data, "wls", cfg)
+    sol, _ = smooth(data, wls, cfg, 3)
+    k = np.clip(np.searchsorted(t_ref, data.time_gps_s), 0, t_ref.size - 1)
+    ref = np.where((np.abs(t_ref[k] - data.time_gps_s) < 0.5)[:, None], x_ref[k], np.nan)
+    lat, lon, _ = ecef2geodetic(x_ref[0])
+    rot = ecef2enu_rotation(float(lat), float(lon))
+    stats = {}
+    for name, x in (("ls", ls.x_ecef_m), ("stls", sol.x_ecef_m)):
+        e = (x - ref) @ rot.T
+        e = e[np.all(np.isfinite(e), axis=1)]
+        stats[name] = (float(np.sqrt(np.mean(np.sum(e**2, axis=1)))), np.sqrt(np.mean(e**2, axis=0)))
+    for name, (r3, enu) in stats.items():
+        print(f"yamatogawa {name}: 3D RMS {r3:.3f} m, E/N/U {enu[0]:.3f} / {enu[1]:.3f} / {enu[2]:.3f} m")
+    assert stats["stls"][0] <= stats["ls"][0]
+    assert np.all(sol.gdop[sol.status == "ok"] <= wls.gdop[sol.status == "ok"] * (1 + 1e-6))
