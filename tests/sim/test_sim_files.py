@@ -236,3 +236,41 @@ def test_cli_writes_files_and_csv_trajectory(tmp_path: Path, capsys: pytest.Capt
     p2 = _georinex_load(second / "obs.rnx")["C1C"].values
     assert np.array_equal(np.isfinite(p1), np.isfinite(p2))
     assert np.nanmax(np.abs(p1 - p2)) <= 1.5e-3
+
+
+def test_committed_samples_are_reproduced_by_their_command(tmp_path: Path) -> None:
+    """sample_rinex/ is what make_samples.sh writes (same seed, same bytes)."""
+    script = (ROOT / "sample_rinex" / "make_samples.sh").read_text()
+    assert "--out-dir sample_rinex/static" in script and "--out-dir sample_rinex/flight" in script
+    commands = [
+        ["--trajectory", "static", "--start", "2024-03-01T00:00:00", "--duration", "3600", "--interval", "30",
+         "--systems", "G,E", "--seed", "7", "--errors", "all", "--quiet"],
+        ["--trajectory", "flight", "--start", "2024-03-01T00:00:00", "--duration", "600", "--interval", "1",
+         "--systems", "G", "--seed", "7", "--errors", "clock,noise,iono,tropo", "--quiet"],
+    ]
+    for name, args in zip(("static", "flight"), commands):
+        flat = " ".join(script.replace("\\\n", " ").split())
+        assert " ".join(args[:-1]) in flat, name
+        with pytest.raises(SystemExit) as exc:
+            run_app(app, "gnss-simulate", [*args, "--out-dir", str(tmp_path / name)])
+        assert exc.value.code == 0
+        for f in ("obs.rnx", "nav.rnx", "truth.csv"):
+            assert (tmp_path / name / f).read_bytes() == (ROOT / "sample_rinex" / name / f).read_bytes(), (name, f)
+    total = sum(p.stat().st_size for p in (ROOT / "sample_rinex").rglob("*") if p.is_file())
+    assert total < 1_000_000
+
+
+def test_semicircle_is_annihilated_by_its_lag3_kernel() -> None:
+    """ENU of the constant-speed half circle satisfy (z-1)(z^2 - 2 cos(w dt) z + 1) w = 0."""
+    from gnss_cli.gnss.frames import ecef2enu
+    from gnss_cli.sim.trajectory import semicircle_trajectory
+
+    centre = geodetic2ecef(np.deg2rad(55.5), np.deg2rad(8.5), 50.0)
+    t = 1.0e9 + np.arange(0.0, 601.0, 1.0)
+    traj = semicircle_trajectory(t, centre, speed_m_s=50.0)
+    enu = ecef2enu(traj.pos_ecef_m, centre)
+    c = np.cos(np.pi / 600.0)
+    # (z-1)(z^2 - 2c z + 1) = z^3 - (2c+1) z^2 + (2c+1) z - 1
+    res = enu[3:] - (2 * c + 1) * enu[2:-1] + (2 * c + 1) * enu[1:-2] - enu[:-3]
+    assert np.abs(res).max() < 1e-6 * np.abs(enu).max()
+    assert np.allclose(np.linalg.norm(traj.vel_ecef_m_s, axis=1), 50.0, rtol=1e-12)
