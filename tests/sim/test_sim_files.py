@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,6 @@ from gnss_cli.constants import C_M_S
 from gnss_cli.gnss.ephemeris import KeplerEphemeris, select_ephemeris
 from gnss_cli.gnss.frames import geodetic2ecef
 from gnss_cli.gnss.orbits import broadcast_states
-from gnss_cli.gnss.time import datetime2gps_s
 from gnss_cli.sim.constellation import SYSTEMS
 from gnss_cli.sim.scenario import ScenarioConfig, load_config
 from gnss_cli.sim.trajectory import flight_trajectory
