@@ -1,0 +1,121 @@
+"""Kinematic smoothing benchmark: window-length trade-off and the cost of a day of epochs.
+
+1. Simulated 1 Hz flight (600 s, GPS, 1 m white pseudorange noise, seed 3): 3D RMS of the
+   smoothed trajectory over the LS fixes for the shared identified kernel, the fixed PVA
+   kernel and the full identified kernel (lag 3) against the window length.
+2. A simulated day (86,400 epochs at 1 s, static or flight): wall time of
+   ``--method stls --lag 3`` (read, WLS, smoothing, clock re-estimation, multi-epoch DOP)
+   over an LS-only run (read, LS) on the same files.
+
+Usage: ``python benchmarks/bench_kinematic.py [--hours 24] [--trajectory static]``
+(prints tables, writes ``benchmarks/results/bench_kinematic.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from gnss_cli.config import load_config  # noqa: E402
+from gnss_cli.kinematic import DEFAULT_WINDOW, smooth  # noqa: E402
+from gnss_cli.pipeline import load_epochs, solve_method  # noqa: E402
+from gnss_cli.report import reference_from_csv  # noqa: E402
+
+WINDOWS = (8, 10, 12, 15, 20, 25, 30, 40)
+VARIANTS = {"shared": dict(model="identify", kernel="shared"), "pva": dict(model="pva"),
+            "full": dict(model="identify", kernel="full")}
+
+
+def simulate(out: Path, trajectory: str, duration_s: int) -> Path:
+    cmd = [sys.executable, "-m", "gnss_cli.cli.simulate", "--trajectory", trajectory, "--duration", str(duration_s),
+           "--interval", "1", "--systems", "G", "--seed", "3", "--errors", "noise", "--noise-sigma", "1",
+           "--out-dir", str(out)]
+    subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
+    return out
+
+
+def rms_3d(x: np.ndarray, ref: np.ndarray) -> float:
+    e = x - ref
+    ok = np.all(np.isfinite(e), axis=1)
+    return float(np.sqrt(np.mean(np.sum(e[ok] ** 2, axis=1))))
+
+
+def tradeoff(d: Path) -> list[dict[str, object]]:
+    cfg = load_config(None, {"iono": "none", "tropo": "none", "methods": "ls,wls"})
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    ref = np.asarray(reference_from_csv(d / "truth.csv", data.time_gps_s))
+    ls = solve_method(data, "ls", cfg)
+    wls = solve_method(data, "wls", cfg)
+    rms_ls = rms_3d(ls.x_ecef_m, ref)
+    rows: list[dict[str, object]] = []
+    for name, kw in VARIANTS.items():
+        for window in WINDOWS:
+            if name == "full" and window < 13:
+                continue
+            t0 = time.perf_counter()
+            sol, models = smooth(data, wls, cfg, 3, window=window, **kw)  # type: ignore[arg-type]
+            dt = time.perf_counter() - t0
+            statuses = sorted({str(m["status"]) for m in models})
+            rows.append({"variant": name, "window": window, "rms_3d_m": rms_3d(sol.x_ecef_m, ref),
+                         "ratio_to_ls": rms_3d(sol.x_ecef_m, ref) / rms_ls, "mean_gdop": float(np.nanmean(sol.gdop)),
+                         "time_s": dt, "windows": len(models), "window_statuses": statuses})
+    rows.append({"variant": "ls", "window": 1, "rms_3d_m": rms_ls, "ratio_to_ls": 1.0,
+                 "mean_gdop": float(np.nanmean(ls.gdop))})
+    return rows
+
+
+def day_timing(d: Path) -> dict[str, float]:
+    cfg = load_config(None, {"iono": "none", "tropo": "none", "methods": "ls"})
+    t0 = time.perf_counter()
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    solve_method(data, "ls", cfg)
+    t_ls = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    wls = solve_method(data, "wls", cfg)
+    t_wls = time.perf_counter() - t0
+    sol, models = smooth(data, wls, cfg, 3)
+    t_stls = time.perf_counter() - t0
+    return {"epochs": int(data.time_gps_s.size), "ls_only_s": t_ls, "wls_s": t_wls, "stls_lag3_s": t_stls,
+            "smoothing_s": t_stls - t_wls, "ratio": t_stls / t_ls, "windows": len(models),
+            "window": DEFAULT_WINDOW, "smoothed_epochs": int((sol.status == "ok").sum())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=24.0, help="length of the timed simulated day, h")
+    ap.add_argument("--trajectory", default="static", choices=("static", "flight"))
+    args = ap.parse_args()
+    out: dict[str, object] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        flight = simulate(Path(tmp) / "flight", "flight", 600)
+        rows = tradeoff(flight)
+        out["tradeoff_flight_600s"] = rows
+        print("variant  window  3D RMS (m)  ratio to LS  mean GDOP  time (s)")
+        for r in rows:
+            print(f"{r['variant']:<8} {r['window']:>6}  {r['rms_3d_m']:10.3f}  {r['ratio_to_ls']:11.3f}"
+                  f"  {r['mean_gdop']:9.2f}  {r.get('time_s', float('nan')):8.2f}")
+        day = simulate(Path(tmp) / "day", args.trajectory, int(round(args.hours * 3600)))
+        timing = day_timing(day)
+        timing["trajectory"] = args.trajectory  # type: ignore[assignment]
+        out["day_timing"] = timing
+        print(f"{timing['epochs']} epochs ({args.trajectory}): LS only {timing['ls_only_s']:.1f} s, "
+              f"stls --lag 3 {timing['stls_lag3_s']:.1f} s (smoothing {timing['smoothing_s']:.1f} s), "
+              f"ratio {timing['ratio']:.2f}")
+    res = REPO / "benchmarks" / "results" / "bench_kinematic.json"
+    res.parent.mkdir(parents=True, exist_ok=True)
+    res.write_text(json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
