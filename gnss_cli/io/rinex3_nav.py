@@ -178,7 +178,7 @@ def _parse_d19(chars: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -
 def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_Records, dict[str, Any]]:
     name = Path(path).name
     content = open_bytes(path)
-    if not content.strip():
+    if not content or content.isspace():
         raise RinexFormatError(f"{name}: empty file")
     pos = content.find(b"END OF HEADER")
     if pos < 0:

@@ -40,6 +40,9 @@ _DIGIT0 = 48
 _MINUS = 45
 _DOT = 46
 
+_PAD = 512
+"""Blanks appended to the text buffer, >= the widest column range ever cut."""
+
 _FIELD_WIDTH = 16
 """Width of one observation (F14.3 value + LLI + SSI), characters."""
 _VALUE_WIDTH = 14
@@ -67,8 +70,8 @@ def split_lines(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDAr
 
     Returns
     -------
-    buf : numpy.ndarray of uint8, shape (n_bytes,)
-        The text as bytes (a view of ``body`` when it holds no ``\\r``).
+    buf : numpy.ndarray of uint8, shape (n_bytes + 512,)
+        The text as bytes, followed by 512 blanks.
     starts : numpy.ndarray of int64, shape (n_lines,)
         Offset of the first character of each line.
     lengths : numpy.ndarray of int64, shape (n_lines,)
@@ -76,12 +79,14 @@ def split_lines(body: bytes) -> tuple[NDArray[np.uint8], NDArray[np.int64], NDAr
     """
     if b"\r" in body:
         body = body.replace(b"\r", b"")
-    buf = np.frombuffer(body, dtype=np.uint8)
-    newlines = np.flatnonzero(buf == 10)
+    text = np.frombuffer(body, dtype=np.uint8)
+    newlines = np.flatnonzero(text == 10)
     starts = np.concatenate(([0], newlines + 1)).astype(np.int64)
-    ends = np.concatenate((newlines, [buf.size])).astype(np.int64)
-    if starts[-1] >= buf.size:  # text ends with a newline: no last partial line
+    ends = np.concatenate((newlines, [text.size])).astype(np.int64)
+    if starts[-1] >= text.size:  # text ends with a newline: no last partial line
         starts, ends = starts[:-1], ends[:-1]
+    # blank padding lets gather_columns cut fixed-width windows past the last line's end
+    buf = np.concatenate((text, np.full(_PAD, _SPACE, dtype=np.uint8)))
     return buf, starts, ends - starts
 
 
@@ -96,8 +101,8 @@ def gather_columns(
 
     Parameters
     ----------
-    buf : numpy.ndarray of uint8, shape (n_bytes,)
-        Text buffer from :func:`split_lines`.
+    buf : numpy.ndarray of uint8, shape (n_bytes + 512,)
+        Padded text buffer from :func:`split_lines`.
     starts, lengths : numpy.ndarray of int64, shape (n,)
         Start offsets and lengths of the selected lines.
     first_col : int or numpy.ndarray of int64, shape (n,)
@@ -110,12 +115,19 @@ def gather_columns(
     numpy.ndarray of uint8, shape (n, width)
         The characters; positions beyond the end of a line hold a blank (32).
     """
-    cols = np.asarray(first_col, dtype=np.int64).reshape(-1, 1) + np.arange(width, dtype=np.int64)
-    inside = cols < lengths[:, None]
-    if buf.size == 0:
-        return np.full(inside.shape, _SPACE, dtype=np.uint8)
-    idx = np.minimum(starts[:, None] + cols, buf.size - 1)
-    return np.where(inside, buf[idx], np.uint8(_SPACE))
+    if width > _PAD:
+        raise UsageError(f"width: at most {_PAD} columns, got {width}")
+    first = np.broadcast_to(np.asarray(first_col, dtype=np.int64), starts.shape)
+    # row i of the window view is buf[i : i + width]; one fancy index copies all rows
+    windows = np.lib.stride_tricks.sliding_window_view(buf, width)
+    rows = np.minimum(starts + first, windows.shape[0] - 1)
+    chars = windows[rows]
+    n_inside = np.clip(lengths - first, 0, width)
+    short = np.flatnonzero(n_inside < width)  # lines that end inside the range
+    if short.size:
+        outside = np.arange(width) >= n_inside[short, None]
+        chars[short] = np.where(outside, np.uint8(_SPACE), chars[short])
+    return chars
 
 
 def parse_uint_columns(chars: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -203,22 +215,23 @@ def parse_f14_3(chars: NDArray[np.uint8]) -> tuple[NDArray[np.float64], NDArray[
     The digits form an integer N (units of 1e-3) exactly representable in float64, and
     ``N / 1000`` is correctly rounded, so the result equals ``float(text)`` bit for bit.
     """
-    is_digit = (chars >= _DIGIT0) & (chars <= _DIGIT0 + 9)
-    is_space = chars == _SPACE
-    is_minus = chars == _MINUS
-    blank = np.all(is_space, axis=1)
-    lead = chars[:, :10]
+    digit = chars - np.uint8(_DIGIT0)  # wraps around for characters below '0'
+    is_digit = digit < 10
+    is_minus = chars[:, :10] == _MINUS
+    n_minus = np.count_nonzero(is_minus, axis=1)
+    n_space = np.count_nonzero(chars == _SPACE, axis=1)
+    # F14.3: blanks, at most one '-', digits; '.' in column 10; digits in columns 11-13
     standard = (
         (chars[:, 10] == _DOT)
-        & np.all(is_digit[:, 11:], axis=1)
-        & np.all(is_digit[:, :10] | is_space[:, :10] | is_minus[:, :10], axis=1)
-        & (np.count_nonzero(lead == _MINUS, axis=1) <= 1)
+        & (np.count_nonzero(is_digit, axis=1) + n_space + n_minus == 13)
+        & is_digit[:, 11:].all(axis=1)
+        & (n_minus <= 1)
     )
-    digits = np.where(is_digit, chars - np.uint8(_DIGIT0), np.uint8(0)).astype(np.float64)
-    sign = np.where(np.any(is_minus[:, :10], axis=1), -1.0, 1.0)
-    values = sign * (digits @ _F14_WEIGHTS) / 1000.0
+    digits = np.where(is_digit, digit, np.uint8(0)).astype(np.float64)
+    values = (digits @ _F14_WEIGHTS) / 1000.0
+    np.negative(values, out=values, where=n_minus > 0)
     values[~standard] = np.nan
-    return values, ~standard & ~blank
+    return values, ~standard & (n_space < chars.shape[1])
 
 
 # --------------------------------------------------------------------------------------
@@ -508,7 +521,7 @@ def read_obs3(
     systems, codes = _validate_selection(systems, codes)
     name = Path(path).name
     content = open_bytes(path)
-    if not content.strip():
+    if not content or content.isspace():
         raise RinexFormatError(f"{name}: empty file")
     hdr_end = _header_end(content, name)
     header = content[:hdr_end].decode("ascii", errors="replace")
@@ -523,10 +536,7 @@ def read_obs3(
     buf, starts, lengths = split_lines(content[hdr_end:])
     # trailing blank lines are harmless
     nonblank = lengths > 0
-    if starts.size:
-        first_char = np.where(nonblank, buf[np.minimum(starts, max(buf.size - 1, 0))], _SPACE)
-    else:
-        first_char = np.zeros(0, dtype=np.uint8)
+    first_char = np.where(nonblank, buf[starts], np.uint8(_SPACE))
     last = np.flatnonzero(first_char != _SPACE)
     n_lines = int(last[-1]) + 1 if last.size else 0
     starts, lengths, first_char = starts[:n_lines], lengths[:n_lines], first_char[:n_lines]
