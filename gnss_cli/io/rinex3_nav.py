@@ -383,8 +383,8 @@ def read_nav3(
     xarray.Dataset
         Dims ``(time, sv)``: ``time`` datetime64[ns], the toc of the records as written,
         i.e. in each system's own time scale (GPS/QZSS/Galileo: GPS-aligned system time,
-        SBAS: GPS time, BeiDou: BDT, GLONASS: UTC), not converted, as in georinex; sorted; ``sv`` ``'<U…'`` ids sorted as
-        strings. Variables: the union of :data:`FIELD_NAMES` of the systems present,
+        SBAS: GPS time, BeiDou: BDT, GLONASS: UTC), not converted, as in georinex;
+        sorted; ``sv`` ``'<U…'`` ids sorted as strings. Variables: the union of :data:`FIELD_NAMES` of the systems present,
         float64, NaN where a satellite has no record at that toc or a field is blank.
         A satellite with two different records at the same toc (e.g. Galileo I/NAV and
         F/NAV) gets the second one under ``'E01_1'`` (a third under ``'E01_2'``), in file
