@@ -384,8 +384,8 @@ def read_nav3(
         Dims ``(time, sv)``: ``time`` datetime64[ns], the toc of the records as written,
         i.e. in each system's own time scale (GPS/QZSS/Galileo: GPS-aligned system time,
         SBAS: GPS time, BeiDou: BDT, GLONASS: UTC), not converted, as in georinex;
-        sorted; ``sv`` ``'<U…'`` ids sorted as strings. Variables: the union of :data:`FIELD_NAMES` of the systems present,
-        float64, NaN where a satellite has no record at that toc or a field is blank.
+        sorted; ``sv`` ``'<U…'`` ids sorted as strings. Variables: the union of
+        :data:`FIELD_NAMES` of the systems present, float64, NaN where a satellite has no record at that toc or a field is blank.
         A satellite with two different records at the same toc (e.g. Galileo I/NAV and
         F/NAV) gets the second one under ``'E01_1'`` (a third under ``'E01_2'``), in file
         order, as georinex does. Attributes: ``version`` (of the first file),
@@ -430,7 +430,8 @@ def read_nav3(
         if isinstance(systems, str):
             systems = [s.strip() for s in systems.replace(",", " ").split()]
         systems = list(systems)
-        if not systems or any(not isinstance(s, str) or len(s) != 1 or s not in SYSTEM_CHARS for s in systems):
+        if not systems or any(not isinstance(s, str) or s not in SYSTEM_CHARS or len(s) != 1
+                              for s in systems):  # fmt: skip
             raise UsageError(
                 f"systems: expected RINEX system letters from {SYSTEM_CHARS!r}, got {systems!r}"
             )
