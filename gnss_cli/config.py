@@ -19,6 +19,8 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 METHOD_NAMES = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
+"""GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "configs" / "default.toml"
 
 
@@ -72,9 +74,9 @@ class ProcessingConfig:
             raise ConfigError(f"min_satellites: expected >= 4; received {self.min_satellites}")
         if self.weights.model not in ("rtklib", "elevation", "equal"):
             raise ConfigError(f"weights.model: expected 'rtklib', 'elevation' or 'equal'; received {self.weights.model!r}")
-        unsupported = [s for s in self.systems if s != "G"]
-        if unsupported or not self.systems:
-            raise ConfigError(f"systems: this version processes GPS ('G') only; received {list(self.systems)}")
+        unsupported = [s for s in self.systems if s not in SYSTEM_LETTERS]
+        if unsupported or not self.systems or len(set(self.systems)) != len(self.systems):
+            raise ConfigError(f"systems: expected distinct letters of {', '.join(SYSTEM_LETTERS)}; received {list(self.systems)}")
         if self.orbit_sigma_m < 0:
             raise ConfigError(f"orbit_sigma_m: expected >= 0; received {self.orbit_sigma_m}")
         return self

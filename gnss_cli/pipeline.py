@@ -26,11 +26,13 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import NoSolutionError, RinexFormatError
 from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
-from gnss_cli.gnss.ephemeris import KeplerEphemeris, select_ephemeris
+from gnss_cli.constants import FREQ_B1I_HZ, FREQ_L1_HZ
+from gnss_cli.gnss.ephemeris import KeplerEphemeris
+from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_states, select_glonass_ephemeris
+from gnss_cli.gnss.multi_gnss import ephemeris_for_system, select_system_ephemeris, system_states
 from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.geometry import sagnac_range
 from gnss_cli.gnss.observables import DEFAULT_SIGNAL_PRIORITY, codes_for, select_pseudoranges
-from gnss_cli.gnss.orbits import transmit_time_states
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.io.rinex import klobuchar_coefficients, read_nav, read_obs
 from gnss_cli.solvers import Status, solve_batch
@@ -77,6 +79,12 @@ class EpochData:
     obs_path: str = ""
     nav_paths: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    systems: tuple[str, ...] = ("G",)
+    """Systems with usable data, in clock-column order (column 3 + j is system j's clock)."""
+    system_index: NDArray[np.int64] | None = None
+    """``(n,)`` index into ``systems`` of every satellite."""
+    iono_scale: F64 | None = None
+    """``(T, n)`` factor taking the L1 Klobuchar delay to the signal's frequency."""
 
 
 @dataclass(frozen=True)
@@ -92,8 +100,8 @@ class MethodSolution:
     gdop, pdop, hdop, vdop, tdop : ``(T,)`` DOPs from the method's noise gain ``J J^T``
         at the solution, position rotated to local ENU (unitless).
     gdop_paper : ``(T,)`` for TLS: the paper's ``(A^T A - s^2 I)^-1 A^T A (...)^-1``; else None.
-    cov_m2 : ``(T, 4, 4)`` the estimator covariance ``J Sigma J^T`` for the configured
-        pseudorange variances (ECEF position, clock), m^2.
+    cov_m2 : ``(T, 3 + k, 3 + k)`` the estimator covariance ``J Sigma J^T`` for the
+        configured pseudorange variances (ECEF position, one clock per system), m^2.
     status : ``(T,)`` status words (``ok``, ``iteration_limit``, ``too_few_satellites``, ...).
     iterations : ``(T,)`` Gauss-Newton iterations.
     residuals_m : ``(T, n)`` post-fit residuals of the used rows (NaN elsewhere).
@@ -113,6 +121,8 @@ class MethodSolution:
     status: NDArray[np.str_]
     iterations: NDArray[np.int64]
     residuals_m: F64
+    clocks_m: F64 | None = None
+    """``(T, k)`` receiver clock of every system (column j: ``EpochData.systems[j]``), m."""
 
 
 @dataclass(frozen=True)
@@ -163,30 +173,80 @@ def load_epochs(
     prs = select_pseudoranges(obs, systems, priority)
     if prs.sv.size == 0:
         raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, priority))})")
-    eph = KeplerEphemeris.from_dataset(nav, "G")
-    if len(eph) == 0:
-        raise RinexFormatError(f"{nav_name}: no GPS ephemeris records")
     t = prs.time_gps_s
-    t_lo, t_hi = eph.toe_gps_s.min() - 4 * 3600.0, eph.toe_gps_s.max() + 4 * 3600.0
-    if t.max() < t_lo or t.min() > t_hi:
+    n = prs.sv.size
+    sys_of = np.array([sv[0] for sv in prs.sv])
+    sat = np.full((t.size, n, 3), np.nan)
+    clk = np.full((t.size, n), np.nan)
+    tgd = np.full((t.size, n), np.nan)
+    ura = np.full((t.size, n), np.nan)
+    iono_scale = np.ones((t.size, n))
+    usable = np.zeros((t.size, n), dtype=bool)
+    have_obs = np.isfinite(prs.pr_m)
+    toe_lo, toe_hi = np.inf, -np.inf
+    for system in systems:
+        cols = np.flatnonzero(sys_of == system)
+        if cols.size == 0:
+            continue
+        pr = prs.pr_m[:, cols]
+        if system == "R":
+            geph = GlonassEphemeris.from_dataset(nav)
+            if len(geph) == 0:
+                warnings.append(f"{nav_name}: no GLONASS ephemeris; GLONASS not used")
+                continue
+            toe_lo, toe_hi = min(toe_lo, geph.toe_gps_s.min()), max(toe_hi, geph.toe_gps_s.max())
+            idx = select_glonass_ephemeris(geph, prs.sv[cols], t, healthy_only=config.healthy_only)
+
+            def states_at(i: NDArray[np.intp], tt: F64, _e: GlonassEphemeris = geph):  # type: ignore[no-untyped-def]
+                return glonass_states(_e, i, tt)
+
+            freq = geph.g1_frequency_hz()
+            scale_of = lambda i, _f=freq: (FREQ_L1_HZ / _f[np.where(i >= 0, i, 0)]) ** 2  # noqa: E731
+            ura_of = lambda i: np.full(i.shape, np.nan)  # noqa: E731
+        else:
+            keph = ephemeris_for_system(nav, system)
+            if len(keph) == 0:
+                warnings.append(f"{nav_name}: no {system} ephemeris; system {system} not used")
+                continue
+            toe_lo, toe_hi = min(toe_lo, keph.toe_gps_s.min()), max(toe_hi, keph.toe_gps_s.max())
+            idx = select_system_ephemeris(keph, prs.sv[cols], t, system, healthy_only=config.healthy_only)
+
+            def states_at(i: NDArray[np.intp], tt: F64, _e: KeplerEphemeris = keph, _s: str = system):  # type: ignore[no-untyped-def]
+                return system_states(_e, i, tt, _s)
+
+            factor = (FREQ_L1_HZ / FREQ_B1I_HZ) ** 2 if system == "C" else 1.0
+            scale_of = lambda i, _k=factor: np.full(i.shape, _k)  # noqa: E731
+            ura_of = lambda i, _e=keph: (  # noqa: E731
+                _e.ura_m[np.where(i >= 0, i, 0)] if _e.ura_m is not None else np.full(i.shape, np.nan)
+            )
+        ok = have_obs[:, cols] & (idx >= 0)
+        idx = np.where(ok, idx, -1)
+        t_tx = t[:, None] - np.where(ok, pr, 0.0) / C_M_S
+        st = states_at(idx, t_tx)
+        for _ in range(2):  # transmit time with the satellite clock (fixed point, < 1 ns)
+            st = states_at(idx, t[:, None] - np.where(ok, pr, 0.0) / C_M_S - np.where(ok, st.clock_s, 0.0))
+        sat[:, cols] = st.pos_ecef_m
+        clk[:, cols] = st.clock_s
+        tgd[:, cols] = np.nan_to_num(st.tgd_s)
+        ura[:, cols] = ura_of(idx)
+        iono_scale[:, cols] = scale_of(idx)
+        usable[:, cols] = ok & np.isfinite(st.clock_s) & np.isfinite(st.pos_ecef_m).all(axis=-1)
+    if not np.isfinite(toe_lo):
+        raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
+    if t.max() < toe_lo - 4 * 3600.0 or t.min() > toe_hi + 4 * 3600.0:
         span = lambda a, b: f"{np.datetime_as_string(gps_s2datetime(a), 'm')} to {np.datetime_as_string(gps_s2datetime(b), 'm')}"  # noqa: E731
         raise RinexFormatError(
             f"{nav_name}: no common time span with {Path(obs_path).name} "
-            f"(observations {span(t.min(), t.max())}, ephemerides {span(eph.toe_gps_s.min(), eph.toe_gps_s.max())} GPST)"
+            f"(observations {span(t.min(), t.max())}, ephemerides {span(toe_lo, toe_hi)} GPST)"
         )
-    idx = select_ephemeris(eph, prs.sv, t, healthy_only=config.healthy_only)
-    have_obs = np.isfinite(prs.pr_m)
-    usable = have_obs & (idx >= 0)
     if not usable.any():
         raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {Path(obs_path).name}")
     missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~usable.any(axis=0)]))
     if missing:
         warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
-    idx = np.where(usable, idx, -1)
-    states = transmit_time_states(eph, idx, t[:, None], np.where(usable, prs.pr_m, np.nan))
-    pr_corr = prs.pr_m + C_M_S * (states.clock_s - states.tgd_s)
-    pr_corr = np.where(usable, pr_corr, np.nan)
-    ura = np.where(usable, eph.ura_m[np.where(idx >= 0, idx, 0)] if eph.ura_m is not None else np.nan, np.nan)
+    used_systems = tuple(sy for sy in systems if usable[:, sys_of == sy].any())
+    system_index = np.array([used_systems.index(x) if x in used_systems else 0 for x in sys_of], dtype=np.int64)
+    pr_corr = np.where(usable, prs.pr_m + C_M_S * (clk - tgd), np.nan)
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
         warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; continuing without ionospheric correction")
@@ -198,7 +258,7 @@ def load_epochs(
         time_gps_s=t,
         sv=prs.sv,
         pr_corrected_m=pr_corr,
-        sat_ecef_m=states.pos_ecef_m,
+        sat_ecef_m=sat,
         ura_m=ura,
         usable=usable,
         klobuchar=klob,
@@ -207,6 +267,9 @@ def load_epochs(
         obs_path=str(obs_path),
         nav_paths=tuple(str(p) for p in nav_paths),
         warnings=tuple(warnings),
+        systems=used_systems,
+        system_index=system_index,
+        iono_scale=iono_scale,
     )
 
 
@@ -217,15 +280,20 @@ def _ura_from_index_table(ura_m: F64) -> F64:
     return np.where(k < _URA_TABLE_M.size, _URA_TABLE_M[np.minimum(k, _URA_TABLE_M.size - 1)], 6144.0)
 
 
-def pseudorange_variance_m2(config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64) -> F64:
-    """Pseudorange variances (m^2) of the configured weight model (see ``configs/default.toml``)."""
+def pseudorange_variance_m2(
+    config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0
+) -> F64:
+    """Pseudorange variances (m^2) of the configured weight model (see ``configs/default.toml``).
+
+    ``efact`` scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
+    """
     w = config.weights
     sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))
     if w.model == "equal":
         return np.full_like(el_rad, w.a_m**2)
     if w.model == "elevation":
         return w.a_m**2 + w.b_m**2 / sin_el**2
-    var = w.a_m**2 + w.b_m**2 / sin_el
+    var = (w.a_m**2 + w.b_m**2 / sin_el) * np.asarray(efact) ** 2
     var = var + _ura_from_index_table(ura_m) ** 2 + w.code_bias_m**2
     var = var + ((w.iono_factor * iono_m) ** 2 if config.iono == "klobuchar" else w.iono_off_sigma_m**2)
     var = var + ((w.saas_sigma_m / (sin_el + 0.1)) ** 2 if config.tropo == "saastamoinen" else w.tropo_off_sigma_m**2)
@@ -243,11 +311,24 @@ class _Linearization:
     rot: F64
 
 
+_ISB_CONSTRAINT_VAR_M2 = 0.01  # RTKLIB's pseudo-observation fixing the clock of an absent system
+
+
 def _linearize(data: EpochData, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig) -> _Linearization:
+    """Linearized pseudoranges at ``x`` (ECEF m) and clocks ``b`` (``(t, k)``, m, one per system).
+
+    Columns: ``[-e (3), clock of system 0, ..., clock of system k-1]``. With several systems,
+    ``k`` constraint rows follow the ``n`` satellite rows: an epoch without satellites of a
+    system gets ``clock_j = 0`` as a pseudo-observation (variance 0.01 m^2), as in RTKLIB.
+    """
+    k = len(data.systems)
+    b = np.asarray(b, dtype=np.float64)
+    if b.ndim == 1:  # one clock for all systems' columns given as (t,): broadcast
+        b = np.repeat(b[:, None], k, axis=1)
     sat = data.sat_ecef_m[rows]
     usable = data.usable[rows]
-    sat_safe = np.where(usable[..., None], sat, 0.0)
-    rng, unit = sagnac_range(np.where(usable[..., None], sat_safe, x[:, None, :] + 1.0), x)
+    sat_safe = np.where(usable[..., None], sat, x[:, None, :] + 1.0)
+    rng, unit = sagnac_range(sat_safe, x)
     radius = np.linalg.norm(x, axis=1)
     near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
     lat, lon, h = ecef2geodetic(x)
@@ -260,23 +341,44 @@ def _linearize(data: EpochData, rows: NDArray[np.intp], x: F64, b: F64, config: 
     if config.iono == "klobuchar" and data.klobuchar is not None:
         alpha, beta = data.klobuchar
         iono = klobuchar_delay_m(alpha, beta, lat[:, None], lon[:, None], az, el, data.time_gps_s[rows][:, None])
+        if data.iono_scale is not None:
+            iono = iono * data.iono_scale[rows]
     if config.tropo == "saastamoinen":
         tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el)
     iono = np.where(near[:, None] & mask, iono, 0.0)
     tropo = np.where(near[:, None] & mask, tropo, 0.0)
-    q = data.pr_corrected_m[rows] - (rng + b[:, None] + iono + tropo)
-    A = np.concatenate([-unit, np.ones_like(rng)[..., None]], axis=-1)
-    var = np.where(near[:, None], pseudorange_variance_m2(config, el, data.ura_m[rows], iono), 1.0)
+    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    onehot = (sysidx[:, None] == np.arange(k)[None, :]).astype(np.float64)  # (n, k)
+    q = data.pr_corrected_m[rows] - (rng + b @ onehot.T + iono + tropo)
+    A = np.concatenate([-unit, np.broadcast_to(onehot, (*rng.shape, k))], axis=-1)
+    efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
+    var = np.where(near[:, None], pseudorange_variance_m2(config, el, data.ura_m[rows], iono, efact), 1.0)
     q = np.where(mask, q, 0.0)
     A = np.where(mask[..., None], A, 0.0)
-    return _Linearization(A, q, mask, np.where(mask, var, 1.0), unit, rng, rot)
+    var = np.where(mask, var, 1.0)
+    unit_c = unit
+    rng_c = rng
+    if k > 1:
+        present = (mask[:, :, None] & (onehot[None, :, :] > 0)).any(axis=1)  # (t, k)
+        t_n = rows.size
+        a_c = np.zeros((t_n, k, 3 + k))
+        a_c[:, np.arange(k), 3 + np.arange(k)] = 1.0
+        q_c = -b
+        A = np.concatenate([A, np.where(~present[..., None], a_c, 0.0)], axis=1)
+        q = np.concatenate([q, np.where(~present, q_c, 0.0)], axis=1)
+        mask = np.concatenate([mask, ~present], axis=1)
+        var = np.concatenate([var, np.full((t_n, k), _ISB_CONSTRAINT_VAR_M2)], axis=1)
+        unit_c = np.concatenate([unit, np.zeros((t_n, k, 3))], axis=1)
+        rng_c = np.concatenate([rng, np.full((t_n, k), 1.0)], axis=1)
+    return _Linearization(A, q, mask, var, unit_c, rng_c, rot)
 
 
 def _stls_row_cov(lin: _Linearization, config: ProcessingConfig) -> F64:
     """Row covariances ``(T, n, 4, 4)`` of ``[e_x, e_y, e_z, q]`` for single-epoch STLS."""
     var_orb = config.orbit_sigma_m**2 / 3.0
     unit = lin.unit
-    perp = np.eye(3) - unit[..., :, None] * unit[..., None, :]
+    # |u|^2 I - u u^T: the projector across the line of sight (0 for constraint rows, u = 0)
+    perp = np.sum(unit**2, axis=-1)[..., None, None] * np.eye(3) - unit[..., :, None] * unit[..., None, :]
     T, n = lin.q.shape
     cov = np.zeros((T, n, 4, 4))
     cov[..., :3, :3] = var_orb * perp / np.maximum(lin.range_m, 1.0)[..., None, None] ** 2
@@ -292,7 +394,7 @@ def _solver_options(method: str, lin: _Linearization, config: ProcessingConfig) 
     if method in WEIGHTED_METHODS:
         kwargs["weights"] = 1.0 / lin.var_m2
     if method in ("mtls", "stls"):
-        kwargs["exact_columns"] = [3]
+        kwargs["exact_columns"] = list(range(3, lin.A.shape[-1]))
     if method == "stls":
         kwargs.pop("weights", None)
         kwargs["row_cov"] = _stls_row_cov(lin, config)
@@ -331,24 +433,23 @@ def solve_method(
     x = np.zeros((T, 3))
     if data.approx_ecef_m is not None:
         x[:] = data.approx_ecef_m
-    b = np.zeros(T)
+    k = len(data.systems)
+    b = np.zeros((T, k))
     status = np.full(T, "iteration_limit", dtype="<U24")
     iterations = np.zeros(T, dtype=np.int64)
     active = np.ones(T, dtype=bool)
-    out = _Accumulator(T, n, method)
-    n_min = config.min_satellites
+    out = _Accumulator(T, n, k, method)
     for it in range(config.max_iterations):
         rows = np.flatnonzero(active)
         if rows.size == 0:
             break
         lin = _linearize(data, rows, x[rows], b[rows], config)
-        n_used = lin.mask.sum(axis=1)
-        enough = n_used >= n_min
+        n_used, enough = _count_used(lin, n, k, config)
         res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
         ok = (res.status > 0) & enough
         step = np.where(ok[:, None], res.x, 0.0)
         x[rows] += step[:, :3]
-        b[rows] += step[:, 3]
+        b[rows] += step[:, 3:]
         iterations[rows] = it + 1
         radius = np.linalg.norm(x[rows], axis=1)
         near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
@@ -371,53 +472,62 @@ def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDA
 
 
 def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
-    T, n = data.time_gps_s.size, data.sv.size
+    T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
     x = base.x_ecef_m.copy()
-    b = base.clock_m.copy()
+    b = base.clocks_m.copy() if base.clocks_m is not None else base.clock_m[:, None].copy()
     status = base.status.copy()
     iterations = np.where(status == STATUS_OK, 1, 0).astype(np.int64)
-    out = _Accumulator(T, n, method)
+    out = _Accumulator(T, n, k, method)
     rows = np.flatnonzero(status == STATUS_OK)
     if rows.size:
         lin = _linearize(data, rows, x[rows], b[rows], config)
-        n_used = lin.mask.sum(axis=1)
-        enough = n_used >= config.min_satellites
+        n_used, enough = _count_used(lin, n, k, config)
         res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
         ok = (res.status > 0) & enough
         step = np.where(ok[:, None], res.x, 0.0)
         x[rows] += step[:, :3]
-        b[rows] += step[:, 3]
+        b[rows] += step[:, 3:]
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
     return out.finish(x, b, status, iterations)
 
 
+def _count_used(lin: _Linearization, n: int, k: int, config: ProcessingConfig) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Satellites used per epoch, and whether they determine position and every present clock."""
+    n_used = lin.mask[:, :n].sum(axis=1)
+    n_clocks = k - lin.mask[:, n:].sum(axis=1) if k > 1 else np.ones_like(n_used)
+    return n_used, n_used >= np.maximum(config.min_satellites, 3 + n_clocks)
+
+
 class _Accumulator:
     """Keeps the last linear-step quantities of every epoch and builds the MethodSolution."""
 
-    def __init__(self, T: int, n: int, method: str) -> None:
+    def __init__(self, T: int, n: int, k: int, method: str) -> None:
         self.method = method
-        self.cov = np.full((T, 4, 4), np.nan)
-        self.gain_q = np.full((T, 4, 4), np.nan)
-        self.paper_cov = np.full((T, 4, 4), np.nan) if method == "tls" else None
+        self.n = n
+        m = 3 + k
+        self.cov = np.full((T, m, m), np.nan)
+        self.gain_q = np.full((T, m, m), np.nan)
+        self.paper_cov = np.full((T, m, m), np.nan) if method == "tls" else None
         self.residuals = np.full((T, n), np.nan)
         self.n_sat = np.zeros(T, dtype=np.int64)
         self.rot = np.full((T, 3, 3), np.nan)
 
     def record(self, rows: NDArray[np.intp], lin: _Linearization, res, n_used: NDArray[np.int64]) -> None:  # type: ignore[no-untyped-def]
         self.cov[rows] = res.cov
-        self.gain_q[rows] = np.einsum("tmn,tkn->tmk", res.gain, res.gain)
+        gain = res.gain[:, :, : self.n]  # satellites only: constraint rows are not geometry
+        self.gain_q[rows] = np.einsum("tmn,tkn->tmk", gain, gain)
         if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
             self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
-        self.residuals[rows] = np.where(lin.mask, res.residuals, np.nan)
+        self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
         self.n_sat[rows] = n_used
         self.rot[rows] = lin.rot
 
     def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
         bad = status != STATUS_OK
         x = np.where(bad[:, None], np.nan, x)
-        b = np.where(bad, np.nan, b)
-        gain_q = np.where(bad[:, None, None], np.eye(4), self.gain_q)
+        b = np.where(bad[:, None], np.nan, b)
+        gain_q = np.where(bad[:, None, None], np.eye(self.gain_q.shape[-1]), self.gain_q)
         rot = np.where(bad[:, None, None], np.eye(3), self.rot)
         dop = dop_from_cov(gain_q, rot)
         gdop_paper = None
@@ -431,7 +541,8 @@ class _Accumulator:
         return MethodSolution(
             method=self.method,
             x_ecef_m=x,
-            clock_m=b,
+            clock_m=b[:, 0],
+            clocks_m=b,
             n_sat=self.n_sat,
             gdop=masked(dop.gdop),
             pdop=masked(dop.pdop),
