@@ -174,6 +174,60 @@ class KeplerEphemeris:
         return cls(**kwargs)  # type: ignore[arg-type]
 
 
+def records_by_satellite(
+    record_sv: NDArray[np.str_], health: F64, sv: NDArray[np.str_], *, healthy_only: bool = True
+) -> "list[tuple[int, NDArray[np.intp]]]":
+    """``(column j, record rows)`` of every satellite in ``sv`` that has usable records."""
+    usable = np.ones(record_sv.shape[0], dtype=bool)
+    if healthy_only:
+        usable &= health == 0
+    out = []
+    for j, s in enumerate(np.asarray(sv).astype(str)):
+        rows = np.flatnonzero((record_sv == s) & usable)
+        if rows.size:
+            out.append((j, rows))
+    return out
+
+
+def select_nearest_record(
+    record_sv: NDArray[np.str_],
+    toe_gps_s: F64,
+    health: F64,
+    max_dt_s: F64 | float,
+    sv: NDArray[np.str_],
+    t_gps_s: F64,
+    *,
+    healthy_only: bool = True,
+) -> NDArray[np.intp]:
+    """Per epoch and satellite, the record with reference time nearest to the epoch (-1: none).
+
+    Parameters
+    ----------
+    record_sv, toe_gps_s, health
+        Per-record satellite id, reference time (s since the GPS epoch) and health (0 = ok).
+    max_dt_s
+        Largest ``|t - toe|`` (s), per record ``(k,)`` or one number.
+    sv
+        Satellite ids, shape ``(n,)``.
+    t_gps_s
+        Epochs, shape ``(T,)``, s since the GPS epoch.
+
+    Returns
+    -------
+    ndarray of intp, shape ``(T, n)``
+    """
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
+    limit = np.broadcast_to(np.asarray(max_dt_s, dtype=np.float64), toe_gps_s.shape)
+    for j, rows in records_by_satellite(record_sv, health, sv, healthy_only=healthy_only):
+        dt = np.abs(t[:, None] - toe_gps_s[rows][None, :])  # (T, r)
+        dt = np.where(dt <= limit[rows][None, :] + 1e-6, dt, np.inf)
+        best = np.argmin(dt, axis=1)
+        ok = np.isfinite(dt[np.arange(t.shape[0]), best])
+        out[:, j] = np.where(ok, rows[best], -1)
+    return out
+
+
 def select_ephemeris(
     eph: KeplerEphemeris,
     sv: NDArray[np.str_],
@@ -199,18 +253,6 @@ def select_ephemeris(
     ndarray of intp, shape ``(T, n)``
         Row of ``eph`` whose toe is nearest to the epoch within half its fit interval, or -1.
     """
-    t = np.asarray(t_gps_s, dtype=np.float64)
-    out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
-    usable = np.ones(len(eph), dtype=bool)
-    if healthy_only:
-        usable &= eph.health == 0
-    for j, s in enumerate(np.asarray(sv).astype(str)):
-        rows = np.flatnonzero((eph.sv == s) & usable)
-        if rows.size == 0:
-            continue
-        dt = np.abs(t[:, None] - eph.toe_gps_s[rows][None, :])  # (T, r)
-        dt = np.where(dt <= eph.fit_interval_h[rows][None, :] * 1800.0 + 1e-6, dt, np.inf)
-        best = np.argmin(dt, axis=1)
-        ok = np.isfinite(dt[np.arange(t.shape[0]), best])
-        out[:, j] = np.where(ok, rows[best], -1)
-    return out
+    return select_nearest_record(
+        eph.sv, eph.toe_gps_s, eph.health, eph.fit_interval_h * 1800.0, sv, t_gps_s, healthy_only=healthy_only
+    )

@@ -25,6 +25,7 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.errors import RinexFormatError, UsageError
+from gnss_cli.gnss.ephemeris import select_nearest_record
 from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.time import datetime2gps_s
 
@@ -200,21 +201,7 @@ def select_glonass_ephemeris(
     -------
     ndarray of intp, shape ``(T, n)``
     """
-    t = np.asarray(t_gps_s, dtype=np.float64)
-    out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
-    usable = np.ones(len(eph), dtype=bool)
-    if healthy_only:
-        usable &= eph.health == 0
-    for j, s in enumerate(np.asarray(sv).astype(str)):
-        rows = np.flatnonzero((eph.sv == s) & usable)
-        if rows.size == 0:
-            continue
-        dt = np.abs(t[:, None] - eph.toe_gps_s[rows][None, :])
-        dt = np.where(dt <= max_dt_s + 1e-6, dt, np.inf)
-        best = np.argmin(dt, axis=1)
-        ok = np.isfinite(dt[np.arange(t.shape[0]), best])
-        out[:, j] = np.where(ok, rows[best], -1)
-    return out
+    return select_nearest_record(eph.sv, eph.toe_gps_s, eph.health, max_dt_s, sv, t_gps_s, healthy_only=healthy_only)
 
 
 def _derivative(state: F64, acc: F64) -> F64:

@@ -36,7 +36,7 @@ from gnss_cli.constants import (
     SECONDS_PER_WEEK,
 )
 from gnss_cli.errors import RinexFormatError, UsageError
-from gnss_cli.gnss.ephemeris import KeplerEphemeris, select_ephemeris
+from gnss_cli.gnss.ephemeris import KeplerEphemeris, records_by_satellite, select_ephemeris
 from gnss_cli.gnss.orbits import SatelliteStates, broadcast_states
 
 F64 = NDArray[np.float64]
@@ -201,13 +201,7 @@ def select_forward_ephemeris(
     """
     t = np.asarray(t_gps_s, dtype=np.float64)
     out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
-    usable = np.ones(len(eph), dtype=bool)
-    if healthy_only:
-        usable &= eph.health == 0
-    for j, s in enumerate(np.asarray(sv).astype(str)):
-        rows = np.flatnonzero((eph.sv == s) & usable)
-        if rows.size == 0:
-            continue
+    for j, rows in records_by_satellite(eph.sv, eph.health, sv, healthy_only=healthy_only):
         # latest toe; among equal toe the latest toc (last transmitted)
         order = np.lexsort((eph.toc_gps_s[rows], eph.toe_gps_s[rows]))
         rows = rows[order]
