@@ -38,7 +38,7 @@ from gnss_cli.io.rinex3_obs import (
     civil2datetime64,
     gather_columns,
     parse_uint_columns,
-    parse_version_line,
+    check_rinex34_type,
     split_lines,
     sv_codes2str,
 )
@@ -110,13 +110,7 @@ _SPACE = 32
 
 def _read_nav_header(header: str, name: str) -> dict[str, Any]:
     lines = header.splitlines()
-    version, file_type, _ = parse_version_line(lines[0], name)
-    if file_type != "N":
-        raise RinexFormatError(f"{name}: not a RINEX navigation file (RINEX TYPE {file_type!r})")
-    if not 3.0 <= version < 5.0:
-        raise RinexFormatError(
-            f"{name}: RINEX version {version} is not read by the RINEX 3/4 reader (expected 3.xx or 4.xx)"
-        )
+    version, _ = check_rinex34_type(lines[0], name, "N")
     attrs: dict[str, Any] = {"version": version, "rinextype": "nav"}
     iono: dict[str, NDArray[np.float64]] = {}
     for lineno, line in enumerate(lines[1:], start=2):

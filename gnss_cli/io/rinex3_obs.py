@@ -282,18 +282,31 @@ def parse_version_line(first_line: str, name: str) -> tuple[float, str, str]:
     return version, padded[20], padded[40]
 
 
+def check_rinex34_type(first_line: str, name: str, file_type: str) -> tuple[float, str]:
+    """Version and system letter of a RINEX 3/4 file of type ``file_type`` ('O' or 'N').
+
+    Raises
+    ------
+    RinexFormatError
+        The file is of another type or version.
+    """
+    version, found, system = parse_version_line(first_line, name)
+    if found != file_type:
+        kind = "observation" if file_type == "O" else "navigation"
+        raise RinexFormatError(f"{name}: not a RINEX {kind} file (RINEX TYPE {found!r})")
+    if not 3.0 <= version < 5.0:
+        raise RinexFormatError(
+            f"{name}: RINEX version {version} is not read by the RINEX 3/4 reader (expected 3.xx or 4.xx)"
+        )
+    return version, system
+
+
 def _read_obs_header(
     header: str, name: str
 ) -> tuple[dict[str, Any], dict[str, list[str]]]:
     """Decode the header lines a reader needs; return (attributes, obs types per system)."""
     lines = header.splitlines()
-    version, file_type, system = parse_version_line(lines[0], name)
-    if file_type != "O":
-        raise RinexFormatError(f"{name}: not a RINEX observation file (RINEX TYPE {file_type!r})")
-    if not 3.0 <= version < 5.0:
-        raise RinexFormatError(
-            f"{name}: RINEX version {version} is not read by the RINEX 3/4 reader (expected 3.xx or 4.xx)"
-        )
+    version, system = check_rinex34_type(lines[0], name, "O")
     attrs: dict[str, Any] = {"version": version, "rinextype": "obs"}
     obs_types: dict[str, list[str]] = {}
     current_sys = ""
