@@ -54,6 +54,7 @@ class ProcessingConfig:
     weights: WeightConfig = field(default_factory=WeightConfig)
     signals: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     orbit_sigma_m: float = 1.7
+    wtls_column_scaling: str = "orbit"
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -79,6 +80,10 @@ class ProcessingConfig:
             raise ConfigError(f"systems: expected distinct letters of {', '.join(SYSTEM_LETTERS)}; received {list(self.systems)}")
         if self.orbit_sigma_m < 0:
             raise ConfigError(f"orbit_sigma_m: expected >= 0; received {self.orbit_sigma_m}")
+        if self.wtls_column_scaling not in ("orbit", "none"):
+            raise ConfigError(f"wtls.column_scaling: expected 'orbit' or 'none'; received {self.wtls_column_scaling!r}")
+        if "wtls" in self.methods and self.wtls_column_scaling == "orbit" and not self.orbit_sigma_m > 0:
+            raise ConfigError("wtls.column_scaling = 'orbit' needs stls.orbit_sigma_m > 0 (the geometry-column error it scales by)")
         return self
 
 
@@ -110,12 +115,12 @@ def _read_toml(path: Path) -> dict[str, Any]:
 
 
 def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
-    known_sections = {"processing", "weights", "signals", "stls"}
+    known_sections = {"processing", "weights", "signals", "stls", "wtls"}
     unknown = set(data) - known_sections
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
     proc = dict(data.get("processing", {}))
-    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "orbit_sigma_m"}
+    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "orbit_sigma_m", "wtls_column_scaling"}
     bad = set(proc) - names
     if bad:
         raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
@@ -145,6 +150,11 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             if sbad:
                 raise ConfigError(f"{source}: unknown [stls] key(s) {sorted(sbad)}")
             cfg = replace(cfg, orbit_sigma_m=float(data["stls"].get("orbit_sigma_m", cfg.orbit_sigma_m)))
+        if "wtls" in data:
+            tbad = set(data["wtls"]) - {"column_scaling"}
+            if tbad:
+                raise ConfigError(f"{source}: unknown [wtls] key(s) {sorted(tbad)}")
+            cfg = replace(cfg, wtls_column_scaling=str(data["wtls"].get("column_scaling", cfg.wtls_column_scaling)))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise

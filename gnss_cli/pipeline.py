@@ -398,7 +398,28 @@ def _solver_options(method: str, lin: _Linearization, config: ProcessingConfig) 
     if method == "stls":
         kwargs.pop("weights", None)
         kwargs["row_cov"] = _stls_row_cov(lin, config)
+    if method == "wtls" and config.wtls_column_scaling == "orbit":
+        kwargs["column_scale"] = _wtls_column_scale(lin, config)
     return kwargs
+
+
+def _wtls_column_scale(lin: _Linearization, config: ProcessingConfig) -> F64:
+    """Column scales ``(m + 1,)`` of ``W^{1/2} [A q]`` for WTLS (``[wtls] column_scaling = "orbit"``).
+
+    After row whitening by ``1/sigma_i`` (m), the pseudorange column has unit error and a
+    direction cosine has error ``sigma_orbit / (sqrt(3) range_i) / sigma_i``. One scale per
+    column cannot whiten every row, so the medians over the used satellite rows set it:
+    ``d_A = median(sigma_i) median(range_i) sqrt(3) / sigma_orbit`` for every column of ``A``
+    (the clock columns are exact 1s; they get the same, large, scale), ``d_q = 1``.
+    """
+    m = lin.A.shape[-1]
+    sat_rows = lin.mask & (np.sum(lin.unit**2, axis=-1) > 0.5)  # constraint rows have u = 0
+    if not sat_rows.any():
+        return np.ones(m + 1)
+    sigma_m = np.sqrt(np.median(lin.var_m2[sat_rows]))
+    range_m = np.median(lin.range_m[sat_rows])
+    d_a = sigma_m * range_m * np.sqrt(3.0) / config.orbit_sigma_m
+    return np.concatenate([np.full(m, d_a), [1.0]])
 
 
 def solve_method(
@@ -413,7 +434,7 @@ def solve_method(
     ``ls`` and ``wls`` iterate Gauss-Newton to convergence (DESIGN.md section 2). The other
     methods solve the linear system once, linearized at the converged WLS fix
     (``linearization``; computed when not given): iterating them with their own steps does
-    not work on pseudorange data. TLS, DLS, MTLS and WTLS treat the unit-vector columns of
+    not work on pseudorange data. TLS, DLS, MTLS and unscaled WTLS treat the unit-vector columns of
     ``A`` as being as noisy as the pseudoranges in metres, so ``sigma_min(A) < sigma_min([A q])``
     and the iteration overshoots without converging (measured on rtklib-0759: no epoch
     converged in 60 iterations); where the steps do vanish (TLS, MTLS, STLS) they vanish at

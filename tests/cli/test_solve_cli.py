@@ -87,6 +87,12 @@ def test_usage_and_config_errors(d0759, tmp_path, capsys):
     assert code == 3 and "elevation_mask_deg" in err
     code, _, err = invoke([obs, nav, "--reference", "1,2"], capsys)
     assert code == 3 and "--reference" in err
+    for text, word in (('[wtls]\ncolumn_scaling = "median"\n', "column_scaling"),
+                       ('[processing]\nmethods = ["wtls"]\n[stls]\norbit_sigma_m = 0.0\n', "orbit_sigma_m"),
+                       ('[wtls]\nscale = 1.0\n', "[wtls]")):
+        bad.write_text(text)
+        code, _, err = invoke([obs, nav, "--config", bad], capsys)
+        assert code == 3 and word in err, (text, err)
 
 
 def test_flags_override_config_file(d0759, tmp_path, capsys):
