@@ -91,6 +91,11 @@ class KeplerEphemeris:
     iode: F64
     ura_m: F64 | None = None
     """Broadcast user range accuracy (m, the RINEX SV accuracy field); None when unknown."""
+    tgd2_s: F64 | None = None
+    """Second broadcast group delay (s): BeiDou TGD2 (B2I); Galileo the BGD of the E5 pair the
+    clock does not refer to (BGD(E1,E5a) of I/NAV records, BGD(E1,E5b) of F/NAV); else None."""
+    fnav: NDArray[np.bool_] | None = None
+    """Galileo: True for F/NAV records (clock for E1/E5a), False for I/NAV (E1/E5b); else None."""
 
     def __len__(self) -> int:
         return int(self.sv.shape[0])
@@ -163,6 +168,8 @@ class KeplerEphemeris:
             fit_interval_h=fit,
             iode=optional("IODE", -1.0),
             ura_m=optional("SVacc", np.nan),
+            tgd2_s=optional("TGD2", 0.0) if "TGD2" in sub else None,
+            fnav=(optional("FNAV", 0.0) > 0) if "FNAV" in sub else None,
             **values,
         )
 

@@ -112,9 +112,10 @@ def ephemeris_for_system(nav: xr.Dataset, system: str) -> KeplerEphemeris:
     KeplerEphemeris
         Times in GPS seconds. Galileo: I/NAV records only when any satellite has I/NAV
         (``DataSrc`` bit 0 or 2), else F/NAV; ``tgd_s`` = BGD(E1,E5b) for I/NAV,
-        BGD(E1,E5a) for F/NAV; the georinex suffix (``'E01_1'``) is dropped from ids.
+        BGD(E1,E5a) for F/NAV, ``tgd2_s`` the other BGD, ``fnav`` True for F/NAV; the
+        georinex suffix (``'E01_1'``) is dropped from ids.
         BeiDou: toc/toe converted from BDT to GPST (+14 s), ``tgd_s`` = TGD1 (B1I),
-        ``health`` = SatH1.
+        ``tgd2_s`` = TGD2 (B2I), ``health`` = SatH1.
 
     Raises
     ------
@@ -147,6 +148,8 @@ def ephemeris_for_system(nav: xr.Dataset, system: str) -> KeplerEphemeris:
         chosen = inav if use_inav else fnav
         tgd = np.where(inav, sub["BGDe5b"].values, sub["BGDe5a"].values)
         extra["TGD"] = (("time", "sv"), np.where(chosen, tgd, np.nan))
+        extra["TGD2"] = (("time", "sv"), np.where(inav, sub["BGDe5a"].values, sub["BGDe5b"].values))
+        extra["FNAV"] = (("time", "sv"), np.where(inav, 0.0, 1.0))
         extra["sqrtA"] = (("time", "sv"), np.where(chosen, sub["sqrtA"].values, np.nan))
         # Health bits 0-8 (E1-B / E5b / E5a DVS and HS); 0 = healthy.
         extra["health"] = sub["health"]

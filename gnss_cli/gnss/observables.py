@@ -26,6 +26,17 @@ DEFAULT_SIGNAL_PRIORITY: dict[str, tuple[str, ...]] = {
     "R": ("C1C", "C1", "C1P", "P1"),
 }
 
+DEFAULT_SECOND_SIGNAL_PRIORITY: dict[str, tuple[str, ...]] = {
+    "G": ("C2P", "C2Y", "C2W", "P2", "C2C", "C2D", "C2L", "C2S", "C2X", "C2"),
+    "E": ("C7I", "C7Q", "C7X", "C5I", "C5Q", "C5X"),
+    "C": ("C7I", "C7Q", "C7X", "C6I", "C6Q", "C6X"),
+    "J": ("C2L", "C2S", "C2X"),
+    "R": ("C2P", "P2", "C2C", "C2"),
+}
+"""Second frequency of the ionosphere-free combination (``configs/default.toml``
+``[signals.second]`` explains the choice): GPS/QZSS L2 (P(Y) first, as RTKLIB), Galileo E5b
+then E5a, BeiDou B2I then B3I, GLONASS G2 (P code first)."""
+
 
 @dataclass(frozen=True)
 class Pseudoranges:
@@ -105,3 +116,15 @@ def select_pseudoranges(
     have = np.isfinite(pr).any(axis=0)
     order = np.argsort(svs[have], kind="stable")
     return Pseudoranges(t, svs[have][order], pr[:, have][:, order], code[:, have][:, order])
+
+
+def align_pseudoranges(prs: Pseudoranges, sv: NDArray[np.str_]) -> Pseudoranges:
+    """``prs`` on the satellite axis ``sv`` (same epochs): NaN and '' for satellites it lacks."""
+    pr = np.full((prs.time_gps_s.size, len(sv)), np.nan)
+    code = np.full(pr.shape, "", dtype=prs.code.dtype if prs.code.size else "<U3")
+    where = {s: j for j, s in enumerate(prs.sv)}
+    src = np.array([where.get(s, -1) for s in sv], dtype=np.intp)
+    have = src >= 0
+    pr[:, have] = prs.pr_m[:, src[have]]
+    code[:, have] = prs.code[:, src[have]]
+    return Pseudoranges(prs.time_gps_s, np.asarray(sv), pr, code)
