@@ -20,7 +20,8 @@ def ecef2geodetic(xyz_m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.flo
     """ECEF position(s) ``(..., 3)`` in metres -> latitude rad, longitude rad, ellipsoidal height m."""
     xyz = np.asarray(xyz_m, dtype=np.float64)
     lat, lon, h = pymap3d.ecef2geodetic(xyz[..., 0], xyz[..., 1], xyz[..., 2], ell=_ELLIPSOID, deg=False)
-    return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64), np.asarray(h, dtype=np.float64)
+    shape = xyz.shape[:-1]  # pymap3d returns a scalar latitude for a single point given as (1, 3)
+    return tuple(np.reshape(np.asarray(v, dtype=np.float64), shape) for v in (lat, lon, h))  # type: ignore[return-value]
 
 
 def geodetic2ecef(lat_rad: ArrayLike, lon_rad: ArrayLike, h_m: ArrayLike) -> NDArray[np.float64]:

@@ -285,6 +285,8 @@ def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | 
     ----------
     paths
         One or several navigation files (RINEX 2 GPS nav, RINEX 3/4 mixed or per system).
+        All RINEX 3/4 files are read in one pass by
+        :func:`~gnss_cli.io.rinex3_nav.read_nav3`; RINEX 2 files by georinex, then merged.
     systems
         System letters to keep; None keeps all.
 
@@ -301,22 +303,29 @@ def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | 
     items = [paths] if isinstance(paths, (str, Path)) else list(paths)
     if not items:
         raise RinexFormatError("no navigation file given")
-    datasets = []
-    for item in items:
-        info = rinex_info(item)
+    infos = [rinex_info(item) for item in items]
+    for info in infos:
         if info.kind != "nav":
             raise RinexFormatError(f"{info.path}: is a RINEX observation file, expected a navigation file (OBS and NAV swapped?)")
-        if info.version >= 3 and _fast_reader_available():
-            from gnss_cli.io.rinex3_nav import read_nav3
+        if info.version >= 4 and not _fast_reader_available():
+            raise RinexFormatError(f"{info.path}: RINEX {info.version} navigation files need the built-in RINEX 3/4 reader")
+    fast = [info for info in infos if info.version >= 3 and _fast_reader_available()]
+    datasets = []
+    if fast:  # every RINEX 3/4 file in one pass: one record table, duplicates across files dropped
+        from gnss_cli.io.rinex3_nav import read_nav3
 
-            ds = read_nav3(info.path, systems=list(systems) if systems else None)
-        else:
-            if info.version >= 4:
-                raise RinexFormatError(f"{info.path}: RINEX {info.version} navigation files need the built-in RINEX 3/4 reader")
-            kwargs: dict[str, object] = {}
-            if systems:
-                kwargs["use"] = set(systems)
-            ds = _georinex_load(info.path, **kwargs)
+        ds = read_nav3([info.path for info in fast], systems=list(systems) if systems else None)
+        if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
+            raise RinexFormatError(f"{', '.join(str(i.path) for i in fast)}: no navigation records")
+        ds.attrs["filename"] = ",".join(info.path.name for info in fast)
+        datasets.append(ds)
+    for info in infos:
+        if info in fast:
+            continue
+        kwargs: dict[str, object] = {}
+        if systems:
+            kwargs["use"] = set(systems)
+        ds = _georinex_load(info.path, **kwargs)
         if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
             raise RinexFormatError(f"{info.path}: no navigation records")
         ds.attrs["filename"] = info.path.name
