@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from gnss_cli.errors import ConfigError
+from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -19,6 +20,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 METHOD_NAMES = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "configs" / "default.toml"
@@ -36,6 +38,7 @@ class WeightConfig:
     saas_sigma_m: float = 0.3
     iono_off_sigma_m: float = 5.0
     tropo_off_sigma_m: float = 3.0
+    iono_free_factor: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,9 @@ class ProcessingConfig:
     """Every processing option, with units in the names."""
 
     methods: tuple[str, ...] = ("wls",)
-    systems: tuple[str, ...] = ("G",)
+    systems: tuple[str, ...] = ()
+    """Constellations in clock-column order; empty = every system of :data:`SYSTEM_LETTERS`
+    observed in the observation file and present in the navigation files."""
     elevation_mask_deg: float = 10.0
     iono: str = "klobuchar"
     tropo: str = "saastamoinen"
@@ -53,6 +58,8 @@ class ProcessingConfig:
     healthy_only: bool = True
     weights: WeightConfig = field(default_factory=WeightConfig)
     signals: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    signals_second: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    """Second-frequency code priority per system, for ``iono = "iono-free"``."""
     orbit_sigma_m: float = 1.7
     wtls_column_scaling: str = "orbit"
 
@@ -61,8 +68,8 @@ class ProcessingConfig:
         bad = [m for m in self.methods if m not in METHOD_NAMES]
         if bad or not self.methods:
             raise ConfigError(f"methods: expected some of {', '.join(METHOD_NAMES)} or 'all'; received {list(self.methods)}")
-        if self.iono not in ("klobuchar", "none"):
-            raise ConfigError(f"iono: expected 'klobuchar' or 'none'; received {self.iono!r}")
+        if self.iono not in IONO_OPTIONS:
+            raise ConfigError(f"iono: expected one of {', '.join(IONO_OPTIONS)}; received {self.iono!r}")
         if self.tropo not in ("saastamoinen", "none"):
             raise ConfigError(f"tropo: expected 'saastamoinen' or 'none'; received {self.tropo!r}")
         if not 0.0 <= self.elevation_mask_deg < 90.0:
@@ -76,8 +83,21 @@ class ProcessingConfig:
         if self.weights.model not in ("rtklib", "elevation", "equal"):
             raise ConfigError(f"weights.model: expected 'rtklib', 'elevation' or 'equal'; received {self.weights.model!r}")
         unsupported = [s for s in self.systems if s not in SYSTEM_LETTERS]
-        if unsupported or not self.systems or len(set(self.systems)) != len(self.systems):
-            raise ConfigError(f"systems: expected distinct letters of {', '.join(SYSTEM_LETTERS)}; received {list(self.systems)}")
+        if unsupported or len(set(self.systems)) != len(self.systems):
+            raise ConfigError(
+                f"systems: expected 'all' or distinct letters of {', '.join(SYSTEM_LETTERS)}; received {list(self.systems)}"
+            )
+        if not self.weights.iono_free_factor >= 1.0:
+            raise ConfigError(f"weights.iono_free_factor: expected >= 1; received {self.weights.iono_free_factor}")
+        for system, codes in self.signals_second.items():
+            if system not in SYSTEM_LETTERS:
+                raise ConfigError(f"signals.second: unknown system {system!r}; expected {', '.join(SYSTEM_LETTERS)}")
+            bad_codes = [c for c in codes if signal_of(system, c) not in IONO_FREE_SIGNALS[system]]
+            if bad_codes:
+                raise ConfigError(
+                    f"signals.second.{system}: codes {bad_codes} are not on a signal with a broadcast group delay; "
+                    f"expected codes of {', '.join(IONO_FREE_SIGNALS[system])}"
+                )
         if self.orbit_sigma_m < 0:
             raise ConfigError(f"orbit_sigma_m: expected >= 0; received {self.orbit_sigma_m}")
         if self.wtls_column_scaling not in ("orbit", "none"):
@@ -104,6 +124,17 @@ def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
+def parse_systems(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """``"G,E"`` / ``["G", "E"]`` -> ``("G", "E")``; ``"all"`` -> ``()`` (every system with data)."""
+    items = value.split(",") if isinstance(value, str) else [str(v) for v in value]
+    letters = tuple(i.strip().upper() for i in items if i.strip())
+    if letters == ("ALL",):
+        return ()
+    if not letters:
+        raise ConfigError(f"systems: expected 'all' or letters of {', '.join(SYSTEM_LETTERS)}; received {value!r}")
+    return letters
+
+
 def _read_toml(path: Path) -> dict[str, Any]:
     try:
         with open(path, "rb") as f:
@@ -120,7 +151,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
     proc = dict(data.get("processing", {}))
-    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "orbit_sigma_m", "wtls_column_scaling"}
+    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "signals_second", "orbit_sigma_m",
+                                                          "wtls_column_scaling"}
     bad = set(proc) - names
     if bad:
         raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
@@ -128,7 +160,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
         if "methods" in proc:
             proc["methods"] = parse_methods(proc["methods"])
         if "systems" in proc:
-            proc["systems"] = tuple(str(s).upper() for s in proc["systems"])
+            proc["systems"] = parse_systems(proc["systems"])
         for key in ("elevation_mask_deg", "convergence_m"):
             if key in proc:
                 proc[key] = float(proc[key])
@@ -142,9 +174,15 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             raise ConfigError(f"{source}: unknown [weights] key(s) {sorted(wbad)}")
         cfg = replace(cfg, weights=replace(cfg.weights, **{k: (v if k == "model" else float(v)) for k, v in w.items()}))
         if "signals" in data:
+            table = dict(data["signals"])
+            second = table.pop("second", {})
+            if not isinstance(second, Mapping):
+                raise ConfigError(f"{source}: [signals] second must be a table of code lists per system")
             sig = dict(cfg.signals)
-            sig.update({str(k).upper(): tuple(str(c) for c in v) for k, v in data["signals"].items()})
-            cfg = replace(cfg, signals=sig)
+            sig.update({str(k).upper(): tuple(str(c) for c in v) for k, v in table.items()})
+            sig2 = dict(cfg.signals_second)
+            sig2.update({str(k).upper(): tuple(str(c) for c in v) for k, v in second.items()})
+            cfg = replace(cfg, signals=sig, signals_second=sig2)
         if "stls" in data:
             sbad = set(data["stls"]) - {"orbit_sigma_m"}
             if sbad:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.config import ProcessingConfig
+from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import NoSolutionError, RinexFormatError
 from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
@@ -32,7 +32,14 @@ from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_states, select_glona
 from gnss_cli.gnss.multi_gnss import ephemeris_for_system, select_system_ephemeris, system_states
 from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.geometry import sagnac_range
-from gnss_cli.gnss.observables import DEFAULT_SIGNAL_PRIORITY, codes_for, select_pseudoranges
+from gnss_cli.gnss.observables import (
+    DEFAULT_SECOND_SIGNAL_PRIORITY,
+    DEFAULT_SIGNAL_PRIORITY,
+    align_pseudoranges,
+    codes_for,
+    select_pseudoranges,
+)
+from gnss_cli.gnss.signals import iono_free_pseudorange_m
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.io.rinex import klobuchar_coefficients, read_nav, read_obs
 from gnss_cli.solvers import Status, solve_batch
@@ -60,7 +67,7 @@ class EpochData:
     sv : ``(n,)`` satellite ids.
     pr_corrected_m : ``(T, n)`` pseudorange + c (satellite clock - TGD), m (NaN = unusable).
     sat_ecef_m : ``(T, n, 3)`` satellite positions at transmit time, m.
-    ura_m : ``(T, n)`` broadcast URA, m.
+    ura_m : ``(T, n)`` broadcast orbit-and-clock error sigma, m (:func:`ephemeris_sigma_m`).
     usable : ``(T, n)`` observation with a usable ephemeris.
     klobuchar : ``(alpha, beta)`` or None.
     approx_ecef_m : ``(3,)`` header approximate position or None.
@@ -98,7 +105,9 @@ class MethodSolution:
     clock_m : ``(T,)`` receiver clock bias, m.
     n_sat : ``(T,)`` satellites used.
     gdop, pdop, hdop, vdop, tdop : ``(T,)`` DOPs from the method's noise gain ``J J^T``
-        at the solution, position rotated to local ENU (unitless).
+        at the solution, position rotated to local ENU (unitless). ``tdop`` is the TDOP of
+        the reference clock, the first of ``EpochData.systems`` (= ``tdops[:, 0]``); ``gdop``
+        includes every clock.
     gdop_paper : ``(T,)`` for TLS: the paper's ``(A^T A - s^2 I)^-1 A^T A (...)^-1``; else None.
     cov_m2 : ``(T, 3 + k, 3 + k)`` the estimator covariance ``J Sigma J^T`` for the
         configured pseudorange variances (ECEF position, one clock per system), m^2.
@@ -123,6 +132,9 @@ class MethodSolution:
     residuals_m: F64
     clocks_m: F64 | None = None
     """``(T, k)`` receiver clock of every system (column j: ``EpochData.systems[j]``), m."""
+    tdops: F64 | None = None
+    """``(T, k)`` TDOP of every system's clock, ``sqrt((J J^T)_{3+j,3+j})``; NaN where the
+    epoch failed or used no satellite of that system (its clock is then fixed by a constraint)."""
 
 
 @dataclass(frozen=True)
@@ -152,20 +164,46 @@ def load_epochs(
 ) -> EpochData:
     """Read and validate the files, select pseudoranges, and compute satellite states.
 
+    ``config.systems`` empty means every system of :data:`~gnss_cli.config.SYSTEM_LETTERS`
+    that the observation file has and the navigation files have records of. With
+    ``config.iono == "iono-free"`` ``pr_corrected_m`` is the ionosphere-free combination of
+    the first and second frequency (:mod:`gnss_cli.gnss.signals`); satellites without a
+    usable second frequency are not usable.
+
+    Satellite states are evaluated once per observation, at ``t - P/c``, and moved to the
+    transmit time ``t - P/c - dt_sv`` along the broadcast velocity (``|dt_sv| < 1 ms``: the
+    neglected acceleration term is below 1e-6 m).
+
     ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
 
     Raises
     ------
     InputError
-        Unreadable, malformed or mismatched files (no common time span, no ephemeris).
+        Unreadable, malformed or mismatched files (no common time span, no ephemeris, no
+        system in both files, no dual-frequency pseudorange in iono-free mode).
     """
     clock = time.perf_counter()
-    systems = list(config.systems)
+    explicit = bool(config.systems)
+    systems = list(config.systems) if explicit else list(SYSTEM_LETTERS)
+    iono_free = config.iono == "iono-free"
     priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
-    obs = read_obs(obs_path, systems=systems, codes=codes_for(systems, priority))
+    priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
+    codes = codes_for(systems, priority)
+    if iono_free:
+        codes += [c for c in codes_for(systems, priority2) if c not in codes]
+    obs = read_obs(obs_path, systems=systems, codes=codes)
     nav = read_nav(list(nav_paths), systems=systems)
     nav_name = ",".join(Path(p).name for p in nav_paths)
     warnings: list[str] = []
+    if not explicit:
+        in_obs = {str(v)[:1] for v in obs["sv"].values}
+        in_nav = {str(v)[:1] for v in nav["sv"].values}
+        systems = [sy for sy in SYSTEM_LETTERS if sy in in_obs and sy in in_nav]
+        if not systems:
+            raise RinexFormatError(
+                f"{nav_name}: no system of {','.join(SYSTEM_LETTERS)} is both observed in {Path(obs_path).name} "
+                f"(has {','.join(sorted(in_obs)) or 'none'}) and in the navigation files (have {','.join(sorted(in_nav)) or 'none'})"
+            )
 
     if timings is not None:
         timings["read"] = time.perf_counter() - clock
@@ -173,9 +211,11 @@ def load_epochs(
     prs = select_pseudoranges(obs, systems, priority)
     if prs.sv.size == 0:
         raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, priority))})")
+    prs2 = align_pseudoranges(select_pseudoranges(obs, systems, priority2), prs.sv) if iono_free else None
     t = prs.time_gps_s
     n = prs.sv.size
     sys_of = np.array([sv[0] for sv in prs.sv])
+    p_if = np.full((t.size, n), np.nan)
     sat = np.full((t.size, n, 3), np.nan)
     clk = np.full((t.size, n), np.nan)
     tgd = np.full((t.size, n), np.nan)
@@ -202,7 +242,8 @@ def load_epochs(
 
             freq = geph.g1_frequency_hz()
             scale_of = lambda i, _f=freq: (FREQ_L1_HZ / _f[np.where(i >= 0, i, 0)]) ** 2  # noqa: E731
-            ura_of = lambda i: np.full(i.shape, np.nan)  # noqa: E731
+            ura_of = lambda i: ephemeris_sigma_m("R", np.full(i.shape, np.nan))  # noqa: E731
+            delays_of = lambda i, _e=geph: {"tgd_s": np.zeros(i.shape), "glonass_channel": _e.freq_num[i]}  # noqa: E731
         else:
             keph = ephemeris_for_system(nav, system)
             if len(keph) == 0:
@@ -216,21 +257,28 @@ def load_epochs(
 
             factor = (FREQ_L1_HZ / FREQ_B1I_HZ) ** 2 if system == "C" else 1.0
             scale_of = lambda i, _k=factor: np.full(i.shape, _k)  # noqa: E731
-            ura_of = lambda i, _e=keph: (  # noqa: E731
-                _e.ura_m[np.where(i >= 0, i, 0)] if _e.ura_m is not None else np.full(i.shape, np.nan)
+            ura_of = lambda i, _e=keph, _s=system: ephemeris_sigma_m(  # noqa: E731
+                _s, _e.ura_m[np.where(i >= 0, i, 0)] if _e.ura_m is not None else np.full(i.shape, np.nan)
             )
-        ok = have_obs[:, cols] & (idx >= 0)
-        idx = np.where(ok, idx, -1)
-        t_tx = t[:, None] - np.where(ok, pr, 0.0) / C_M_S
-        st = states_at(idx, t_tx)
-        for _ in range(2):  # transmit time with the satellite clock (fixed point, < 1 ns)
-            st = states_at(idx, t[:, None] - np.where(ok, pr, 0.0) / C_M_S - np.where(ok, st.clock_s, 0.0))
-        sat[:, cols] = st.pos_ecef_m
-        clk[:, cols] = st.clock_s
-        tgd[:, cols] = np.nan_to_num(st.tgd_s)
-        ura[:, cols] = ura_of(idx)
-        iono_scale[:, cols] = scale_of(idx)
-        usable[:, cols] = ok & np.isfinite(st.clock_s) & np.isfinite(st.pos_ecef_m).all(axis=-1)
+            delays_of = lambda i, _e=keph: {  # noqa: E731
+                "tgd_s": _e.tgd_s[i],
+                "tgd2_s": None if _e.tgd2_s is None else _e.tgd2_s[i],
+                "fnav": None if _e.fnav is None else _e.fnav[i],
+            }
+        # one state per observation with a record, at t - P/c, moved by -dt_sv along the velocity
+        ii, jj = np.nonzero(have_obs[:, cols] & (idx >= 0))
+        kk, cc = idx[ii, jj], cols[jj]
+        st = states_at(kk, t[ii] - pr[ii, jj] / C_M_S)
+        sat[ii, cc] = st.pos_ecef_m - st.vel_ecef_m_s * st.clock_s[:, None]
+        clk[ii, cc] = st.clock_s
+        tgd[ii, cc] = np.nan_to_num(st.tgd_s)
+        ura[ii, cc] = ura_of(kk)
+        iono_scale[ii, cc] = scale_of(kk)
+        usable[ii, cc] = np.isfinite(st.clock_s) & np.isfinite(sat[ii, cc]).all(axis=-1)
+        if prs2 is not None:
+            p_if[ii, cc] = iono_free_pseudorange_m(
+                system, prs.code[ii, cc], pr[ii, jj], prs2.code[ii, cc], prs2.pr_m[ii, cc], **delays_of(kk)
+            )
     if not np.isfinite(toe_lo):
         raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
     if t.max() < toe_lo - 4 * 3600.0 or t.min() > toe_hi + 4 * 3600.0:
@@ -244,9 +292,24 @@ def load_epochs(
     missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~usable.any(axis=0)]))
     if missing:
         warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
+    if iono_free:
+        dual = usable & np.isfinite(p_if)
+        if not dual.any():
+            second = ", ".join(c for c in codes_for(systems, priority2))
+            raise RinexFormatError(
+                f"{Path(obs_path).name}: no satellite has a second-frequency pseudorange for the iono-free combination "
+                f"(codes {second}); use --iono klobuchar"
+            )
+        dropped = sorted(set(prs.sv[usable.any(axis=0) & ~dual.any(axis=0)]))
+        if dropped:
+            warnings.append(f"iono-free: {len(dropped)} satellite(s) without a usable second frequency not used: {' '.join(dropped)}")
+        usable = dual
     used_systems = tuple(sy for sy in systems if usable[:, sys_of == sy].any())
     system_index = np.array([used_systems.index(x) if x in used_systems else 0 for x in sys_of], dtype=np.int64)
-    pr_corr = np.where(usable, prs.pr_m + C_M_S * (clk - tgd), np.nan)
+    if iono_free:
+        pr_corr = np.where(usable, p_if + C_M_S * clk, np.nan)
+    else:
+        pr_corr = np.where(usable, prs.pr_m + C_M_S * (clk - tgd), np.nan)
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
         warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; continuing without ionospheric correction")
@@ -280,12 +343,35 @@ def _ura_from_index_table(ura_m: F64) -> F64:
     return np.where(k < _URA_TABLE_M.size, _URA_TABLE_M[np.minimum(k, _URA_TABLE_M.size - 1)], 6144.0)
 
 
+GLONASS_EPHEMERIS_SIGMA_M = 5.0
+"""GLONASS broadcast orbit-and-clock error sigma (RTKLIB ``ERREPH_GLO``): RINEX 3 records carry no URA."""
+GALILEO_NAPA_SIGMA_M = 500.0
+"""Galileo SISA 'no accuracy prediction available' (RTKLIB ``STD_GAL_NAPA``)."""
+
+
+def ephemeris_sigma_m(system: str, accuracy_m: F64) -> F64:
+    """Orbit-and-clock error sigma (m) of broadcast records, as RTKLIB's ``var_uraeph``.
+
+    GPS, QZSS, BeiDou: the URA field rounded up to the IS-GPS-200 table (blank: 2.4 m).
+    Galileo: the SISA field, 0 < SISA <= 6 m; larger or negative values mean NAPA (500 m);
+    blank: 2.4 m. GLONASS: 5 m for every record.
+    """
+    acc = np.asarray(accuracy_m, dtype=np.float64)
+    if system == "R":
+        return np.full(acc.shape, GLONASS_EPHEMERIS_SIGMA_M)
+    if system == "E":
+        napa = np.isfinite(acc) & ((acc <= 0.0) | (acc > 6.0))
+        return np.where(np.isfinite(acc), np.where(napa, GALILEO_NAPA_SIGMA_M, acc), _URA_TABLE_M[0])
+    return _ura_from_index_table(acc)
+
+
 def pseudorange_variance_m2(
     config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0
 ) -> F64:
     """Pseudorange variances (m^2) of the configured weight model (see ``configs/default.toml``).
 
-    ``efact`` scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
+    ``ura_m`` is the broadcast orbit-and-clock sigma (:func:`ephemeris_sigma_m`); ``efact``
+    scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
     """
     w = config.weights
     sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))
@@ -294,7 +380,11 @@ def pseudorange_variance_m2(
     if w.model == "elevation":
         return w.a_m**2 + w.b_m**2 / sin_el**2
     var = (w.a_m**2 + w.b_m**2 / sin_el) * np.asarray(efact) ** 2
-    var = var + _ura_from_index_table(ura_m) ** 2 + w.code_bias_m**2
+    if config.iono == "iono-free":  # RTKLIB dual-freq: noise x iono_free_factor, no code-bias or iono term
+        return var * w.iono_free_factor**2 + ura_m**2 + (
+            (w.saas_sigma_m / (sin_el + 0.1)) ** 2 if config.tropo == "saastamoinen" else w.tropo_off_sigma_m**2
+        )
+    var = var + ura_m**2 + w.code_bias_m**2
     var = var + ((w.iono_factor * iono_m) ** 2 if config.iono == "klobuchar" else w.iono_off_sigma_m**2)
     var = var + ((w.saas_sigma_m / (sin_el + 0.1)) ** 2 if config.tropo == "saastamoinen" else w.tropo_off_sigma_m**2)
     return var
@@ -325,37 +415,49 @@ def _linearize(data: EpochData, rows: NDArray[np.intp], x: F64, b: F64, config: 
     b = np.asarray(b, dtype=np.float64)
     if b.ndim == 1:  # one clock for all systems' columns given as (t,): broadcast
         b = np.repeat(b[:, None], k, axis=1)
-    sat = data.sat_ecef_m[rows]
-    usable = data.usable[rows]
-    sat_safe = np.where(usable[..., None], sat, x[:, None, :] + 1.0)
-    rng, unit = sagnac_range(sat_safe, x)
+    t_n, n = rows.size, data.sv.size
+    # every per-satellite term is evaluated on the usable observations only, then scattered
+    ti, si = np.nonzero(data.usable[rows])
+    tr = rows[ti]
+    rng_u, unit_u = sagnac_range(data.sat_ecef_m[tr, si][:, None, :], x[ti])
+    rng_u, unit_u = rng_u[:, 0], unit_u[:, 0]
     radius = np.linalg.norm(x, axis=1)
     near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
     lat, lon, h = ecef2geodetic(x)
     rot = ecef2enu_rotation(lat, lon)
-    los_enu = np.einsum("tij,tnj->tni", rot, unit)
-    az, el = azimuth_elevation(los_enu)
-    mask = usable & (~near[:, None] | (el >= np.deg2rad(config.elevation_mask_deg)))
-    iono = np.zeros_like(rng)
-    tropo = np.zeros_like(rng)
-    if config.iono == "klobuchar" and data.klobuchar is not None:
+    az, el = azimuth_elevation(np.einsum("nij,nj->ni", rot[ti], unit_u))
+    near_u = near[ti]
+    mask_u = ~near_u | (el >= np.deg2rad(config.elevation_mask_deg))
+    corrected = near_u & mask_u
+    iono = np.zeros_like(rng_u)
+    if config.iono == "klobuchar" and data.klobuchar is not None and corrected.any():
         alpha, beta = data.klobuchar
-        iono = klobuchar_delay_m(alpha, beta, lat[:, None], lon[:, None], az, el, data.time_gps_s[rows][:, None])
+        c = np.flatnonzero(corrected)
+        iono[c] = klobuchar_delay_m(alpha, beta, lat[ti[c]], lon[ti[c]], az[c], el[c], data.time_gps_s[tr[c]])
         if data.iono_scale is not None:
-            iono = iono * data.iono_scale[rows]
-    if config.tropo == "saastamoinen":
-        tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el)
-    iono = np.where(near[:, None] & mask, iono, 0.0)
-    tropo = np.where(near[:, None] & mask, tropo, 0.0)
-    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+            iono[c] *= data.iono_scale[tr[c], si[c]]
+    tropo = np.zeros_like(rng_u)
+    if config.tropo == "saastamoinen" and corrected.any():
+        c = np.flatnonzero(corrected)
+        tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
+    sysidx = data.system_index if data.system_index is not None else np.zeros(n, dtype=np.int64)
     onehot = (sysidx[:, None] == np.arange(k)[None, :]).astype(np.float64)  # (n, k)
-    q = data.pr_corrected_m[rows] - (rng + b @ onehot.T + iono + tropo)
-    A = np.concatenate([-unit, np.broadcast_to(onehot, (*rng.shape, k))], axis=-1)
     efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
-    var = np.where(near[:, None], pseudorange_variance_m2(config, el, data.ura_m[rows], iono, efact), 1.0)
-    q = np.where(mask, q, 0.0)
-    A = np.where(mask[..., None], A, 0.0)
-    var = np.where(mask, var, 1.0)
+    var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
+    q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
+    mask = np.zeros((t_n, n), dtype=bool)
+    mask[ti, si] = mask_u
+    q = np.zeros((t_n, n))
+    q[ti, si] = np.where(mask_u, q_u, 0.0)
+    var = np.ones((t_n, n))
+    var[ti, si] = np.where(mask_u, var_u, 1.0)
+    A = np.zeros((t_n, n, 3 + k))
+    A[ti, si, :3] = np.where(mask_u[:, None], -unit_u, 0.0)
+    A[ti, si, 3 + sysidx[si]] = np.where(mask_u, 1.0, 0.0)
+    unit = np.zeros((t_n, n, 3))
+    unit[ti, si] = unit_u
+    rng = np.ones((t_n, n))
+    rng[ti, si] = rng_u
     unit_c = unit
     rng_c = rng
     if k > 1:
@@ -533,6 +635,7 @@ class _Accumulator:
         self.residuals = np.full((T, n), np.nan)
         self.n_sat = np.zeros(T, dtype=np.int64)
         self.rot = np.full((T, 3, 3), np.nan)
+        self.present = np.zeros((T, k), dtype=bool)
 
     def record(self, rows: NDArray[np.intp], lin: _Linearization, res, n_used: NDArray[np.int64]) -> None:  # type: ignore[no-untyped-def]
         self.cov[rows] = res.cov
@@ -543,6 +646,9 @@ class _Accumulator:
         self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
         self.n_sat[rows] = n_used
         self.rot[rows] = lin.rot
+        k = self.present.shape[1]
+        # with several systems, a set constraint row (after the n satellite rows) marks an absent system
+        self.present[rows] = ~lin.mask[:, self.n :] if k > 1 else True
 
     def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
         bad = status != STATUS_OK
@@ -559,6 +665,10 @@ class _Accumulator:
         def masked(v: F64) -> F64:
             return np.where(bad, np.nan, v)
 
+        k = self.present.shape[1]
+        q_clk = self.gain_q[:, 3 + np.arange(k), 3 + np.arange(k)]
+        tdops = np.where(self.present & ~bad[:, None], np.sqrt(np.clip(q_clk, 0.0, None)), np.nan)
+
         return MethodSolution(
             method=self.method,
             x_ecef_m=x,
@@ -569,7 +679,8 @@ class _Accumulator:
             pdop=masked(dop.pdop),
             hdop=masked(dop.hdop),
             vdop=masked(dop.vdop),
-            tdop=masked(dop.tdop),
+            tdop=np.where(self.present[:, 0], masked(dop.tdop), np.nan),
+            tdops=tdops,
             gdop_paper=gdop_paper,
             cov_m2=np.where(bad[:, None, None], np.nan, self.cov),
             status=status,

@@ -54,8 +54,8 @@ class _Progress:
 def solve(
     files: list[Path] = typer.Argument(..., help="OBS NAV [NAV ...]: a RINEX observation file and one or more navigation files."),
     method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, a comma list, or all [config: wls]."),
-    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations, comma list of RINEX letters [config: G]."),
-    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | none [config: klobuchar]."),
+    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV) [config: all]."),
+    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | iono-free (dual-frequency combination) | none [config: klobuchar]."),
     tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none [config: saastamoinen]."),
     elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees [config: 10]."),
     reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns."),

@@ -151,6 +151,8 @@ def ephemeris_for_system(nav: xr.Dataset, system: str) -> KeplerEphemeris:
         extra["TGD2"] = (("time", "sv"), np.where(inav, sub["BGDe5a"].values, sub["BGDe5b"].values))
         extra["FNAV"] = (("time", "sv"), np.where(inav, 0.0, 1.0))
         extra["sqrtA"] = (("time", "sv"), np.where(chosen, sub["sqrtA"].values, np.nan))
+        if "SISA" in sub:
+            extra["SVacc"] = sub["SISA"]  # signal-in-space accuracy, m: KeplerEphemeris.ura_m
         # Health bits 0-8 (E1-B / E5b / E5a DVS and HS); 0 = healthy.
         extra["health"] = sub["health"]
         if "IODnav" in sub:
