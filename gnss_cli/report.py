@@ -7,6 +7,15 @@ errors    : E/N/U and 3D errors against a reference (m).
 dop       : satellites used and the five DOPs (+ ``gdop_paper`` for TLS).
 summary   : one row per method: epochs, mean/std/RMS of E, N, U, 3D errors, the E/N/U
             error covariance, mean/median/max of every DOP.
+
+DOP conventions with several systems (one receiver clock per system): ``gdop`` includes
+every clock; ``tdop`` is the TDOP of the reference clock, the first system of the run
+(``RunResult.epochs.systems``: G, E, C, J, R order by default, else the ``--systems``
+order); and one extra column ``tdop_<letter>`` per processed system (``tdop_G``,
+``tdop_E``, ...) holds that system's TDOP, ``sqrt(Q)`` of its clock's diagonal element of
+the noise gain ``Q = J J^T``, so ``tdop`` equals ``tdop_<first system>``. A system without
+satellites in an epoch has an empty ``tdop_<letter>`` cell there. With one system the
+extra columns are not written.
 """
 
 from __future__ import annotations
@@ -54,8 +63,17 @@ def _iso(t_gps_s: F64) -> NDArray[np.str_]:
     return np.datetime_as_string(gps_s2datetime(t_gps_s), unit="ms")
 
 
+def tdop_columns(result: RunResult) -> list[str]:
+    """``tdop_<letter>`` of every processed system when there are several, else ``[]``."""
+    systems = result.epochs.systems
+    return [f"tdop_{s}" for s in systems] if len(systems) > 1 else []
+
+
 def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
-    """One row per epoch and method (see the README for every column and unit)."""
+    """One row per epoch and method (see the README for every column and unit).
+
+    With several systems, ``tdop_<letter>`` columns follow ``tdop`` (module docstring).
+    """
     t = result.epochs.time_gps_s
     week, tow = gps_s2week_tow(t)
     iso = _iso(t)
@@ -73,6 +91,9 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> p
                 "status": s.status,
             }
         )
+        for j, col in enumerate(tdop_columns(result)):
+            values = s.tdops[:, j] if s.tdops is not None and s.tdops.shape[1] > j else np.nan
+            df.insert(df.columns.get_loc("status"), col, values)
         if with_paper:
             df.insert(df.columns.get_loc("status"), "gdop_paper", s.gdop_paper if s.gdop_paper is not None else np.nan)
         if reference_ecef_m is not None:
@@ -108,6 +129,9 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
                     if j >= i:
                         row[f"cov_{a}{b}_m2"] = cov[i, j]
         dops = {d: getattr(s, d) for d in DOP_NAMES}
+        for j, col in enumerate(tdop_columns(result)):
+            if s.tdops is not None and s.tdops.shape[1] > j:
+                dops[col] = s.tdops[:, j]
         if s.gdop_paper is not None:
             dops["gdop_paper"] = s.gdop_paper
         for d, v in dops.items():
@@ -129,7 +153,8 @@ def to_csv_text(df: pd.DataFrame) -> str:
     out = df.copy()
     for col in out.columns:
         if out[col].dtype.kind == "f":
-            fmt = FLOAT_FORMATS.get(col, "{:.3f}" if col in DOP_NAMES or col == "gdop_paper" else "{:.4f}")
+            is_dop = col in DOP_NAMES or col == "gdop_paper" or col.startswith("tdop_")
+            fmt = FLOAT_FORMATS.get(col, "{:.3f}" if is_dop else "{:.4f}")
             vals = out[col].to_numpy()
             out[col] = [fmt.format(v) if np.isfinite(v) else "" for v in vals]
     return out.to_csv(index=False, lineterminator="\n")
@@ -228,7 +253,10 @@ def errors_table(positions: pd.DataFrame) -> pd.DataFrame:
 
 
 def dop_table(positions: pd.DataFrame) -> pd.DataFrame:
+    """Satellites used and the DOPs: the five DOPs, ``tdop_<letter>`` per system when there
+    are several, ``gdop_paper`` with TLS."""
     cols = ["time", "gps_week", "tow_s", "method", "n_sat", *DOP_NAMES]
+    cols += [c for c in positions.columns if c.startswith("tdop_")]
     if "gdop_paper" in positions:
         cols.append("gdop_paper")
     return positions[[*cols, "status"]]
