@@ -1,15 +1,24 @@
-"""The block-banded matrix ``G(R) Sigma G(R)^T`` of a kernel and its banded Cholesky factor.
+"""The block-banded matrix ``G(R) Sigma G(R)^T`` of a kernel, its banded Cholesky factor and the
+fixed-kernel projection (the STLS inner problem).
 
 For a kernel ``R = [R_0 ... R_l]`` with ``g`` rows and ``T`` samples, ``G(R)`` is the
 ``(g (T-l), q T)`` matrix whose block row ``j`` holds ``R_0 .. R_l`` at block columns
 ``j .. j+l``, so ``G vec(w) = vec(R H_{l+1}(w))``. With ``Sigma = blkdiag(Sigma_t)``::
 
-    Gamma_{j+d, j} = sum_{k=0}^{l-d} R_k Sigma_{j+d+k} R_{k+d}^T,   d = 0 .. l,
+    Gamma_{j+d, j} = sum_{i=d}^{l} R_{i-d} Sigma_{j+i} R_i^T,   d = 0 .. l,
 
 a symmetric block-banded matrix with ``l`` block off-diagonals (scalar half bandwidth
 ``g (l+1) - 1``). It is stored in LAPACK's lower band form ``ab[i - j, j] = Gamma[i, j]`` and
-factorized by ``scipy.linalg.cholesky_banded``: O(T g^3 l^2) work and O(T g^2 l) memory,
-never a dense ``(T, T)`` matrix.
+factorized by LAPACK's ``dpbtrf``: O(T g^3 l^2) work and O(T g^2 l) memory, never a dense
+``(T, T)`` matrix.
+
+All bands come from one matrix product: with the windowed covariances
+``S[j] = [vec Sigma_j, ..., vec Sigma_{j+l}]`` (cached per data series) and a small matrix
+``K(R)`` of products of kernel coefficients, ``[Gamma_{j+d, j}]_{d} = S[j] K(R)``, laid out
+directly in LAPACK's band storage. The equation error ``e = G vec(w)`` is likewise one product
+of the cached Hankel rows ``[w_j, ..., w_{j+l}]`` with ``R^T``. An :class:`InnerProblem` holds
+these caches, so that evaluating many kernels on the same data (the outer iterations of the
+STLS) costs a few BLAS/LAPACK calls per kernel whatever ``T``.
 """
 
 from __future__ import annotations
@@ -17,14 +26,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from gnss_cli.behavior.covariance import EpochCovariance
 from gnss_cli.errors import NoSolutionError
 
-__all__ = ["SingularGramError", "BandedGram", "gram_banded", "factor_gram", "project"]
+__all__ = ["SingularGramError", "BandedGram", "InnerProblem", "project", "solve_lower"]
 
 #: ``Gamma`` is treated as singular when a pivot of its Cholesky factor squared falls below
 #: this fraction of the largest diagonal entry.
@@ -33,98 +41,6 @@ SINGULAR_RTOL = 1e-13
 
 class SingularGramError(NoSolutionError):
     """``G(R) Sigma G(R)^T`` is (numerically) singular: the kernel cannot be fitted to the data."""
-
-
-def gram_banded(
-    blocks: NDArray[np.float64], cov: EpochCovariance, shared_r: NDArray[np.float64] | None = None
-) -> NDArray[np.float64]:
-    """Assemble ``G(R) Sigma G(R)^T`` in lower band storage.
-
-    Parameters
-    ----------
-    blocks : ndarray, shape (l+1, g, q)
-        Kernel blocks ``R_k``.
-    cov : EpochCovariance
-        Per-epoch covariances for ``T`` samples.
-    shared_r : ndarray, shape (l+1,), optional
-        When the kernel is ``r(z) I_q`` (``g = q``), its scalar coefficients: a faster path.
-
-    Returns
-    -------
-    ab : ndarray, shape (g (l+1), g (T-l))
-        ``ab[i - j, j] = Gamma[i, j]`` for ``i >= j``.
-    """
-    n_blk, g, q = blocks.shape
-    lag = n_blk - 1
-    n_t = cov.n_t
-    n = n_t - lag
-    bands: list[NDArray[np.float64]] = []
-    if shared_r is not None and cov.kind != "identity":
-        sig = cov.full() if cov.kind == "full" else None
-        var = cov.values if cov.kind == "diag" else None
-        for d in range(lag + 1):
-            acc = None
-            for k in range(lag + 1 - d):
-                c = shared_r[k] * shared_r[k + d]
-                m = k + d
-                part = c * (sig[m : m + n - d] if sig is not None else var[m : m + n - d])  # type: ignore[index]
-                acc = part if acc is None else acc + part
-            assert acc is not None
-            if var is not None:
-                acc = acc[:, :, None] * np.eye(q)[None]
-            bands.append(acc)
-    else:
-        for d in range(lag + 1):
-            acc = None
-            for k in range(lag + 1 - d):
-                m = k + d
-                part = cov.window(m, m + n - d).pair_gram(blocks[k], blocks[m])
-                acc = part if acc is None else acc + part
-            assert acc is not None
-            bands.append(np.asarray(acc))
-    width = g * (lag + 1)
-    ab = np.zeros((width, n * g))
-    abv = ab.reshape(width, n, g)
-    aa, bb = np.meshgrid(np.arange(g), np.arange(g), indexing="ij")
-    for d, band in enumerate(bands):
-        off = d * g + aa - bb
-        keep = off >= 0
-        offs, a_idx, b_idx = off[keep], aa[keep], bb[keep]
-        vals = band[:, a_idx, b_idx].T  # (n_pairs, n-d)
-        abv[offs[:, None], np.arange(n - d)[None, :], b_idx[:, None]] = vals
-    return ab
-
-
-def factor_gram(ab: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Lower banded Cholesky factor of ``Gamma`` (same band storage).
-
-    Raises
-    ------
-    SingularGramError
-        If ``Gamma`` is not numerically positive definite.
-    """
-    try:
-        cb = scipy.linalg.cholesky_banded(ab, lower=True, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError):
-        raise SingularGramError("G(R) Sigma G(R)^T is singular for this kernel (Cholesky failed)") from None
-    diag_max = float(np.max(ab[0])) if ab.size else 0.0
-    piv = cb[0] * cb[0]
-    if not np.all(np.isfinite(cb[0])) or diag_max <= 0.0 or float(np.min(piv)) <= SINGULAR_RTOL * diag_max:
-        raise SingularGramError(
-            "G(R) Sigma G(R)^T is numerically singular for this kernel "
-            f"(smallest pivot {float(np.min(piv)) if piv.size else 0.0:.3g} vs diagonal {diag_max:.3g})"
-        )
-    return cb
-
-
-def solve_lower(cb: NDArray[np.float64], rhs: NDArray[np.float64], transpose: bool = False) -> NDArray[np.float64]:
-    """Solve ``L x = rhs`` (or ``L^T x = rhs``) with the banded factor; ``rhs`` ``(N,)`` or ``(N, k)``."""
-    vec = rhs.ndim == 1
-    b = rhs[:, None] if vec else rhs
-    x, info = lapack.dtbtrs(cb, b, uplo="L", trans="T" if transpose else "N", diag="N")
-    if info != 0:  # pragma: no cover - only for a zero pivot, excluded by factor_gram
-        raise SingularGramError(f"banded triangular solve failed (LAPACK info {info})")
-    return x[:, 0] if vec else x
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,7 +58,7 @@ class BandedGram:
     w_hat : ndarray, shape (T, q)
         ``w - Sigma G^T lam``, which satisfies ``G w_hat = 0``.
     chol : ndarray, shape (g (l+1), g (T-l))
-        Banded lower Cholesky factor of ``Gamma``.
+        Banded lower Cholesky factor of ``Gamma`` (LAPACK band storage, Fortran order).
     """
 
     misfit: float
@@ -152,57 +68,209 @@ class BandedGram:
     chol: NDArray[np.float64]
 
 
-def misfit_only(
-    w: NDArray[np.float64], blocks: NDArray[np.float64], cov: EpochCovariance, shared_r: NDArray[np.float64] | None = None
-) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
-    """``(misfit, f, chol)`` without the corrected trajectory (for trial steps)."""
-    n_blk, g, q = blocks.shape
-    lag = n_blk - 1
-    n = w.shape[0] - lag
-    cb = factor_gram(gram_banded(blocks, cov, shared_r))
-    r_mat = blocks.transpose(1, 0, 2).reshape(g, n_blk * q)
-    windows = np.lib.stride_tricks.sliding_window_view(w, n_blk, axis=0)  # (n, q, l+1)
-    e = (windows.transpose(0, 2, 1).reshape(n, n_blk * q) @ r_mat.T).reshape(n * g)
-    f = solve_lower(cb, e)
-    return float(f @ f), f, cb
+def solve_lower(cb: NDArray[np.float64], rhs: NDArray[np.float64], transpose: bool = False) -> NDArray[np.float64]:
+    """Solve ``L x = rhs`` (or ``L^T x = rhs``) with the banded factor; ``rhs`` ``(N,)`` or ``(N, k)``."""
+    vec = rhs.ndim == 1
+    b = rhs[:, None] if vec else rhs
+    x, info = lapack.dtbtrs(cb, b, uplo="L", trans="T" if transpose else "N", diag="N")
+    if info != 0:  # pragma: no cover - only for a zero pivot, excluded by factor_gram
+        raise SingularGramError(f"banded triangular solve failed (LAPACK info {info})")
+    return x[:, 0] if vec else x
 
 
-def project(
-    w: NDArray[np.float64], blocks: NDArray[np.float64], cov: EpochCovariance, shared_r: NDArray[np.float64] | None = None
-) -> BandedGram:
-    """Solve the inner problem ``min ||w - w_hat||_{Sigma^-1}^2 s.t. G(R) w_hat = 0`` in O(T).
+def factor_gram(ab_t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Lower banded Cholesky factor of ``Gamma``, overwriting its storage.
 
     Parameters
     ----------
-    w : ndarray, shape (T, q)
-        Data.
-    blocks : ndarray, shape (l+1, g, q)
-        Kernel blocks.
-    cov : EpochCovariance
-        Covariances of the samples.
-    shared_r : ndarray, shape (l+1,), optional
-        Scalar coefficients when the kernel is ``r(z) I_q`` (fast path).
+    ab_t : ndarray, shape (g (T-l), g (l+1))
+        The transpose of the lower band storage (C order), i.e. ``ab_t[j, i - j] = Gamma[i, j]``.
 
     Returns
     -------
-    BandedGram
+    cb : ndarray, shape (g (l+1), g (T-l))
+        The factor in lower band storage (Fortran order: a view of ``ab_t``'s memory).
 
     Raises
     ------
     SingularGramError
-        If ``G Sigma G^T`` is numerically singular.
+        If ``Gamma`` is not numerically positive definite.
+    """
+    diag = ab_t[:, 0]
+    diag_max = float(np.max(diag)) if diag.size else 0.0
+    if not np.isfinite(diag_max) or diag_max <= 0.0:
+        raise SingularGramError(f"G(R) Sigma G(R)^T is singular for this kernel (largest diagonal entry {diag_max:.3g})")
+    cb, info = lapack.dpbtrf(ab_t.T, lower=1, overwrite_ab=1)
+    if info != 0:
+        raise SingularGramError("G(R) Sigma G(R)^T is singular for this kernel (Cholesky failed)")
+    piv = cb[0] * cb[0]
+    piv_min = float(np.min(piv))
+    if not np.isfinite(piv_min) or piv_min <= SINGULAR_RTOL * diag_max:
+        raise SingularGramError(
+            "G(R) Sigma G(R)^T is numerically singular for this kernel "
+            f"(smallest pivot {piv_min:.3g} vs diagonal {diag_max:.3g})"
+        )
+    return cb
+
+
+class InnerProblem:
+    """A time series and its covariances, prepared for the projection onto many kernels.
+
+    Parameters
+    ----------
+    w : ndarray, shape (T, q)
+        Data, ``T > lag``.
+    cov : EpochCovariance
+        Covariances of the ``T`` samples.
+    lag : int
+        Lag ``l`` of every kernel that will be evaluated.
 
     Notes
     -----
-    ``M = e^T Gamma^{-1} e``, ``e = G vec(w)``, ``w_hat = w - Sigma G^T Gamma^{-1} e``.
+    Caches (O(T) memory, built once): the Hankel rows ``[w_j; ...; w_{j+l}]``
+    ``(T-l, (l+1) q)`` and, for diagonal or full covariances, the windowed covariances
+    ``(T-l, (l+1) q)`` or ``(T-l, (l+1) q^2)``. A kernel evaluation then costs one product
+    for the band of ``Gamma``, one banded Cholesky factorization, one product for the equation
+    error and two banded triangular solves.
     """
-    n_blk, g, q = blocks.shape
-    lag = n_blk - 1
-    n = w.shape[0] - lag
-    m, f, cb = misfit_only(w, blocks, cov, shared_r)
-    lam = solve_lower(cb, f, transpose=True).reshape(n, g)
-    u = np.zeros_like(w)
-    for k in range(n_blk):
-        u[k : k + n] += lam @ blocks[k]
-    w_hat = w - cov.apply(u)
-    return BandedGram(m, f, lam, w_hat, cb)
+
+    __slots__ = ("w", "cov", "lag", "n", "q", "hankel_w", "_cov_win", "_layouts")
+
+    def __init__(self, w: NDArray[np.float64], cov: EpochCovariance, lag: int) -> None:
+        n_t, q = w.shape
+        self.w = w
+        self.cov = cov
+        self.lag = int(lag)
+        self.q = q
+        self.n = n_t - self.lag
+        n_blk = self.lag + 1
+        self.hankel_w = _windows(w, n_blk)
+        if cov.kind == "full":
+            assert cov.values is not None
+            self._cov_win: NDArray[np.float64] | None = _windows(cov.values.reshape(n_t, q * q), n_blk)
+        elif cov.kind == "diag":
+            assert cov.values is not None
+            self._cov_win = _windows(cov.values, n_blk)
+        else:
+            self._cov_win = None
+        self._layouts: dict[int, tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]] = {}
+
+    # ------------------------------------------------------------------ Gamma
+    def _layout(self, g: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+        """Index arrays for ``g`` kernel rows: the shifted blocks ``R_{i-d}``, the band columns and the tail."""
+        lay = self._layouts.get(g)
+        if lay is None:
+            n_blk = self.lag + 1
+            width = g * n_blk
+            i_idx, d_idx = np.meshgrid(np.arange(n_blk), np.arange(n_blk), indexing="ij")
+            shift = np.where(i_idx >= d_idx, i_idx - d_idx, n_blk)  # n_blk -> a zero block
+            # band storage column (b, off) <- F column ((off + b) g + b) when off + b < width
+            b_idx, off_idx = np.meshgrid(np.arange(g), np.arange(width), indexing="ij")
+            src = np.where(off_idx + b_idx < width, (off_idx + b_idx) * g + b_idx, width * g)
+            # entries ab_t[j, off] with j + off >= N (rows outside the matrix) in the last columns
+            n_rows = self.n * g
+            j_tail, off_tail = np.meshgrid(np.arange(max(n_rows - width, 0), n_rows), np.arange(width), indexing="ij")
+            keep = j_tail + off_tail >= n_rows
+            tail = (j_tail[keep] * width + off_tail[keep]).astype(np.intp)
+            lay = (shift, src.ravel(), tail)
+            self._layouts[g] = lay
+        return lay
+
+    def gram(self, blocks: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``Gamma = G(R) Sigma G(R)^T`` as the transpose of its lower band storage.
+
+        Parameters
+        ----------
+        blocks : ndarray, shape (l+1, g, q)
+            Kernel blocks ``R_k``.
+
+        Returns
+        -------
+        ab_t : ndarray, shape (g (T-l), g (l+1))
+            ``ab_t[j, i - j] = Gamma[i, j]`` (entries outside the matrix are zero).
+        """
+        n_blk, g, q = blocks.shape
+        shift, src, tail = self._layout(g)
+        width = g * n_blk
+        padded = np.concatenate([blocks, np.zeros((1, g, q))])
+        a_sh = padded[shift]  # (i, d, g, q): R_{i-d}, zero for i < d
+        kind = self.cov.kind
+        if kind == "full":
+            k_mat = np.einsum("idca,ieb->iabdce", a_sh, blocks).reshape(n_blk * q * q, width * g)
+        elif kind == "diag":
+            k_mat = np.einsum("idca,iea->iadce", a_sh, blocks).reshape(n_blk * q, width * g)
+        else:
+            k_mat = np.einsum("idca,iea->dce", a_sh, blocks).reshape(1, width * g)
+        k_band = np.concatenate([k_mat, np.zeros((k_mat.shape[0], 1))], axis=1)[:, src]  # (., g * width)
+        if self._cov_win is None:
+            ab_t = np.tile(k_band.reshape(g, width), (self.n, 1))
+        else:
+            ab_t = (self._cov_win @ k_band).reshape(self.n * g, width)
+        ab_t.ravel()[tail] = 0.0
+        return ab_t
+
+    # ------------------------------------------------------------------ projection
+    def equation_error(self, blocks: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``e = G(R) vec(w)``: ``e_j = sum_k R_k w_{j+k}``, flattened ``(g (T-l),)``."""
+        n_blk, g, q = blocks.shape
+        r_mat = blocks.transpose(1, 0, 2).reshape(g, n_blk * q)
+        return (self.hankel_w @ r_mat.T).reshape(self.n * g)
+
+    def misfit(self, blocks: NDArray[np.float64]) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+        """``(misfit, f, chol)`` without the corrected trajectory.
+
+        Raises
+        ------
+        SingularGramError
+            If ``G Sigma G^T`` is numerically singular.
+        """
+        cb = factor_gram(self.gram(blocks))
+        f = solve_lower(cb, self.equation_error(blocks))
+        return float(f @ f), f, cb
+
+    def project(self, blocks: NDArray[np.float64]) -> BandedGram:
+        """Solve ``min ||w - w_hat||_{Sigma^-1}^2 s.t. G(R) w_hat = 0`` in O(T).
+
+        Parameters
+        ----------
+        blocks : ndarray, shape (l+1, g, q)
+            Kernel blocks.
+
+        Returns
+        -------
+        BandedGram
+
+        Raises
+        ------
+        SingularGramError
+            If ``G Sigma G^T`` is numerically singular.
+
+        Notes
+        -----
+        ``M = e^T Gamma^{-1} e``, ``e = G vec(w)``, ``w_hat = w - Sigma G^T Gamma^{-1} e``.
+        """
+        n_blk, g, q = blocks.shape
+        m, f, cb = self.misfit(blocks)
+        lam = solve_lower(cb, f, transpose=True).reshape(self.n, g)
+        return BandedGram(m, f, lam, self.w - self.cov.apply(self.adjoint(lam, blocks)), cb)
+
+    def adjoint(self, lam: NDArray[np.float64], blocks: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``G(R)^T vec(lam)`` as a series ``(T, q)``: ``u_t = sum_k R_k^T lam_{t-k}``."""
+        n_blk, g, q = blocks.shape
+        n = self.n
+        big = lam @ blocks.transpose(1, 0, 2).reshape(g, n_blk * q)  # (n, (l+1) q)
+        u = np.zeros((n + n_blk - 1, q))
+        for k in range(n_blk):
+            u[k : k + n] += big[:, k * q : (k + 1) * q]
+        return u
+
+
+def _windows(x: NDArray[np.float64], n_blk: int) -> NDArray[np.float64]:
+    """Rows ``[x_j, ..., x_{j+n_blk-1}]`` of a ``(T, k)`` array, shape ``(T - n_blk + 1, n_blk k)`` (a copy)."""
+    win = np.lib.stride_tricks.sliding_window_view(x, n_blk, axis=0)  # (n, k, n_blk)
+    return np.ascontiguousarray(win.transpose(0, 2, 1)).reshape(win.shape[0], n_blk * x.shape[1])
+
+
+def project(w: NDArray[np.float64], blocks: NDArray[np.float64], cov: EpochCovariance) -> BandedGram:
+    """The fixed-kernel projection of ``w`` (see :meth:`InnerProblem.project`)."""
+    return InnerProblem(w, cov, blocks.shape[0] - 1).project(blocks)

@@ -262,6 +262,69 @@ class KernelRepresentation:
         ev = scipy.linalg.eigvals(a, b)
         return np.sort_complex(ev[np.isfinite(ev)])
 
+    def mirrored(self, margin: float = 1e-6, max_cond: float = 1e8) -> KernelRepresentation | None:
+        """The behavior with every pole outside the unit circle replaced by its mirror ``1 / conj(z)``.
+
+        The weighted Hankel misfit depends on the kernel mostly through the spectrum of
+        ``R(e^{i w}) Sigma R(e^{i w})^*``, which does not change when a root of ``det R`` is
+        reflected across the unit circle; a descent that ends with a spurious unstable pole
+        (e.g. a fast decay fitted as a growth) therefore has a mirrored kernel of similar
+        misfit in another basin, a natural restart point.
+
+        Parameters
+        ----------
+        margin : float
+            Poles with ``|z| <= 1 + margin`` are kept.
+        max_cond : float
+            Give up (return None) when the eigenvector matrix of the companion realization is
+            worse conditioned than this (repeated or defective poles).
+
+        Returns
+        -------
+        KernelRepresentation or None
+            A square kernel with the same lag (shared kernels stay shared), or None when no
+            pole lies outside ``|z| = 1 + margin`` or the kernel cannot be realized
+            (non-square, singular ``R_lag``).
+
+        Notes
+        -----
+        General square kernels use the realization ``x_t = [w_t; ...; w_{t+l-1}]``,
+        ``x_{t+1} = A x_t``, ``w_t = C x_t``; the eigenvalues of ``A`` are reflected and the new
+        kernel is the left null space of ``[C; C A'; ...; C A'^l]``.
+        """
+        if self.p != self.q:
+            return None
+        if self.is_shared(1e-12):
+            r = self.shared_coefficients()
+            roots = np.roots(r[::-1])
+            out = np.abs(roots) > 1.0 + margin
+            if not np.any(out):
+                return None
+            roots = np.where(out, 1.0 / np.conj(roots), roots)
+            return KernelRepresentation.shared(np.real(np.poly(roots))[::-1].copy(), self.q)
+        try:
+            a = self.transition()
+        except UsageError:
+            return None
+        q, lag = self.q, self.lag
+        n = q * lag
+        comp = np.zeros((n, n))
+        comp[: n - q, q:] = np.eye(n - q)
+        comp[n - q :] = a
+        ev, vec = np.linalg.eig(comp)
+        out = np.abs(ev) > 1.0 + margin
+        if not np.any(out) or np.linalg.cond(vec) > max_cond:
+            return None
+        ev = np.where(out, 1.0 / np.conj(ev), ev)
+        a_new = np.real(vec @ np.diag(ev) @ np.linalg.inv(vec))
+        obs = np.zeros((q * (lag + 1), n))
+        row = np.eye(q, n)
+        for k in range(lag + 1):
+            obs[k * q : (k + 1) * q] = row
+            row = row @ a_new
+        u = np.linalg.svd(obs, full_matrices=True)[0]
+        return KernelRepresentation(u[:, n:].T, q=q)
+
     # ------------------------------------------------------------------ misc
     def normalized(self) -> KernelRepresentation:
         """The same behavior with ``R_lag = I`` when ``R_lag`` is square and well conditioned, else ``R`` unchanged."""

@@ -33,12 +33,13 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from gnss_cli.behavior.banded import BandedGram, SingularGramError, project, solve_lower
+from gnss_cli.behavior.banded import BandedGram, InnerProblem, SingularGramError, project, solve_lower
 from gnss_cli.behavior.chart import FullChart, SharedChart
 from gnss_cli.behavior.covariance import EpochCovariance
 from gnss_cli.behavior.hankel import as_series
 from gnss_cli.behavior.kernel import KernelRepresentation, kernel_from
 from gnss_cli.behavior.result import STATUS_MESSAGES, StlsResult, StlsStatus
+from gnss_cli.behavior.starts import modal_kernel, subspace_kernel
 from gnss_cli.behavior.wtls import full_wtls_kernel, shared_wtls_tilde, validate_problem
 from gnss_cli.errors import UsageError
 
@@ -46,10 +47,6 @@ __all__ = ["misfit", "stls", "projection_matrix"]
 
 #: Largest ``T * q`` for which :func:`projection_matrix` builds its dense result.
 PROJECTION_MAX_SIZE = 6000
-
-
-def _shared_fast_path(kernel: KernelRepresentation) -> NDArray[np.float64] | None:
-    return kernel.blocks[:, 0, 0].copy() if kernel.is_shared() else None
 
 
 def misfit(
@@ -100,7 +97,7 @@ def misfit(
     if n_t <= ker.lag:
         raise UsageError(f"w: expected more than lag = {ker.lag} samples, received {n_t}")
     covariance = EpochCovariance.from_arg(cov, n_t, q)
-    proj = project(arr, np.asarray(ker.blocks), covariance, _shared_fast_path(ker))
+    proj = project(arr, np.asarray(ker.blocks), covariance)
     return proj.misfit, proj.w_hat
 
 
@@ -151,7 +148,7 @@ def projection_matrix(
     for j in range(n):
         big_g[j * g : (j + 1) * g, j * q : (j + lag + 1) * q] = ker.R
     # factor Gamma with a zero data series (only the factor is used)
-    chol = project(np.zeros((n_t, q)), np.asarray(ker.blocks), covariance, _shared_fast_path(ker)).chol
+    chol = project(np.zeros((n_t, q)), np.asarray(ker.blocks), covariance).chol
     x = solve_lower(chol, solve_lower(chol, big_g), transpose=True)  # Gamma^{-1} G
     y = (big_g.T @ x).reshape(n_t, q, n_t * q)
     if covariance.kind == "identity":
@@ -166,39 +163,112 @@ def projection_matrix(
 
 
 # ---------------------------------------------------------------------- outer problem
-def _evaluate(w: NDArray[np.float64], chart: FullChart | SharedChart, theta: NDArray[np.float64],
-              cov: EpochCovariance) -> BandedGram:
-    return project(w, chart.blocks(theta), cov, chart.shared_r(theta))
+#: From this many samples on, the leading ``T // COARSE_FACTOR`` samples are identified first
+#: (recursively) and their kernel competes with the WTLS kernel as the starting point: the
+#: kernel of a long stretch of an LTI series is close to that of the whole, so the descent at
+#: full size needs only the last few (O(T)) iterations.
+COARSE_MIN_SAMPLES = 4000
+COARSE_FACTOR = 8
+#: Stopping tolerance and iteration limit of the coarse sub-problem (its kernel is only a
+#: starting point).
+COARSE_TOL = 1e-6
+COARSE_MAX_ITER = 50
+#: Initial Levenberg--Marquardt damping, relative to the diagonal of the curvature. The misfit
+#: curvature is ill-conditioned (the Hankel data excite some kernel directions far more than
+#: others), so a large initial damping would hold back the weak directions for many iterations.
+MU_INITIAL = 1e-8
+#: Subspace starts (full structure, series shorter than ``COARSE_MIN_SAMPLES``): Hankel
+#: matrices with these multiples of ``l + 1`` block rows.
+SUBSPACE_DEPTHS = (2, 3)
+#: Poles farther than this outside the unit circle trigger a restart from the mirrored kernel.
+MIRROR_MARGIN = 1e-3
+#: Restarts from mirrored kernels after one descent.
+MIRROR_ROUNDS = 2
+
+
+@dataclass(slots=True)
+class _Point:
+    """A kernel in chart coordinates with its projection."""
+
+    origin: str
+    chart: FullChart | SharedChart
+    theta: NDArray[np.float64]
+    state: BandedGram
+
+
+@dataclass(slots=True)
+class _Descent:
+    chart: FullChart | SharedChart
+    theta: NDArray[np.float64]
+    state: BandedGram
+    status: StlsStatus
+    iterations: int
+    n_eval: int
+    grad_norm: float
+
+
+def _chart_point(problem: InnerProblem, cand: NDArray[np.float64], structure: str, fixed: NDArray[np.float64],
+                 q: int, origin: str) -> _Point:
+    """Chart a starting kernel (``R`` or ``r~``) and evaluate it; raises on a singular Gram matrix."""
+    chart: FullChart | SharedChart
+    if structure == "shared":
+        chart = SharedChart(fixed, cand, q)
+        theta = chart.coordinates_tilde(cand)
+    else:
+        chart = FullChart(cand, q)
+        theta = chart.coordinates(cand)
+    return _Point(origin, chart, theta, problem.project(chart.blocks(theta)))
+
+
+def _shared_start(kernel0: KernelRepresentation | ArrayLike, lag: int, fixed: NDArray[np.float64],
+                  q: int) -> NDArray[np.float64]:
+    """``r~`` of a shared starting kernel (``r`` divided by the fixed factor)."""
+    if isinstance(kernel0, KernelRepresentation) or np.ndim(kernel0) != 1:
+        r0 = kernel_from(kernel0, q).shared_coefficients()
+    else:
+        r0 = np.asarray(kernel0, dtype=np.float64)
+    if r0.size != lag + 1:
+        raise UsageError(f"kernel0: expected a shared kernel of lag {lag}, received {r0.size - 1}")
+    quot, _ = np.polydiv(r0[::-1], fixed[::-1])
+    return np.asarray(quot[::-1], dtype=np.float64)
+
+
+def _full_start(kernel0: KernelRepresentation | ArrayLike, lag: int, g: int, q: int) -> NDArray[np.float64]:
+    k0 = kernel_from(kernel0, q)
+    if k0.lag != lag or k0.p != g:
+        raise UsageError(f"kernel0: expected {g} rows and lag {lag}, received {k0.p} rows and lag {k0.lag}")
+    return np.array(k0.R)
 
 
 def _start_candidates(
     arr: NDArray[np.float64], lag: int, g: int, fixed: NDArray[np.float64], cov: EpochCovariance,
-    structure: str, kernel0: KernelRepresentation | ArrayLike | None,
-) -> list[NDArray[np.float64]]:
-    """Starting points: ``R`` ``(g, q(l+1))`` (full) or ``r~`` (shared), best first."""
+    structure: str, kernel0: KernelRepresentation | ArrayLike | None, coarse: KernelRepresentation | None,
+) -> list[tuple[str, NDArray[np.float64]]]:
+    """Starting points ``(origin, R or r~)`` in priority order (ties in misfit keep this order)."""
     q = arr.shape[1]
-    out: list[NDArray[np.float64]] = []
+    given = [("kernel0", kernel0), ("coarse", coarse)]
+    out: list[tuple[str, NDArray[np.float64]]] = []
     deg = lag - (fixed.size - 1)
     if structure == "shared":
-        if kernel0 is not None:
-            k0 = kernel_from(kernel0, q) if not np.ndim(kernel0) == 1 else None
-            r0 = np.asarray(kernel0, dtype=np.float64) if k0 is None else k0.shared_coefficients()
-            if r0.size != lag + 1:
-                raise UsageError(f"kernel0: expected a shared kernel of lag {lag}, received {r0.size - 1}")
-            quot, rem = np.polydiv(r0[::-1], fixed[::-1])
-            out.append(np.asarray(quot[::-1], dtype=np.float64))
-        out.append(shared_wtls_tilde(arr, lag, fixed, cov))
-        out.append(np.array([float(np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[i]) for i in range(deg + 1)]))
+        out += [(name, _shared_start(k, lag, fixed, q)) for name, k in given if k is not None]
+        out.append(("wtls", shared_wtls_tilde(arr, lag, fixed, cov)))
+        out.append(("polynomial", np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[: deg + 1].astype(np.float64)))
         return out
-    if kernel0 is not None:
-        k0 = kernel_from(kernel0, q)
-        if k0.lag != lag or k0.p != g:
-            raise UsageError(f"kernel0: expected {g} rows and lag {lag}, received {k0.p} rows and lag {k0.lag}")
-        out.append(np.array(k0.R))
-    out.append(full_wtls_kernel(arr, lag, g, cov))
-    if g == q:
-        out.append(np.array(KernelRepresentation.shared(np.polynomial.polynomial.polypow([-1.0, 1.0], lag), q).R))
+    out += [(name, _full_start(k, lag, g, q)) for name, k in given if k is not None]
+    out.append(("wtls", full_wtls_kernel(arr, lag, g, cov)))
+    if coarse is None:
+        for factor in SUBSPACE_DEPTHS:
+            deeper = subspace_kernel(arr, lag, g, cov, factor * (lag + 1))
+            if deeper is not None:
+                out.append(("subspace", deeper))
     return out
+
+
+def _fallback_start(lag: int, g: int, q: int, structure: str) -> tuple[str, NDArray[np.float64]] | None:
+    """``(z-1)^l I`` for a full square kernel, tried only when every other start is singular."""
+    if structure == "full" and g == q:
+        return "polynomial", np.array(KernelRepresentation.shared(np.polynomial.polynomial.polypow([-1.0, 1.0], lag), q).R)
+    return None
 
 
 def stls(
@@ -214,6 +284,7 @@ def stls(
     fixed_roots: Sequence[complex] = (),
     rechart_threshold: float = 10.0,
     hessian: str = "auto",
+    max_starts: int = 3,
 ) -> StlsResult:
     """Identify a kernel of lag ``lag`` by weighted Hankel structured low-rank approximation.
 
@@ -232,13 +303,16 @@ def stls(
         Per-epoch covariances ``(T, q, q)``, variances ``(T, q)`` or None (identity), in the
         unit of ``w`` squared.
     kernel0 : KernelRepresentation or array_like, optional
-        Starting kernel (default: the WTLS kernel). For the shared structure also a 1-D
-        array ``[r_0 .. r_l]``; it must contain the fixed roots.
+        A starting kernel (e.g. the kernel of an overlapping window). When its misfit is
+        lower than that of every automatic start it is the only start (a warm start);
+        otherwise it competes with them. For the shared structure also a 1-D array
+        ``[r_0 .. r_l]``; it should contain the fixed roots.
     tol : float
         Stop when an accepted step decreases the misfit by less than ``tol`` relative, or
-        changes the chart coordinates by less than ``tol`` relative (default 1e-10).
+        changes the chart coordinates by less than ``tol`` relative, or the predicted decrease
+        of a Newton step is below ``tol / 10`` relative (default 1e-10).
     max_iter : int
-        Limit on outer iterations (default 200).
+        Limit on outer iterations per descent (default 200).
     structure : {"full", "shared"}
         ``"full"``: general kernel with ``g`` rows, chart ``R = [X -I]``.
         ``"shared"``: ``R(z) = r(z) I_q``, ``lag`` free parameters (fewer with fixed roots).
@@ -253,11 +327,15 @@ def stls(
         (quadratic convergence, robust far from the optimum) or the Gauss--Newton ``J^T J`` of
         the pseudo-Jacobian (cheaper per iteration). ``"auto"`` (default): exact for the
         shared structure, Gauss--Newton for the full one (measured faster on the anchor data).
+    max_starts : int
+        Descents from at most this many automatic starting kernels, lowest misfit first
+        (default 3; see Notes). ``1`` keeps only the best start.
 
     Returns
     -------
     StlsResult
-        ``kernel``, ``w_hat`` ``(T, q)``, ``misfit``, ``iterations``, ``status``, ...
+        ``kernel``, ``w_hat`` ``(T, q)``, ``misfit``, ``iterations`` (of the descent that gave
+        the result), ``n_evaluations`` (of all descents), ``status``, ...
         On ``INFEASIBLE`` (no starting kernel with a regular ``G Sigma G^T``) ``misfit`` is
         ``inf`` and ``w_hat`` a copy of ``w``.
 
@@ -268,9 +346,18 @@ def stls(
 
     Notes
     -----
-    See the module docstring for the algorithm. The misfit never increases from the
-    starting kernel (only decreasing steps are accepted), so ``stls`` is never worse than
-    ``wtls`` on the same data.
+    See the module docstring for the descent. The misfit has local minima, so the result is
+    the best of several descents. Starting kernels: ``kernel0``; for ``T >= 4000`` the
+    kernel identified (recursively) on the leading ``T / 8`` samples; the WTLS kernel; for the
+    full structure on shorter series the subspace kernel of a Hankel matrix with ``2(l+1)``
+    block rows; for the shared structure the polynomial ``(z-1)^l`` (for a full square kernel it
+    is tried only when every other start is singular). All are evaluated; when ``kernel0`` or the coarse
+    kernel has the lowest misfit it is the only start, otherwise the ``max_starts`` best are
+    descended. A descent that ends with poles outside the unit circle restarts from the
+    kernel with those poles mirrored inside (:meth:`KernelRepresentation.mirrored`; the misfit
+    is nearly invariant under the reflection, so the mirrored kernel starts in the basin a
+    decaying mode belongs to). Only decreasing steps are accepted, so ``stls`` is never worse
+    than ``wtls`` on the same data.
 
     References
     ----------
@@ -294,75 +381,112 @@ def stls(
         raise UsageError(f"max_iter: expected a non-negative integer, received {max_iter!r}")
     if hessian not in ("auto", "exact", "gauss-newton"):
         raise UsageError(f"hessian: expected 'auto', 'exact' or 'gauss-newton', received {hessian!r}")
+    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
+        raise UsageError(f"max_starts: expected a positive integer, received {max_starts!r}")
     if hessian == "auto":
         hessian = "exact" if structure == "shared" else "gauss-newton"
-    q = arr.shape[1]
+    n_t, q = arr.shape
     data_norm2 = covariance.weighted_norm2(arr)
     exact_level = (64.0 * np.finfo(float).eps) ** 2 * max(data_norm2, np.finfo(float).tiny)
-
-    chart: FullChart | SharedChart | None = None
-    theta = np.zeros(0)
-    state: BandedGram | None = None
-    last_error = ""
     n_eval = 0
-    starts = _start_candidates(arr, lag, g, fixed, covariance, structure, kernel0)
-    used = len(starts)
-    for used, cand in enumerate(starts):
+
+    coarse: KernelRepresentation | None = None
+    if kernel0 is None and n_t >= COARSE_MIN_SAMPLES:
+        n_sub = n_t // COARSE_FACTOR
+        sub = stls(arr[:n_sub], lag, order, covariance.window(0, n_sub), tol=max(float(tol), COARSE_TOL),
+                   max_iter=min(int(max_iter), COARSE_MAX_ITER), structure=structure, fixed_roots=fixed_roots,
+                   rechart_threshold=rechart_threshold, hessian=hessian, max_starts=max_starts)
+        n_eval += sub.n_evaluations
+        if np.isfinite(sub.misfit):
+            coarse = sub.kernel
+
+    problem = InnerProblem(arr, covariance, lag)
+    points: list[_Point] = []
+    last_error = ""
+    for origin, cand in _start_candidates(arr, lag, g, fixed, covariance, structure, kernel0, coarse):
+        n_eval += 1
         try:
-            if structure == "shared":
-                chart = SharedChart(fixed, cand, q)
-                theta = chart.coordinates_tilde(cand)
-            else:
-                chart = FullChart(cand, q)
-                theta = chart.coordinates(cand)
-            n_eval += 1
-            state = _evaluate(arr, chart, theta, covariance)
-            break
+            points.append(_chart_point(problem, cand, structure, fixed, q, origin))
         except (SingularGramError, np.linalg.LinAlgError) as exc:
             last_error = str(exc)
-            state = None
-    if state is None or chart is None:
-        ker = KernelRepresentation(np.asarray(chart.blocks(theta)) if chart is not None else np.zeros((lag + 1, g, q)))
+    fallback = _fallback_start(lag, g, q, structure)
+    if not points and fallback is not None:
+        n_eval += 1
+        try:
+            points.append(_chart_point(problem, fallback[1], structure, fixed, q, fallback[0]))
+        except (SingularGramError, np.linalg.LinAlgError) as exc:
+            last_error = str(exc)
+    if not points:
+        ker = KernelRepresentation(np.zeros((lag + 1, g, q)))
         return StlsResult(ker, arr.copy(), float("inf"), 0, StlsStatus.INFEASIBLE,
                           f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {last_error}", "stls", structure, n_eval, 0.0)
+    points.sort(key=lambda p: p.state.misfit)
+    queue = points[:1] if points[0].origin in ("kernel0", "coarse") else points[:max_starts]
 
-    best = _minimize(arr, covariance, chart, theta, state, fixed, q, tol, max_iter, rechart_threshold, hessian, exact_level)
-    n_eval += best.n_eval
-    if structure == "shared":
-        # The shared misfit has spurious local minima (e.g. a root near -1 fitted to noise);
-        # a second descent from the remaining starting kernels is cheap (<= lag parameters).
-        for cand in starts[used + 1 :]:
+    best: _Descent | None = None
+    for point in queue:
+        run = _minimize(problem, point.chart, point.theta, point.state, fixed, q, tol, max_iter,
+                        rechart_threshold, hessian, exact_level)
+        n_eval += run.n_eval
+        for _ in range(MIRROR_ROUNDS):
+            cand = _mirrored_start(run, structure, q)
+            if cand is None:
+                break
+            n_eval += 1
             try:
-                chart2 = SharedChart(fixed, cand, q)
-                theta2 = chart2.coordinates_tilde(cand)
-                n_eval += 1
-                state2 = _evaluate(arr, chart2, theta2, covariance)
+                start = _chart_point(problem, cand, structure, fixed, q, "mirrored")
             except (SingularGramError, np.linalg.LinAlgError):
-                continue
-            other = _minimize(arr, covariance, chart2, theta2, state2, fixed, q, tol, max_iter,
+                break
+            other = _minimize(problem, start.chart, start.theta, start.state, fixed, q, tol, max_iter,
                               rechart_threshold, hessian, exact_level)
             n_eval += other.n_eval
-            if other.state.misfit < best.state.misfit:
-                best = other
+            if other.state.misfit >= run.state.misfit:
+                break
+            run = other
+        if best is None or run.state.misfit < best.state.misfit:
+            best = run
+    assert best is not None
+    if structure == "full" and g == q and n_t < COARSE_MIN_SAMPLES and max_starts > 1:
+        # poles of the best fit with re-fitted output directions (one restart)
+        cand = modal_kernel(arr, _final_kernel(best.chart, best.theta, q), covariance)
+        if cand is not None:
+            n_eval += 1
+            try:
+                start = _chart_point(problem, cand, structure, fixed, q, "modal")
+            except (SingularGramError, np.linalg.LinAlgError):
+                start = None
+            if start is not None and start.state.misfit < float("inf"):
+                other = _minimize(problem, start.chart, start.theta, start.state, fixed, q, tol, max_iter,
+                                  rechart_threshold, hessian, exact_level)
+                n_eval += other.n_eval
+                if other.state.misfit < best.state.misfit:
+                    best = other
     kernel = _final_kernel(best.chart, best.theta, q)
     return StlsResult(kernel, best.state.w_hat, best.state.misfit, best.iterations, best.status,
                       STATUS_MESSAGES[best.status], "stls", structure, n_eval, best.grad_norm)
 
 
-@dataclass(slots=True)
-class _Descent:
-    chart: FullChart | SharedChart
-    theta: NDArray[np.float64]
-    state: BandedGram
-    status: StlsStatus
-    iterations: int
-    n_eval: int
-    grad_norm: float
+def _mirrored_start(run: _Descent, structure: str, q: int) -> NDArray[np.float64] | None:
+    """``R`` (or ``r~``) with the unstable poles of a descent's result mirrored into the unit disc."""
+    if isinstance(run.chart, SharedChart):
+        rt = run.chart.r_tilde(run.theta)
+        if rt.size < 2:
+            return None
+        roots = np.roots(rt[::-1])
+        out = np.abs(roots) > 1.0 + MIRROR_MARGIN
+        if not np.any(out):
+            return None
+        roots = np.where(out, 1.0 / np.conj(roots), roots)
+        return np.real(np.poly(roots))[::-1].copy()
+    if run.chart.g != q:
+        return None
+    mirrored = KernelRepresentation(run.chart.kernel(run.theta), q=q).mirrored(margin=MIRROR_MARGIN)
+    return None if mirrored is None else np.array(mirrored.R)
 
 
 def _derivatives(
-    w: NDArray[np.float64], chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
-    cov: EpochCovariance, hessian: str,
+    problem: InnerProblem, chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
+    hessian: str,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Half gradient ``J^T f`` and half Hessian of the misfit in chart coordinates.
 
@@ -379,11 +503,11 @@ def _derivatives(
     n_p, n_blk, g, q = basis.shape
     lam = state.lam
     n = lam.shape[0]
-    n_t = w.shape[0]
+    n_t = n + n_blk - 1
     u = np.zeros((n_t, q, n_p))
     for i in range(n_blk):
         u[i : i + n] += (lam @ basis[:, i].transpose(1, 2, 0).reshape(g, q * n_p)).reshape(n, q, n_p)
-    s = cov.apply_batch(u)
+    s = problem.cov.apply_batch(u)
     blocks = chart.blocks(theta)
     gs = np.zeros((n, g, n_p))
     for i in range(n_blk):
@@ -394,16 +518,16 @@ def _derivatives(
 
 
 def _minimize(
-    arr: NDArray[np.float64], covariance: EpochCovariance, chart: FullChart | SharedChart,
-    theta: NDArray[np.float64], state: BandedGram, fixed: NDArray[np.float64], q: int, tol: float,
-    max_iter: int, rechart_threshold: float, hessian: str, exact_level: float,
+    problem: InnerProblem, chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
+    fixed: NDArray[np.float64], q: int, tol: float, max_iter: int, rechart_threshold: float, hessian: str,
+    exact_level: float,
 ) -> _Descent:
     """Damped Newton / Levenberg--Marquardt descent from ``theta`` (only decreasing steps accepted)."""
     status = StlsStatus.ITERATION_LIMIT
     iterations = 0
     n_eval = 0
     grad_norm = 0.0
-    mu = 1e-3
+    mu = MU_INITIAL
     nu = 2.0
     if chart.n_params == 0:
         status = StlsStatus.DIRECT
@@ -411,7 +535,7 @@ def _minimize(
         if state.misfit <= exact_level:
             status = StlsStatus.EXACT
             break
-        grad, a_mat = _derivatives(arr, chart, theta, state, covariance, hessian)
+        grad, a_mat = _derivatives(problem, chart, theta, state, hessian)
         grad_norm = float(np.max(np.abs(grad)))
         iterations += 1
         if grad_norm == 0.0:
@@ -439,7 +563,7 @@ def _minimize(
             if predicted > 0.0:
                 try:
                     n_eval += 1
-                    trial = _evaluate(arr, chart, theta + step, covariance)
+                    trial = problem.project(chart.blocks(theta + step))
                 except SingularGramError:
                     trial = None
             if trial is not None and trial.misfit < state.misfit:

@@ -185,17 +185,15 @@ def wtls(
     """
     arr, covariance, g, fixed = validate_problem(w, lag, order, cov, structure, fixed_roots)
     q = arr.shape[1]
-    shared_r = None
     if structure == "shared":
         rt = shared_wtls_tilde(arr, lag, fixed, covariance)
         r = np.convolve(fixed, rt)
         r = r / r[-1] if abs(r[-1]) > 1e-8 * np.max(np.abs(r)) else r / np.linalg.norm(r)
         kernel = KernelRepresentation.shared(r, q)
-        shared_r = r
     else:
         kernel = KernelRepresentation(full_wtls_kernel(arr, lag, g, covariance), q=q).normalized()
     try:
-        proj = project(arr, np.asarray(kernel.blocks), covariance, shared_r)
+        proj = project(arr, np.asarray(kernel.blocks), covariance)
     except SingularGramError as exc:
         return StlsResult(kernel, arr.copy(), float("inf"), 0, StlsStatus.INFEASIBLE,
                           f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {exc}", "wtls", structure, 1, 0.0)
