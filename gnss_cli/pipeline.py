@@ -489,6 +489,7 @@ def _stls_row_cov(lin: _Linearization, config: ProcessingConfig) -> F64:
 
 
 ITERATED_METHODS = frozenset({"ls", "wls"})
+_ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
 def _solver_options(method: str, lin: _Linearization, config: ProcessingConfig) -> dict[str, object]:
@@ -563,23 +564,25 @@ def solve_method(
     active = np.ones(T, dtype=bool)
     out = _Accumulator(T, n, k, method)
     for it in range(config.max_iterations):
-        rows = np.flatnonzero(active)
-        if rows.size == 0:
+        unconverged = np.flatnonzero(active)
+        if unconverged.size == 0:
             break
-        lin = _linearize(data, rows, x[rows], b[rows], config)
-        n_used, enough = _count_used(lin, n, k, config)
-        res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
-        ok = (res.status > 0) & enough
-        step = np.where(ok[:, None], res.x, 0.0)
-        x[rows] += step[:, :3]
-        b[rows] += step[:, 3:]
-        iterations[rows] = it + 1
-        radius = np.linalg.norm(x[rows], axis=1)
-        near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
-        converged = ok & near & (np.linalg.norm(step, axis=1) < config.convergence_m)
-        out.record(rows, lin, res, n_used)
-        _set_status(status, rows, converged, enough, ok, res.status)
-        active[rows[converged | ~ok]] = False
+        # epochs are independent: blocks of _ITERATION_BLOCK bound the memory of the stacked arrays
+        for rows in np.array_split(unconverged, -(-unconverged.size // _ITERATION_BLOCK)):
+            lin = _linearize(data, rows, x[rows], b[rows], config)
+            n_used, enough = _count_used(lin, n, k, config)
+            res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **_solver_options(method, lin, config))
+            ok = (res.status > 0) & enough
+            step = np.where(ok[:, None], res.x, 0.0)
+            x[rows] += step[:, :3]
+            b[rows] += step[:, 3:]
+            iterations[rows] = it + 1
+            radius = np.linalg.norm(x[rows], axis=1)
+            near = (radius > _EARTH_SURFACE_BAND_M[0]) & (radius < _EARTH_SURFACE_BAND_M[1])
+            converged = ok & near & (np.linalg.norm(step, axis=1) < config.convergence_m)
+            out.record(rows, lin, res, n_used)
+            _set_status(status, rows, converged, enough, ok, res.status)
+            active[rows[converged | ~ok]] = False
         if progress is not None:
             progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
     return out.finish(x, b, status, iterations)
