@@ -11,9 +11,12 @@ Public API::
     res = stls(w, lag, order, cov, structure="full" | "shared", fixed_roots=(1.0,))
     res = wtls(w, lag, order, cov)             # unstructured SVD baseline
     P = projection_matrix(K, T, cov)           # d w_hat / d w for a fixed kernel
+    fits = identify_windows(W, lag, cov)       # shared kernels of many short windows (B, N, q) at once
+    m, W_hat = project_windows(W, r, cov)      # fixed shared kernel r(z) I for every window
 """
 
 from gnss_cli.behavior.banded import SingularGramError
+from gnss_cli.behavior.batch import WindowFits, identify_windows, project_windows
 from gnss_cli.behavior.covariance import EpochCovariance
 from gnss_cli.behavior.hankel import hankel
 from gnss_cli.behavior.kernel import KernelRepresentation
@@ -28,6 +31,9 @@ __all__ = [
     "stls",
     "wtls",
     "projection_matrix",
+    "identify_windows",
+    "project_windows",
+    "WindowFits",
     "StlsResult",
     "StlsStatus",
     "STATUS_MESSAGES",

@@ -23,6 +23,7 @@ STLS) costs a few BLAS/LAPACK calls per kernel whatever ``T``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,7 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from gnss_cli.behavior.covariance import EpochCovariance
+from gnss_cli.behavior.hankel import hankel_rows
 from gnss_cli.errors import NoSolutionError
 
 __all__ = ["SingularGramError", "BandedGram", "InnerProblem", "project", "solve_lower"]
@@ -96,16 +98,14 @@ def factor_gram(ab_t: NDArray[np.float64]) -> NDArray[np.float64]:
     SingularGramError
         If ``Gamma`` is not numerically positive definite.
     """
-    diag = ab_t[:, 0]
-    diag_max = float(np.max(diag)) if diag.size else 0.0
-    if not np.isfinite(diag_max) or diag_max <= 0.0:
+    diag_max = float(ab_t[:, 0].max()) if ab_t.size else 0.0
+    if not 0.0 < diag_max < np.inf:
         raise SingularGramError(f"G(R) Sigma G(R)^T is singular for this kernel (largest diagonal entry {diag_max:.3g})")
     cb, info = lapack.dpbtrf(ab_t.T, lower=1, overwrite_ab=1)
     if info != 0:
         raise SingularGramError("G(R) Sigma G(R)^T is singular for this kernel (Cholesky failed)")
-    piv = cb[0] * cb[0]
-    piv_min = float(np.min(piv))
-    if not np.isfinite(piv_min) or piv_min <= SINGULAR_RTOL * diag_max:
+    piv_min = float(cb[0].min()) ** 2
+    if not piv_min > SINGULAR_RTOL * diag_max:  # also catches NaN
         raise SingularGramError(
             "G(R) Sigma G(R)^T is numerically singular for this kernel "
             f"(smallest pivot {piv_min:.3g} vs diagonal {diag_max:.3g})"
@@ -153,26 +153,16 @@ class InnerProblem:
             self._cov_win = _windows(cov.values, n_blk)
         else:
             self._cov_win = None
-        self._layouts: dict[int, tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]] = {}
+        self._layouts: dict[int, tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp],
+                                       NDArray[np.float64]]] = {}
 
     # ------------------------------------------------------------------ Gamma
-    def _layout(self, g: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
-        """Index arrays for ``g`` kernel rows: the shifted blocks ``R_{i-d}``, the band columns and the tail."""
+    def _layout(self, g: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp],
+                                       NDArray[np.float64]]:
+        """Index arrays (see :func:`_band_layout`) and a zero-padded block buffer for ``g`` kernel rows."""
         lay = self._layouts.get(g)
         if lay is None:
-            n_blk = self.lag + 1
-            width = g * n_blk
-            i_idx, d_idx = np.meshgrid(np.arange(n_blk), np.arange(n_blk), indexing="ij")
-            shift = np.where(i_idx >= d_idx, i_idx - d_idx, n_blk)  # n_blk -> a zero block
-            # band storage column (b, off) <- F column ((off + b) g + b) when off + b < width
-            b_idx, off_idx = np.meshgrid(np.arange(g), np.arange(width), indexing="ij")
-            src = np.where(off_idx + b_idx < width, (off_idx + b_idx) * g + b_idx, width * g)
-            # entries ab_t[j, off] with j + off >= N (rows outside the matrix) in the last columns
-            n_rows = self.n * g
-            j_tail, off_tail = np.meshgrid(np.arange(max(n_rows - width, 0), n_rows), np.arange(width), indexing="ij")
-            keep = j_tail + off_tail >= n_rows
-            tail = (j_tail[keep] * width + off_tail[keep]).astype(np.intp)
-            lay = (shift, src.ravel(), tail)
+            lay = (*_band_layout(self.n, self.lag, g), np.zeros((self.lag + 2, g, self.q)))
             self._layouts[g] = lay
         return lay
 
@@ -190,9 +180,9 @@ class InnerProblem:
             ``ab_t[j, i - j] = Gamma[i, j]`` (entries outside the matrix are zero).
         """
         n_blk, g, q = blocks.shape
-        shift, src, tail = self._layout(g)
+        shift, src, outside, tail, padded = self._layout(g)
         width = g * n_blk
-        padded = np.concatenate([blocks, np.zeros((1, g, q))])
+        padded[:n_blk] = blocks
         a_sh = padded[shift]  # (i, d, g, q): R_{i-d}, zero for i < d
         kind = self.cov.kind
         if kind == "full":
@@ -201,7 +191,8 @@ class InnerProblem:
             k_mat = np.einsum("idca,iea->iadce", a_sh, blocks).reshape(n_blk * q, width * g)
         else:
             k_mat = np.einsum("idca,iea->dce", a_sh, blocks).reshape(1, width * g)
-        k_band = np.concatenate([k_mat, np.zeros((k_mat.shape[0], 1))], axis=1)[:, src]  # (., g * width)
+        k_band = k_mat[:, src]  # (., g * width)
+        k_band[:, outside] = 0.0
         if self._cov_win is None:
             ab_t = np.tile(k_band.reshape(g, width), (self.n, 1))
         else:
@@ -265,10 +256,40 @@ class InnerProblem:
         return u
 
 
+@functools.lru_cache(maxsize=64)
+def _band_layout(n: int, lag: int, g: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Index arrays of the band assembly for ``n = T - l`` block rows of ``g`` rows each.
+
+    Returns
+    -------
+    shift : ndarray, shape (l+1, l+1)
+        ``i - d`` for ``i >= d`` (the block ``R_{i-d}``), ``l + 1`` (a zero block) otherwise.
+    src, outside : ndarray
+        Column ``(b, off)`` of the band storage takes column ``(off + b) g + b`` of ``K(R)``;
+        ``outside`` lists the band columns with ``off + b >= g (l+1)`` (zero).
+    tail : ndarray
+        Flat indices of ``ab_t[j, off]`` with ``j + off >= n g`` (rows outside the matrix).
+    """
+    n_blk = lag + 1
+    width = g * n_blk
+    i_idx, d_idx = np.meshgrid(np.arange(n_blk), np.arange(n_blk), indexing="ij")
+    shift = np.where(i_idx >= d_idx, i_idx - d_idx, n_blk)
+    b_idx, off_idx = np.meshgrid(np.arange(g), np.arange(width), indexing="ij")
+    inside = off_idx + b_idx < width
+    src = np.where(inside, (off_idx + b_idx) * g + b_idx, 0).ravel()
+    n_rows = n * g
+    j_tail, off_tail = np.meshgrid(np.arange(max(n_rows - width, 0), n_rows), np.arange(width), indexing="ij")
+    keep = j_tail + off_tail >= n_rows
+    tail = (j_tail[keep] * width + off_tail[keep]).astype(np.intp)
+    out = (shift, src, np.flatnonzero(~inside.ravel()), tail)
+    for arr in out:
+        arr.flags.writeable = False
+    return out
+
+
 def _windows(x: NDArray[np.float64], n_blk: int) -> NDArray[np.float64]:
     """Rows ``[x_j, ..., x_{j+n_blk-1}]`` of a ``(T, k)`` array, shape ``(T - n_blk + 1, n_blk k)`` (a copy)."""
-    win = np.lib.stride_tricks.sliding_window_view(x, n_blk, axis=0)  # (n, k, n_blk)
-    return np.ascontiguousarray(win.transpose(0, 2, 1)).reshape(win.shape[0], n_blk * x.shape[1])
+    return hankel_rows(x, n_blk).reshape(x.shape[0] - n_blk + 1, n_blk * x.shape[1])
 
 
 def project(w: NDArray[np.float64], blocks: NDArray[np.float64], cov: EpochCovariance) -> BandedGram:

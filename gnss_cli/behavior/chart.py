@@ -20,6 +20,8 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from gnss_cli.behavior.hankel import hankel_rows
+
 __all__ = ["FullChart", "SharedChart"]
 
 
@@ -42,6 +44,7 @@ class FullChart:
         self.ident = np.sort(piv[: self.g])
         self.free = np.setdiff1d(np.arange(n_col), self.ident)
         self.n_params = self.g * self.free.size
+        self._basis: NDArray[np.float64] | None = None
 
     def coordinates(self, R: NDArray[np.float64]) -> NDArray[np.float64]:
         """Chart coordinates of (the row space of) ``R``; raises LinAlgError if the identity block is singular."""
@@ -65,22 +68,25 @@ class FullChart:
 
     def jacobian_rhs(self, w_hat: NDArray[np.float64]) -> NDArray[np.float64]:
         """``D[:, k] = (dG/dtheta_k) vec(w_hat)``, shape ``(g (T-l), n_params)``."""
-        win = np.lib.stride_tricks.sliding_window_view(w_hat, self.n_blk, axis=0)  # (n, q, l+1)
-        n = win.shape[0]
-        h_t = win.transpose(0, 2, 1).reshape(n, self.n_blk * self.q)[:, self.free]  # (n, nf)
+        rows = hankel_rows(w_hat, self.n_blk)  # (n, l+1, q)
+        n = rows.shape[0]
+        h_t = rows.reshape(n, self.n_blk * self.q)[:, self.free]  # (n, nf)
         nf = self.free.size
-        d = np.zeros((n, self.g, self.g, nf))
+        # Fortran order: the banded triangular solves take the columns without a copy
+        d = np.zeros((self.g, nf, n, self.g))  # [a', c, j, a] = delta_{a a'} h_t[j, c]
         for a in range(self.g):
-            d[:, a, a, :] = h_t
-        return d.reshape(n * self.g, self.g * nf)
+            d[a, :, :, a] = h_t.T
+        return d.reshape(self.g * nf, n * self.g).T
 
     def basis_blocks(self) -> NDArray[np.float64]:
-        """``dR/dtheta_k`` as blocks, shape ``(n_params, l+1, g, q)``."""
-        out = np.zeros((self.g, self.free.size, self.n_blk, self.g, self.q))
-        for a in range(self.g):
-            for c, col in enumerate(self.free):
-                out[a, c, col // self.q, a, col % self.q] = 1.0
-        return out.reshape(self.n_params, self.n_blk, self.g, self.q)
+        """``dR/dtheta_k`` as blocks, shape ``(n_params, l+1, g, q)`` (computed once per chart)."""
+        if self._basis is None:
+            out = np.zeros((self.g, self.free.size, self.n_blk, self.g, self.q))
+            for a in range(self.g):
+                for c, col in enumerate(self.free):
+                    out[a, c, col // self.q, a, col % self.q] = 1.0
+            self._basis = out.reshape(self.n_params, self.n_blk, self.g, self.q)
+        return self._basis
 
     def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
         """Whether ``|theta|`` is large enough that another identity block is better conditioned."""
@@ -110,9 +116,13 @@ class SharedChart:
         for j in range(self.deg_free + 1):
             self.conv[j : j + self.fixed.size, j] = self.fixed
         self.pin = int(np.argmax(np.abs(r_tilde)))
-        self.free = np.setdiff1d(np.arange(self.deg_free + 1), [self.pin])
+        self.free = np.array([i for i in range(self.deg_free + 1) if i != self.pin], dtype=np.intp)
         self.n_params = self.free.size
         self.g = q
+        self._eye = np.eye(q)
+        self._conv_free = self.conv[:, self.free]
+        coef = self._conv_free.T  # (n_params, l+1)
+        self._basis = coef[:, :, None, None] * self._eye[None, None]
 
     def coordinates_tilde(self, r_tilde: NDArray[np.float64]) -> NDArray[np.float64]:
         """Chart coordinates of ``r~`` (scaled so that ``r~[pin] = 1``)."""
@@ -131,18 +141,17 @@ class SharedChart:
 
     def blocks(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
         """Blocks ``(lag+1, q, q)`` of ``r(z) I_q``."""
-        return self.shared_r(theta)[:, None, None] * np.eye(self.q)[None]
+        return self.shared_r(theta)[:, None, None] * self._eye
 
     def jacobian_rhs(self, w_hat: NDArray[np.float64]) -> NDArray[np.float64]:
         """``D[:, k] = (dG/dtheta_k) vec(w_hat)``, shape ``(q (T-l), n_params)``."""
-        win = np.lib.stride_tricks.sliding_window_view(w_hat, self.n_blk, axis=0)  # (n, q, l+1)
-        n = win.shape[0]
-        return (win @ self.conv[:, self.free]).reshape(n * self.q, self.n_params)
+        rows = hankel_rows(w_hat, self.n_blk)  # (n, l+1, q)
+        n = rows.shape[0]
+        return (rows.transpose(0, 2, 1) @ self._conv_free).reshape(n * self.q, self.n_params)
 
     def basis_blocks(self) -> NDArray[np.float64]:
         """``dR/dtheta_k`` as blocks, shape ``(n_params, l+1, q, q)``."""
-        coef = self.conv[:, self.free].T  # (n_params, l+1)
-        return coef[:, :, None, None] * np.eye(self.q)[None, None]
+        return self._basis
 
     def needs_rechart(self, theta: NDArray[np.float64], threshold: float) -> bool:
         """Whether a free coefficient outgrew the pinned one."""

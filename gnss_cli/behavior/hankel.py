@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.errors import UsageError
 
-__all__ = ["hankel", "as_series"]
+__all__ = ["hankel", "as_series", "hankel_rows"]
 
 
 def as_series(w: ArrayLike, name: str = "w") -> NDArray[np.float64]:
@@ -78,3 +78,26 @@ def hankel(w: ArrayLike, depth: int) -> NDArray[np.float64]:
     # windows[j, :, k] = w(j + k); H[k*q + a, j] = w(j + k)[a]
     windows = np.lib.stride_tricks.sliding_window_view(arr, depth, axis=0)  # (n_col, q, depth)
     return np.ascontiguousarray(windows.transpose(2, 1, 0).reshape(q * depth, n_col))
+
+
+def hankel_rows(x: NDArray[np.float64], depth: int) -> NDArray[np.float64]:
+    """Read-only view of the columns of ``H_depth(x)`` as rows: ``out[j] = x[j : j + depth]``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (T, k)
+        Time series (any unit), ``1 <= depth <= T`` (not validated: an internal helper).
+
+    Returns
+    -------
+    ndarray, shape (T - depth + 1, depth, k)
+        A strided view (no copy); ``out.reshape(T - depth + 1, depth * k)`` is ``H_depth(x)^T``.
+    """
+    arr = np.ascontiguousarray(x)
+    s0, s1 = arr.strides
+    # an ndarray over arr's memory (numpy checks the strides stay inside it); cheaper than as_strided
+    out: NDArray[np.float64] = np.ndarray(
+        (arr.shape[0] - depth + 1, depth, arr.shape[1]), arr.dtype, arr, 0, (s0, s0, s1)
+    )
+    out.flags.writeable = False
+    return out

@@ -252,6 +252,8 @@ class KernelRepresentation:
         if self.p != self.q:
             raise UsageError(f"kernel: poles need a square kernel, received p={self.p}, q={self.q}")
         q, lag = self.q, self.lag
+        if self.is_shared() and self.blocks[-1, 0, 0] != 0.0:
+            return np.sort_complex(np.repeat(np.roots(self.blocks[::-1, 0, 0]), q))
         n = q * lag
         # Companion pencil  A x = z B x  with x = [w(t); ...; w(t+lag-1)].
         a = np.zeros((n, n))
@@ -262,7 +264,7 @@ class KernelRepresentation:
         ev = scipy.linalg.eigvals(a, b)
         return np.sort_complex(ev[np.isfinite(ev)])
 
-    def mirrored(self, margin: float = 1e-6, max_cond: float = 1e8) -> KernelRepresentation | None:
+    def mirrored(self, margin: float = 1e-3, max_cond: float = 1e8) -> KernelRepresentation | None:
         """The behavior with every pole outside the unit circle replaced by its mirror ``1 / conj(z)``.
 
         The weighted Hankel misfit depends on the kernel mostly through the spectrum of
@@ -274,7 +276,8 @@ class KernelRepresentation:
         Parameters
         ----------
         margin : float
-            Poles with ``|z| <= 1 + margin`` are kept.
+            Poles with ``|z| <= 1 + margin`` are kept (default 1e-3: a root of multiplicity
+            ``k`` on the unit circle is computed only to about ``eps^(1/k)``).
         max_cond : float
             Give up (return None) when the eigenvector matrix of the companion realization is
             worse conditioned than this (repeated or defective poles).

@@ -30,13 +30,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import lapack
 
 from gnss_cli.behavior.banded import BandedGram, InnerProblem, SingularGramError, project, solve_lower
 from gnss_cli.behavior.chart import FullChart, SharedChart
 from gnss_cli.behavior.covariance import EpochCovariance
-from gnss_cli.behavior.hankel import as_series
+from gnss_cli.behavior.hankel import as_series, hankel_rows
 from gnss_cli.behavior.kernel import KernelRepresentation, kernel_from
 from gnss_cli.behavior.result import STATUS_MESSAGES, StlsResult, StlsStatus
 from gnss_cli.behavior.starts import modal_kernel, subspace_kernel
@@ -177,6 +177,9 @@ COARSE_MAX_ITER = 50
 #: curvature is ill-conditioned (the Hankel data excite some kernel directions far more than
 #: others), so a large initial damping would hold back the weak directions for many iterations.
 MU_INITIAL = 1e-8
+#: Damping after a rejected step (at least): a step that failed with almost no damping is
+#: rejected again after a mere doubling, so the damping jumps to where it shortens the step.
+MU_REJECTED = 1e-3
 #: Subspace starts (full structure, series shorter than ``COARSE_MIN_SAMPLES``): Hankel
 #: matrices with these multiples of ``l + 1`` block rows.
 SUBSPACE_DEPTHS = (2, 3)
@@ -285,6 +288,7 @@ def stls(
     rechart_threshold: float = 10.0,
     hessian: str = "auto",
     max_starts: int = 3,
+    restarts: bool = True,
 ) -> StlsResult:
     """Identify a kernel of lag ``lag`` by weighted Hankel structured low-rank approximation.
 
@@ -330,6 +334,10 @@ def stls(
     max_starts : int
         Descents from at most this many automatic starting kernels, lowest misfit first
         (default 3; see Notes). ``1`` keeps only the best start.
+    restarts : bool
+        Restart from mirrored and modal kernels after a descent (default True; see Notes).
+        ``max_starts=1, restarts=False`` is a single descent from the best start, the
+        cheapest setting for many short series.
 
     Returns
     -------
@@ -383,6 +391,8 @@ def stls(
         raise UsageError(f"hessian: expected 'auto', 'exact' or 'gauss-newton', received {hessian!r}")
     if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
         raise UsageError(f"max_starts: expected a positive integer, received {max_starts!r}")
+    if not isinstance(restarts, bool):
+        raise UsageError(f"restarts: expected True or False, received {restarts!r}")
     if hessian == "auto":
         hessian = "exact" if structure == "shared" else "gauss-newton"
     n_t, q = arr.shape
@@ -395,7 +405,7 @@ def stls(
         n_sub = n_t // COARSE_FACTOR
         sub = stls(arr[:n_sub], lag, order, covariance.window(0, n_sub), tol=max(float(tol), COARSE_TOL),
                    max_iter=min(int(max_iter), COARSE_MAX_ITER), structure=structure, fixed_roots=fixed_roots,
-                   rechart_threshold=rechart_threshold, hessian=hessian, max_starts=max_starts)
+                   rechart_threshold=rechart_threshold, hessian=hessian, max_starts=max_starts, restarts=restarts)
         n_eval += sub.n_evaluations
         if np.isfinite(sub.misfit):
             coarse = sub.kernel
@@ -421,14 +431,15 @@ def stls(
         return StlsResult(ker, arr.copy(), float("inf"), 0, StlsStatus.INFEASIBLE,
                           f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {last_error}", "stls", structure, n_eval, 0.0)
     points.sort(key=lambda p: p.state.misfit)
-    queue = points[:1] if points[0].origin in ("kernel0", "coarse") else points[:max_starts]
+    warm = points[0].origin in ("kernel0", "coarse")
+    queue = points[:1] if warm else points[:max_starts]
 
     best: _Descent | None = None
     for point in queue:
         run = _minimize(problem, point.chart, point.theta, point.state, fixed, q, tol, max_iter,
                         rechart_threshold, hessian, exact_level)
         n_eval += run.n_eval
-        for _ in range(MIRROR_ROUNDS):
+        for _ in range(MIRROR_ROUNDS if restarts else 0):
             cand = _mirrored_start(run, structure, q)
             if cand is None:
                 break
@@ -446,7 +457,7 @@ def stls(
         if best is None or run.state.misfit < best.state.misfit:
             best = run
     assert best is not None
-    if structure == "full" and g == q and n_t < COARSE_MIN_SAMPLES and max_starts > 1:
+    if restarts and structure == "full" and g == q and n_t < COARSE_MIN_SAMPLES:
         # poles of the best fit with re-fitted output directions (one restart)
         cand = modal_kernel(arr, _final_kernel(best.chart, best.theta, q), covariance)
         if cand is not None:
@@ -487,8 +498,8 @@ def _mirrored_start(run: _Descent, structure: str, q: int) -> NDArray[np.float64
 def _derivatives(
     problem: InnerProblem, chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
     hessian: str,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Half gradient ``J^T f`` and half Hessian of the misfit in chart coordinates.
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
+    """Half gradient ``J^T f``, half Hessian and (exact mode) Gauss--Newton matrix in chart coordinates.
 
     With ``lambda = Gamma^{-1} e``, ``u_k = (dG/dtheta_k)^T lambda`` and
     ``c_k = (dG/dtheta_k) w_hat - G Sigma u_k`` the exact half Hessian is
@@ -497,24 +508,34 @@ def _derivatives(
     d_mat = chart.jacobian_rhs(state.w_hat)
     jac = solve_lower(state.chol, d_mat)
     grad = jac.T @ state.f
+    gn_mat = jac.T @ jac
     if hessian == "gauss-newton":
-        return grad, jac.T @ jac
+        return grad, gn_mat, None
     basis = chart.basis_blocks()  # (n_p, l+1, g, q)
     n_p, n_blk, g, q = basis.shape
     lam = state.lam
     n = lam.shape[0]
     n_t = n + n_blk - 1
+    big = (lam @ basis.transpose(2, 1, 3, 0).reshape(g, n_blk * q * n_p)).reshape(n, n_blk, q, n_p)
     u = np.zeros((n_t, q, n_p))
     for i in range(n_blk):
-        u[i : i + n] += (lam @ basis[:, i].transpose(1, 2, 0).reshape(g, q * n_p)).reshape(n, q, n_p)
+        u[i : i + n] += big[:, i]
     s = problem.cov.apply_batch(u)
-    blocks = chart.blocks(theta)
-    gs = np.zeros((n, g, n_p))
-    for i in range(n_blk):
-        gs += np.matmul(blocks[i], s[i : i + n])
+    r_mat = chart.blocks(theta).transpose(1, 0, 2).reshape(g, n_blk * q)
+    s_rows = hankel_rows(s.reshape(n_t, q * n_p), n_blk).reshape(n, n_blk * q, n_p)
+    gs = r_mat @ s_rows  # (n, g, n_p): G Sigma u_k
     a = solve_lower(state.chol, d_mat - gs.reshape(n * g, n_p))
     hess = a.T @ a - u.reshape(n_t * q, n_p).T @ s.reshape(n_t * q, n_p)
-    return grad, 0.5 * (hess + hess.T)
+    return grad, 0.5 * (hess + hess.T), gn_mat
+
+
+def _cholesky_solve(a_mat: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``a_mat^{-1} rhs`` for a symmetric positive definite ``a_mat``; None when the Cholesky factorization fails."""
+    fac, info = lapack.dpotrf(a_mat, lower=1)
+    if info != 0:
+        return None
+    x, info = lapack.dpotrs(fac, rhs, lower=1)
+    return x if info == 0 else None
 
 
 def _minimize(
@@ -522,7 +543,11 @@ def _minimize(
     fixed: NDArray[np.float64], q: int, tol: float, max_iter: int, rechart_threshold: float, hessian: str,
     exact_level: float,
 ) -> _Descent:
-    """Damped Newton / Levenberg--Marquardt descent from ``theta`` (only decreasing steps accepted)."""
+    """Damped Newton / Levenberg--Marquardt descent from ``theta`` (only decreasing steps accepted).
+
+    With the exact Hessian, an iteration where it is not positive definite (far from a
+    minimum) takes the Gauss--Newton curvature instead.
+    """
     status = StlsStatus.ITERATION_LIMIT
     iterations = 0
     n_eval = 0
@@ -535,30 +560,29 @@ def _minimize(
         if state.misfit <= exact_level:
             status = StlsStatus.EXACT
             break
-        grad, a_mat = _derivatives(problem, chart, theta, state, hessian)
-        grad_norm = float(np.max(np.abs(grad)))
+        grad, a_mat, gn_mat = _derivatives(problem, chart, theta, state, hessian)
+        grad_norm = float(np.abs(grad).max())
         iterations += 1
         if grad_norm == 0.0:
             status = StlsStatus.CONVERGED
             break
-        try:  # Newton decrement: the predicted decrease of an undamped step
-            c_fac = np.linalg.cholesky(a_mat)
-            decrement = float(grad @ scipy.linalg.cho_solve((c_fac, True), grad, check_finite=False))
-            if decrement <= 0.1 * tol * state.misfit:
+        newton = _cholesky_solve(a_mat, grad)
+        if newton is not None:  # Newton decrement: the predicted decrease of an undamped step
+            if float(grad @ newton) <= 0.1 * tol * state.misfit:
                 status = StlsStatus.CONVERGED
                 break
-        except np.linalg.LinAlgError:
-            pass
-        diag = np.abs(np.diag(a_mat))
-        diag = np.maximum(diag, 1e-12 * max(float(np.max(diag)), np.finfo(float).tiny))
+        elif gn_mat is not None:
+            a_mat = gn_mat
+        diag = np.abs(a_mat.diagonal())
+        diag = np.maximum(diag, 1e-12 * max(float(diag.max()), np.finfo(float).tiny))
+        theta_norm = float(np.sqrt(theta @ theta))
         while True:
-            try:
-                c_fac = np.linalg.cholesky(a_mat + mu * np.diag(diag))
-                step = -scipy.linalg.cho_solve((c_fac, True), grad, check_finite=False)
-            except np.linalg.LinAlgError:
-                step = np.full_like(grad, np.nan)
-            finite = bool(np.all(np.isfinite(step)))
-            predicted = float(-2.0 * grad @ step - step @ a_mat @ step) if finite else -1.0
+            damped = a_mat.copy()
+            damped.flat[:: damped.shape[0] + 1] += mu * diag
+            sol = _cholesky_solve(damped, grad)
+            step = -sol if sol is not None else None
+            finite = step is not None and bool(np.isfinite(step).all())
+            predicted = float(-2.0 * grad @ step - step @ a_mat @ step) if finite and step is not None else -1.0
             trial: BandedGram | None = None
             if predicted > 0.0:
                 try:
@@ -566,22 +590,24 @@ def _minimize(
                     trial = problem.project(chart.blocks(theta + step))
                 except SingularGramError:
                     trial = None
-            if trial is not None and trial.misfit < state.misfit:
+            if trial is not None and trial.misfit < state.misfit and step is not None:
                 rho = (state.misfit - trial.misfit) / predicted
                 mu *= max(1.0 / 10.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 decrease = state.misfit - trial.misfit
                 theta = theta + step
                 state = trial
-                small_step = float(np.linalg.norm(step)) <= tol * (float(np.linalg.norm(theta)) + tol)
+                step_norm = float(np.sqrt(step @ step))
+                small_step = step_norm <= tol * (float(np.sqrt(theta @ theta)) + tol)
                 if (decrease <= tol * state.misfit and rho > 0.25) or small_step:
                     status = StlsStatus.CONVERGED
                 elif chart.needs_rechart(theta, rechart_threshold):
                     chart, theta = _rechart(chart, theta, fixed, q)
                 break
-            mu *= nu
+            mu = max(mu * nu, MU_REJECTED)
             nu *= 2.0
-            if mu > 1e16 or (finite and float(np.linalg.norm(step)) <= 1e-15 * (float(np.linalg.norm(theta)) + 1e-15)):
+            if mu > 1e16 or (finite and step is not None
+                             and float(np.sqrt(step @ step)) <= 1e-15 * (theta_norm + 1e-15)):
                 status = StlsStatus.NO_FURTHER_DECREASE
                 break
     if status == StlsStatus.ITERATION_LIMIT and state.misfit <= exact_level:

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.behavior.banded import SingularGramError, project
 from gnss_cli.behavior.covariance import EpochCovariance
-from gnss_cli.behavior.hankel import as_series
+from gnss_cli.behavior.hankel import as_series, hankel_rows
 from gnss_cli.behavior.kernel import KernelRepresentation, shared_kernel_coefficients
 from gnss_cli.behavior.result import STATUS_MESSAGES, StlsResult, StlsStatus
 from gnss_cli.errors import UsageError
@@ -54,8 +54,8 @@ def full_wtls_kernel(w: NDArray[np.float64], lag: int, g: int, cov: EpochCovaria
     q = w.shape[1]
     c = whitening_factor(cov)
     v = np.linalg.solve(c, w.T).T
-    win = np.lib.stride_tricks.sliding_window_view(v, lag + 1, axis=0)  # (n, q, l+1)
-    h_t = win.transpose(0, 2, 1).reshape(win.shape[0], q * (lag + 1))
+    rows = hankel_rows(v, lag + 1)  # (n, l+1, q)
+    h_t = rows.reshape(rows.shape[0], q * (lag + 1))
     r_v = _smallest_right_vectors(h_t, g)
     c_inv = np.linalg.inv(c)  # q x q, well conditioned after validation
     return r_v @ np.kron(np.eye(lag + 1), c_inv)
@@ -63,18 +63,16 @@ def full_wtls_kernel(w: NDArray[np.float64], lag: int, g: int, cov: EpochCovaria
 
 def shared_wtls_tilde(w: NDArray[np.float64], lag: int, fixed: NDArray[np.float64], cov: EpochCovariance) -> NDArray[np.float64]:
     """WTLS coefficients of ``r~`` (ascending, unit norm) for ``r = f r~`` with fixed factor ``f``."""
-    q = w.shape[1]
     c = whitening_factor(cov)
     v = np.linalg.solve(c, w.T).T
     n_f = fixed.size - 1
     if n_f > 0:
-        win_f = np.lib.stride_tricks.sliding_window_view(v, n_f + 1, axis=0)  # (T-n_f, q, n_f+1)
-        v = win_f @ fixed
+        v = fixed @ hankel_rows(v, n_f + 1)  # (T-n_f, q): f(sigma) v
     deg = lag - n_f
     if deg == 0:
         return np.array([1.0])
-    win = np.lib.stride_tricks.sliding_window_view(v, deg + 1, axis=0)  # (n, q, deg+1)
-    stacked = win.reshape(win.shape[0] * q, deg + 1)
+    rows = hankel_rows(v, deg + 1)  # (n, deg+1, q)
+    stacked = rows.transpose(0, 2, 1).reshape(rows.shape[0] * rows.shape[2], deg + 1)
     return _smallest_right_vectors(stacked, 1)[0]
 
 

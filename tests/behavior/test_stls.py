@@ -69,10 +69,13 @@ def _check_noisy_trial(w: np.ndarray, cov: np.ndarray, true_kernel: KernelRepres
 
 @pytest.mark.parametrize("seed", range(50))
 def test_monte_carlo_full_kernel_order_9(seed: int) -> None:
+    """Noise 0.03 on a series of amplitude ~1: a single descent from the WTLS kernel ends in a
+    local minimum in some of these trials; the subspace, mirrored and modal starts (none of
+    which uses the true kernel) reach a misfit below the true kernel's in every one."""
     rng = np.random.default_rng(seed)
     exact = nine_mode_series(60, np.random.default_rng(1000))
     k_true = stls(exact, lag=3).kernel  # exact data: the unique order-9 behavior
-    cov = random_covariances(60, rng, 0.003)
+    cov = random_covariances(60, rng, 0.03)
     _check_noisy_trial(exact + draw_noise(cov, rng), cov, k_true, lag=3)
 
 
