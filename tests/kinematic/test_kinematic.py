@@ -104,6 +104,35 @@ def test_segments_and_windows() -> None:
     assert windows(20, 0)[0] == [(0, 20)]
 
 
+def test_window_owner_is_the_nearest_centre() -> None:
+    """The owner from the midpoints between centres equals a brute-force nearest-centre search."""
+    for n in range(1, 70):
+        for window in (2, 5, 8, 15, 16):
+            for step in (None, 1, 3):
+                bounds, owner = windows(n, window, step)
+                centres = np.array([(a + b - 1) / 2.0 for a, b in bounds])
+                dist = np.abs(np.arange(n)[:, None] - centres[None, :])
+                assert np.array_equal(owner, np.argmin(dist, axis=1)), (n, window, step)
+
+
+def test_multi_epoch_cov_of_stacked_windows_equals_one_at_a_time() -> None:
+    rng = np.random.default_rng(2)
+    n_t, n_sv = 6, 7
+    bases, infos, hs, cvs = [], [], [], []
+    from gnss_cli.kinematic import _epoch_information
+
+    for ker in (KernelRepresentation.pva(3), KernelRepresentation.shared(np.poly([1.0, 0.95, 0.9])[::-1], 3)):
+        u = rng.normal(size=(n_t, n_sv, 3))
+        info, h, cv = _epoch_information(-u / np.linalg.norm(u, axis=2, keepdims=True), rng.uniform(0.5, 2.0, (n_t, n_sv)))
+        bases.append(behavior_basis(ker, n_t))
+        infos.append(info)
+        hs.append(h)
+        cvs.append(cv)
+    both = multi_epoch_cov(np.stack(bases), np.stack(infos), np.stack(hs), np.stack(cvs))
+    for k in range(2):
+        np.testing.assert_allclose(both[k], multi_epoch_cov(bases[k], infos[k], hs[k], cvs[k]), rtol=1e-12, atol=1e-14)
+
+
 # ------------------------------------------------------------------ simulated static receiver
 def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: ignore[no-untyped-def]
     cfg, data, ls, wls, ref = static_set
