@@ -168,7 +168,7 @@ def projection_matrix(
 #: kernel of a long stretch of an LTI series is close to that of the whole, so the descent at
 #: full size needs only the last few (O(T)) iterations.
 COARSE_MIN_SAMPLES = 4000
-COARSE_FACTOR = 8
+COARSE_FACTOR = 4
 #: Stopping tolerance and iteration limit of the coarse sub-problem (its kernel is only a
 #: starting point).
 COARSE_TOL = 1e-6
@@ -356,7 +356,7 @@ def stls(
     -----
     See the module docstring for the descent. The misfit has local minima, so the result is
     the best of several descents. Starting kernels: ``kernel0``; for ``T >= 4000`` the
-    kernel identified (recursively) on the leading ``T / 8`` samples; the WTLS kernel; for the
+    kernel identified (recursively) on the leading ``T / 4`` samples; the WTLS kernel; for the
     full structure on shorter series the subspace kernel of a Hankel matrix with ``2(l+1)``
     block rows; for the shared structure the polynomial ``(z-1)^l`` (for a full square kernel it
     is tried only when every other start is singular). All are evaluated; when ``kernel0`` or the coarse

@@ -85,7 +85,7 @@ def test_coarse_start_reaches_the_same_optimum_as_a_direct_descent() -> None:
     rng = np.random.default_rng(6)
     n_t = 6000
     y = circular_arc(n_t, 2 * np.pi / 150, radius_m=1.0) + 0.05 * rng.normal(size=(n_t, 3))
-    res = stls(y, lag=1, order=3)  # T >= 4000: starts from the kernel of the leading T / 8 samples
+    res = stls(y, lag=1, order=3)  # T >= 4000: starts from the kernel of the leading T / 4 samples
     direct = stls(y, lag=1, order=3, kernel0=wtls(y, lag=1, order=3).kernel)
     assert res.success and direct.success
     assert res.misfit == pytest.approx(direct.misfit, rel=1e-9)
