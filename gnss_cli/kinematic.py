@@ -55,7 +55,7 @@ KERNELS = ("shared", "full")
 DEFAULT_WINDOW = 15
 """Default window length, epochs. Measured on the simulated 1 Hz flight (1 m white noise, GPS,
 seed 3, ``benchmarks/bench_kinematic.py``), 3D RMS of the shared lag-3 kernel over the LS fixes:
-0.54 / 0.51 / 0.48 / 0.44 / 0.42 / 0.56 / 0.78 for windows of 8 / 10 / 12 / 15 / 20 / 25 / 30
+0.55 / 0.50 / 0.47 / 0.45 / 0.41 / 0.56 / 0.78 for windows of 8 / 10 / 12 / 15 / 20 / 25 / 30
 epochs. Longer windows average more noise until one recurrence no longer fits the manoeuvres;
 15 keeps a margin below that edge."""
 STATUS_FALLBACK = "fallback_wls"

@@ -25,7 +25,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.behavior.banded import SINGULAR_RTOL
@@ -293,8 +292,7 @@ class _Charts:
 def _wtls_tilde(win: _Windows, fixed: F64, deg: int) -> F64:
     """WTLS ``r~`` of every window (as ``shared_wtls_tilde``: whitened by the mean covariance)."""
     c = np.linalg.cholesky(win.sig.mean(axis=1))  # (B, q, q)
-    v = scipy.linalg.solve_triangular(c, np.swapaxes(win.w, 1, 2), lower=True, check_finite=False)
-    v = np.swapaxes(v, 1, 2)  # (B, N, q)
+    v = np.swapaxes(np.linalg.solve(c, np.swapaxes(win.w, 1, 2)), 1, 2)  # (B, N, q): C^{-1} w_t
     n_f = fixed.size - 1
     if n_f > 0:
         idx = np.arange(v.shape[1] - n_f)[:, None] + np.arange(n_f + 1)[None, :]

@@ -15,7 +15,9 @@ in O(T) time and memory (:mod:`gnss_cli.behavior.banded`).
 
 *Outer problem* (:func:`stls`): Levenberg--Marquardt on the whitened residual
 ``f(theta) = L^{-1} e`` in the chart coordinates ``theta`` of :mod:`gnss_cli.behavior.chart`,
-started from the WTLS kernel. The Jacobian is the structured pseudo-Jacobian
+started from the WTLS kernel and the other starts of :func:`stls` (a coarse sub-problem for
+long series, subspace kernels of deeper Hankel matrices, restarts from mirrored poles and
+re-fitted modes: the misfit has local minima). The Jacobian is the structured pseudo-Jacobian
 ``J = L^{-1} (dG/dtheta) vec(w_hat)``: it gives the *exact* gradient
 (``dM = 2 lambda^T dG w_hat = 2 f^T J dtheta`` with ``lambda = Gamma^{-1} e``) and
 ``J^T J`` is the Gauss--Newton part of the Hessian (the neglected terms are of the order
@@ -466,7 +468,7 @@ def stls(
                 start = _chart_point(problem, cand, structure, fixed, q, "modal")
             except (SingularGramError, np.linalg.LinAlgError):
                 start = None
-            if start is not None and start.state.misfit < float("inf"):
+            if start is not None:
                 other = _minimize(problem, start.chart, start.theta, start.state, fixed, q, tol, max_iter,
                                   rechart_threshold, hessian, exact_level)
                 n_eval += other.n_eval
