@@ -14,11 +14,12 @@ time-invariant behavior (DESIGN.md section 5):
 Each window is fitted with a single descent from the better of the WTLS and polynomial
 starts (``stls(..., max_starts=1, restarts=False)``). The extra starts and restarts of the
 default ``stls`` changed the 3D RMS of the simulated flights (1 m noise) by little: 1.39
-instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up to ``BATCH_MAX_EPOCHS`` epochs with a shared or fixed kernel
-are fitted all at once (:mod:`gnss_cli.behavior.batch`, the same algorithm with a leading
-window axis): a day of 1 s epochs is twelve thousand 15-epoch windows, and one at a time
-their cost was the Python overhead of many tiny array operations. Full kernels and longer
-windows go one at a time through the banded O(T) STLS.
+instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up to
+``BATCH_MAX_EPOCHS`` epochs with a shared or fixed kernel are fitted all at once
+(:mod:`gnss_cli.behavior.batch`, the same algorithm with a leading window axis): a day of
+1 s epochs is twelve thousand 15-epoch windows, and one at a time their cost would be the
+Python overhead of many tiny array operations. Full kernels and longer windows go one at a
+time through the banded O(T) STLS.
 
 The receiver clock is re-estimated per epoch at the smoothed position (one weighted
 clock-only least-squares solve). DOPs are the multi-epoch DOPs of section 5: over a window

@@ -34,7 +34,9 @@ def _left_null_space(obs: NDArray[np.float64], rank: int) -> NDArray[np.float64]
     return u[:, rank:].T
 
 
-def subspace_kernel(w: NDArray[np.float64], lag: int, g: int, cov: EpochCovariance, depth: int) -> NDArray[np.float64] | None:
+def subspace_kernel(
+    w: NDArray[np.float64], lag: int, g: int, cov: EpochCovariance, depth: int
+) -> NDArray[np.float64] | None:
     """Kernel ``(g, q(l+1))`` from the column space of a deeper block-Hankel matrix.
 
     Parameters
