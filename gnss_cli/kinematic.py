@@ -21,11 +21,13 @@ instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up
 Python overhead of many tiny array operations. Full kernels and longer windows go one at a
 time through the banded O(T) STLS.
 
-The receiver clock is re-estimated per epoch at the smoothed position (one weighted
-clock-only least-squares solve). DOPs are the multi-epoch DOPs of section 5: over a window
-whose trajectories are ``O x0`` (``O`` an orthonormal basis of the behavior, clocks free
-per epoch), ``Q = (G_N^T G_N)^{-1}`` with ``G_N = [blkdiag(A_t^pos) O, blkdiag(1_t)]`` and unit
-weights; epoch ``t``'s DOPs come from its (position, clock) block. For an identified kernel
+The receiver clocks (one per system, as in the snapshot solution) are re-estimated per
+epoch at the smoothed position (one weighted clock-only least-squares solve; a system
+without satellites keeps its clock-fixing constraint row). DOPs are the multi-epoch DOPs of
+section 5: over a window whose trajectories are ``O x0`` (``O`` an orthonormal basis of the
+behavior, clocks free per epoch), ``Q = (G_N^T G_N)^{-1}`` with
+``G_N = [blkdiag(A_t^pos) O, blkdiag(C_t)]`` (``C_t`` the clock columns) and unit weights;
+epoch ``t``'s DOPs come from its (position, clocks) block. For an identified kernel
 the basis is the free response of the identified behavior (first order: the kernel is held
 fixed). Adding the behavior constraint can only shrink ``Q``'s blocks, so the multi-epoch
 GDOP never exceeds the snapshot GDOP.
@@ -178,8 +180,8 @@ def behavior_basis(kernel: KernelRepresentation, n_t: int) -> F64:
     return u[:, :rank].reshape(n_t, q, rank)
 
 
-def _epoch_information(p_m: F64, weight: F64) -> tuple[F64, F64, F64]:
-    """Position information after eliminating the clock, per epoch.
+def _epoch_information(p_m: F64, weight: F64, clock_cols: F64 | None = None) -> tuple[F64, F64, F64]:
+    """Position information after eliminating the receiver clock(s), per epoch.
 
     Parameters
     ----------
@@ -187,40 +189,47 @@ def _epoch_information(p_m: F64, weight: F64) -> tuple[F64, F64, F64]:
         Position columns of the design matrix (zero rows for unused satellites).
     weight : ndarray, shape (T, n)
         Row weights (zero for unused satellites), 1/m^2 or unitless.
+    clock_cols : ndarray, shape (T, n, k), optional
+        Clock columns of the design matrix (one per system: 1 where the row belongs to the
+        system). ``None``: one clock for every row.
 
     Returns
     -------
     info : ndarray, shape (T, 3, 3)
-        ``P^T W P - (P^T W 1)(1^T W P) / (1^T W 1)``.
-    h : ndarray, shape (T, 3)
-        ``P^T W 1 / (1^T W 1)``.
-    clock_var : ndarray, shape (T,)
-        ``1 / (1^T W 1)``.
+        ``P^T W P - sum_j (P^T W c_j)(c_j^T W P) / (c_j^T W c_j)``.
+    h : ndarray, shape (T, k, 3), or (T, 3) without ``clock_cols``
+        ``P^T W c_j / (c_j^T W c_j)``.
+    clock_var : ndarray, shape (T, k), or (T,) without ``clock_cols``
+        ``1 / (c_j^T W c_j)``; 0 for a clock without weighted rows (it is not estimated
+        from these rows).
     """
-    sw = weight.sum(axis=1)
-    sw = np.where(sw > 0, sw, 1.0)
-    pw = p_m * weight[..., None]
-    info = np.einsum("tni,tnj->tij", pw, p_m)
-    g = pw.sum(axis=1)
-    info = info - g[:, :, None] * g[:, None, :] / sw[:, None, None]
-    return info, g / sw[:, None], 1.0 / sw
+    single = clock_cols is None
+    c = np.ones((*weight.shape, 1)) if single else clock_cols
+    cw = c * weight[..., None]  # (T, n, k)
+    sw = cw.sum(axis=1)  # (T, k): the clock columns of one epoch do not overlap
+    inv = np.where(sw > 0, 1.0 / np.where(sw > 0, sw, 1.0), 0.0)
+    g = np.einsum("tnk,tni->tki", cw, p_m)
+    info = np.einsum("tni,tn,tnj->tij", p_m, weight, p_m) - np.einsum("tki,tk,tkj->tij", g, inv, g)
+    h = g * inv[..., None]
+    return (info, h[:, 0], inv[:, 0]) if single else (info, h, inv)
 
 
 def multi_epoch_cov(basis_ecef: F64, info: F64, h: F64, clock_var: F64) -> F64:
-    """Per-epoch (position, clock) covariance blocks of the stacked multi-epoch solution.
+    """Per-epoch (position, clocks) covariance blocks of the stacked multi-epoch solution.
 
     Parameters
     ----------
     basis_ecef : ndarray, shape (..., N, 3, k)
         Behavior basis: window positions ``x_t = O_t x0`` (ECEF directions, m per unit of x0);
         leading axes are windows solved independently.
-    info, h, clock_var : ndarrays, shapes (..., N, 3, 3), (..., N, 3), (..., N)
-        From the per-epoch geometry (see ``_epoch_information``).
+    info, h, clock_var : ndarrays
+        From the per-epoch geometry (see ``_epoch_information``): shapes (..., N, 3, 3),
+        (..., N, c, 3), (..., N, c) with c receiver clocks, or (..., N, 3), (..., N) for one.
 
     Returns
     -------
-    cov : ndarray, shape (..., N, 4, 4)
-        Blocks of ``(G_N^T W G_N)^{-1}`` for ``[x_t (ECEF), clock_t]``; unit of ``1 / W``.
+    cov : ndarray, shape (..., N, 3 + c, 3 + c)
+        Blocks of ``(G_N^T W G_N)^{-1}`` for ``[x_t (ECEF), clocks_t]``; unit of ``1 / W``.
 
     Raises
     ------
@@ -229,11 +238,15 @@ def multi_epoch_cov(basis_ecef: F64, info: F64, h: F64, clock_var: F64) -> F64:
 
     Notes
     -----
-    Eliminating each epoch's clock leaves ``x0``'s information ``sum_t O_t^T M_t O_t`` with
+    Eliminating each epoch's clocks leaves ``x0``'s information ``sum_t O_t^T M_t O_t`` with
     ``M_t`` the clock-reduced position information. Then ``C_t = O_t (sum ...)^{-1} O_t^T``,
-    ``cov(x_t, b_t) = -C_t h_t`` and ``var(b_t) = 1 / (1^T W 1) + h_t^T C_t h_t``.
+    ``cov(x_t, b_tj) = -C_t h_tj`` and ``cov(b_ti, b_tj) = delta_ij / (c_j^T W c_j) +
+    h_ti^T C_t h_tj`` (the clock columns of one epoch do not overlap).
     """
+    if clock_var.ndim == info.ndim - 2:  # one clock
+        h, clock_var = h[..., None, :], clock_var[..., None]
     *lead, n_ep, _, k = basis_ecef.shape
+    n_clk = clock_var.shape[-1]
     mo = np.matmul(info, basis_ecef)  # M_t O_t
     big = np.einsum("...tik,...til->...kl", basis_ecef, mo)
     chol = np.linalg.cholesky(0.5 * (big + np.swapaxes(big, -1, -2)))
@@ -241,12 +254,13 @@ def multi_epoch_cov(basis_ecef: F64, info: F64, h: F64, clock_var: F64) -> F64:
     o_t = np.swapaxes(basis_ecef.reshape(*lead, n_ep * 3, k), -1, -2)
     half = np.linalg.solve(chol, o_t).reshape(*lead, k, n_ep, 3)
     c = np.einsum("...kti,...ktj->...tij", half, half)
-    ch = np.einsum("...tij,...tj->...ti", c, h)
-    out = np.empty((*lead, n_ep, 4, 4))
+    ch = np.einsum("...tij,...tcj->...tic", c, h)  # C_t h_tc: (..., N, 3, n_clk)
+    out = np.empty((*lead, n_ep, 3 + n_clk, 3 + n_clk))
     out[..., :3, :3] = c
-    out[..., :3, 3] = -ch
-    out[..., 3, :3] = -ch
-    out[..., 3, 3] = clock_var + np.einsum("...ti,...ti->...t", h, ch)
+    out[..., :3, 3:] = -ch
+    out[..., 3:, :3] = -np.swapaxes(ch, -1, -2)
+    out[..., 3:, 3:] = np.einsum("...tci,...tid->...tcd", h, ch)
+    out[..., 3 + np.arange(n_clk), 3 + np.arange(n_clk)] += clock_var
     return out
 
 
@@ -580,29 +594,39 @@ def smooth(
 def _finish(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s: F64, status: NDArray[np.str_],
             smoothed: NDArray[np.bool_], dop_windows: list[tuple[NDArray[np.intp], F64, NDArray[np.intp]]],
             method: str) -> MethodSolution:
-    T = data.time_gps_s.size
-    clock = wls.clock_m.copy()
+    T, n = data.time_gps_s.size, data.sv.size
+    clocks = (wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]).copy()
+    n_clk = clocks.shape[1]
     cov = wls.cov_m2.copy()
     dops = {k: getattr(wls, k).copy() for k in ("gdop", "pdop", "hdop", "vdop", "tdop")}
+    tdops = wls.tdops.copy() if wls.tdops is not None else None
     residuals = wls.residuals_m.copy()
     n_sat = wls.n_sat.copy()
     rows = np.flatnonzero(smoothed)
+    present = np.ones((T, n_clk), dtype=bool)
     if rows.size:
-        lin = _linearize(data, rows, x_s[rows], np.zeros(rows.size), config)
+        # One clock per system: rows [satellites (n), constraints of absent systems (k > 1)].
+        lin = _linearize(data, rows, x_s[rows], np.zeros((rows.size, n_clk)), config)
+        clock_cols = lin.A[..., 3:]
         wgt = np.where(lin.mask, 1.0 / lin.var_m2, 0.0)
-        sw = wgt.sum(axis=1)
-        clock[rows] = (wgt * lin.q).sum(axis=1) / np.where(sw > 0, sw, 1.0)
-        residuals[rows] = np.where(lin.mask, lin.q - clock[rows, None], np.nan)
-        n_sat[rows] = lin.mask.sum(axis=1)
+        sw = np.einsum("tn,tnk->tk", wgt, clock_cols)
+        clocks[rows] = np.einsum("tn,tnk,tn->tk", wgt, clock_cols, lin.q) / np.where(sw > 0, sw, 1.0)
+        fitted = lin.q - np.einsum("tnk,tk->tn", clock_cols, clocks[rows])
+        residuals[rows] = np.where(lin.mask[:, :n], fitted[:, :n], np.nan)
+        n_sat[rows] = lin.mask[:, :n].sum(axis=1)
+        if n_clk > 1:
+            present[rows] = ~lin.mask[:, n:]  # a set constraint row marks a system without satellites
         p_m = lin.A[..., :3]
+        sat_rows = lin.mask.astype(np.float64)
+        sat_rows[:, n:] = 0.0  # the DOP gain is from satellite noise only, as for the snapshot methods
         geometry = {}
-        for name, weights in (("w", wgt), ("u", lin.mask.astype(np.float64))):
-            info, h, cv = np.full((T, 3, 3), np.nan), np.full((T, 3), np.nan), np.full(T, np.nan)
-            info[rows], h[rows], cv[rows] = _epoch_information(p_m, weights)
+        for name, weights in (("w", wgt), ("u", sat_rows)):
+            info, h, cv = np.full((T, 3, 3), np.nan), np.full((T, n_clk, 3), np.nan), np.full((T, n_clk), np.nan)
+            info[rows], h[rows], cv[rows] = _epoch_information(p_m, weights, clock_cols)
             geometry[name] = (info, h, cv)
         rot_local = np.full((T, 3, 3), np.nan)
         rot_local[rows] = lin.rot
-        gain_q = np.full((T, 4, 4), np.nan)
+        gain_q = np.full((T, 3 + n_clk, 3 + n_clk), np.nan)
         groups: dict[tuple[int, int], list[int]] = {}
         for j, (span, basis, _) in enumerate(dop_windows):
             groups.setdefault(basis.shape[::2], []).append(j)
@@ -618,14 +642,20 @@ def _finish(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s:
                 pos = mine - span[0]
                 cov[mine] = cw[i][pos]
                 gain_q[mine] = cu[i][pos]
-        have = np.flatnonzero(np.all(np.isfinite(gain_q.reshape(T, 16)), axis=1))
+        have = np.flatnonzero(np.all(np.isfinite(gain_q.reshape(T, -1)), axis=1))
         if have.size:
             d = dop_from_cov(gain_q[have], rot_local[have])
             for k in dops:
                 dops[k][have] = getattr(d, k)
+            dops["tdop"][have] = np.where(present[have, 0], dops["tdop"][have], np.nan)
+            if tdops is not None:
+                q_clk = gain_q[have][:, 3 + np.arange(n_clk), 3 + np.arange(n_clk)]
+                tdops[have] = np.where(present[have], np.sqrt(np.clip(q_clk, 0.0, None)), np.nan)
     bad = np.isin(status, [STATUS_OK, STATUS_FALLBACK], invert=True)
     x_out = np.where(bad[:, None], np.nan, x_s)
-    return replace(wls, method=method, x_ecef_m=x_out, clock_m=np.where(bad, np.nan, clock), n_sat=n_sat,
+    clocks = np.where(bad[:, None], np.nan, clocks)
+    return replace(wls, method=method, x_ecef_m=x_out, clock_m=clocks[:, 0],
+                   clocks_m=clocks if wls.clocks_m is not None else None, tdops=tdops, n_sat=n_sat,
                    cov_m2=np.where(bad[:, None, None], np.nan, cov), status=status,
                    residuals_m=np.where(bad[:, None], np.nan, residuals), gdop_paper=None, **dops)
 

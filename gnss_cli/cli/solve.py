@@ -133,17 +133,9 @@ def _smooth_stls(files, cfg, progress, lag: int, model: str, kernel: str, order:
 
     from gnss_cli.kinematic import DEFAULT_WINDOW, smooth
 
-    if len(cfg.systems) > 1:
-        raise UsageError(f"--lag: the behavioral smoothing has one receiver clock; give one system with --systems "
-                         f"(received {','.join(cfg.systems)})")
     others = tuple(m for m in cfg.methods if m != "stls")
-    cfg_run = dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",)))
-    result = run(files[0], files[1:], cfg_run, progress=progress)
-    if len(result.epochs.systems) > 1:  # systems "all": keep the reference system's clock only
-        reference = result.epochs.systems[0]
-        result = run(files[0], files[1:], dataclasses.replace(cfg_run, systems=(reference,)), progress=progress)
-        note = f"--lag: the behavioral smoothing has one receiver clock; only system {reference} is used"
-        result = dataclasses.replace(result, epochs=dataclasses.replace(result.epochs, warnings=(*result.warnings, note)))
+    result = run(files[0], files[1:], dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",))),
+                 progress=progress)
     if progress is not None:
         progress(f"stls: smoothing, lag {lag}", 0.0)
     sol, models = smooth(result.epochs, result.solutions["wls"], cfg, lag, model=model, kernel=kernel, order=order,

@@ -1,7 +1,11 @@
-"""gnss-solve with several systems: --lag keeps one receiver clock (warning or usage error)."""
+"""gnss-solve --lag with several systems: one receiver clock per system in the smoothing too."""
 
 from __future__ import annotations
 
+import io
+
+import numpy as np
+import pandas as pd
 import pytest
 
 from gnss_cli.cli.exits import run_app
@@ -17,19 +21,27 @@ def _invoke(args, capsys):
     return exc.value.code, out, err
 
 
-def test_lag_with_all_systems_uses_the_reference_system_and_says_so(rinex_dir, capsys):
+def test_lag_with_every_system_keeps_a_clock_per_system(rinex_dir, capsys):
     d = rinex_dir / KMS3[0]
-    code, out, err = _invoke([d / KMS3[1], d / KMS3[2], "--method", "stls", "--lag", "1", "--model", "static"], capsys)
+    code, out, err = _invoke([d / KMS3[1], d / KMS3[2], "--method", "wls,stls", "--lag", "1", "--model", "static",
+                              "--window", "0", "-q"], capsys)
     assert code == 0, err
-    assert "only system G is used" in err
-    header = out.splitlines()[0].split(",")
-    assert not [c for c in header if c.startswith("tdop_")]
-    assert len(out.splitlines()) == 1 + 19
-
-
-def test_lag_with_several_explicit_systems_is_a_usage_error(rinex_dir, capsys):
-    d = rinex_dir / KMS3[0]
-    code, out, err = _invoke([d / KMS3[1], d / KMS3[2], "--method", "stls", "--lag", "1", "--systems", "G,E"], capsys)
-    assert code == 2 and out == ""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("gnss-solve: error: --lag") and "G,E" in lines[0]
+    df = pd.read_csv(io.StringIO(out))
+    tdop_cols = [c for c in df.columns if c.startswith("tdop_")]
+    assert len(tdop_cols) >= 4  # G, E, C, R at least on this RINEX 4 file
+    wls, stls = (df[df.method == m].reset_index(drop=True) for m in ("wls", "stls"))
+    assert len(stls) == 19 and (stls.status == "ok").all()
+    assert np.allclose(stls["tdop"], stls[f"tdop_{tdop_cols[0][-1]}"], equal_nan=True)
+    # A static receiver over the whole hour is one point: every epoch gets the same position.
+    xyz = stls[["x_m", "y_m", "z_m"]].to_numpy()
+    assert np.ptp(xyz, axis=0).max() < 1e-6
+    # Fixed model over 19 epochs: the multi-epoch DOPs are below the snapshot ones, clock by clock too.
+    compared = 0
+    for col in ("gdop", "pdop", "tdop", *tdop_cols):
+        both = np.isfinite(stls[col]) & np.isfinite(wls[col])  # a system without satellites: empty cells
+        assert (np.isfinite(stls[col]) == np.isfinite(wls[col])).all(), col
+        assert (stls[col][both] < wls[col][both]).all(), col  # 19 epochs: strictly below
+        compared += int(both.any())
+    assert compared >= 7
+    # The reference clock re-estimated at the (unchanged up to metres) position stays close to WLS's.
+    assert np.all(np.abs(stls["clock_m"] - wls["clock_m"]) < 30.0)

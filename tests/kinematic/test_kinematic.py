@@ -92,6 +92,41 @@ def test_multi_epoch_cov_equals_dense_stacked_inverse() -> None:
             assert np.allclose(got[t], jac @ q_x @ jac.T, rtol=1e-9, atol=1e-12)
 
 
+def test_multi_epoch_cov_with_one_clock_per_system_equals_dense_stacked_inverse() -> None:
+    """Two systems (two clocks per epoch, one absent at some epochs as a 0.01 m^2 constraint row)."""
+    rng = np.random.default_rng(2)
+    n_t, n_sv = 6, 8
+    u = rng.normal(size=(n_t, n_sv, 3))
+    p_m = np.concatenate([-u / np.linalg.norm(u, axis=2, keepdims=True), np.zeros((n_t, 2, 3))], axis=1)
+    sysidx = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+    clock_cols = np.zeros((n_t, n_sv + 2, 2))
+    clock_cols[:, np.arange(n_sv), sysidx] = 1.0
+    wgt = np.zeros((n_t, n_sv + 2))
+    wgt[:, :n_sv] = rng.uniform(0.5, 2.0, size=(n_t, n_sv))
+    wgt[1, 4:n_sv] = 0.0  # system 1 absent at epoch 1: its clock is fixed by a constraint row
+    clock_cols[1, n_sv + 1, 1] = 1.0
+    wgt[1, n_sv + 1] = 100.0
+    from gnss_cli.kinematic import _epoch_information
+
+    info, h, cv = _epoch_information(p_m, wgt, clock_cols)
+    for ker in (KernelRepresentation.static(3), KernelRepresentation.pva(3)):
+        basis = behavior_basis(ker, n_t)
+        k = basis.shape[2]
+        n_r = n_sv + 2
+        g = np.zeros((n_t * n_r, k + 2 * n_t))
+        for t in range(n_t):
+            g[t * n_r:(t + 1) * n_r, :k] = p_m[t] @ basis[t]
+            g[t * n_r:(t + 1) * n_r, k + 2 * t:k + 2 * t + 2] = clock_cols[t]
+        q_x = np.linalg.inv(g.T @ (wgt.reshape(-1, 1) * g))
+        got = multi_epoch_cov(basis, info, h, cv)
+        assert got.shape == (n_t, 5, 5)
+        for t in range(n_t):
+            jac = np.zeros((5, k + 2 * n_t))
+            jac[:3, :k] = basis[t]
+            jac[3:, k + 2 * t:k + 2 * t + 2] = np.eye(2)
+            np.testing.assert_allclose(got[t], jac @ q_x @ jac.T, rtol=1e-9, atol=1e-12)
+
+
 def test_segments_and_windows() -> None:
     t = np.array([0.0, 1, 2, 3, 5, 6, 7, 8, 9, 10])
     solved = np.ones(10, dtype=bool)
