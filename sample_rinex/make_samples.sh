@@ -6,6 +6,3 @@ SIM="python -m gnss_cli.cli.simulate"
 # static receiver, 1 h at 30 s, GPS + Galileo, every error source (outliers: none chosen)
 $SIM --trajectory static --start 2024-03-01T00:00:00 --duration 3600 --interval 30 \
      --systems G,E --seed 7 --errors all --out-dir sample_rinex/static --quiet
-# 10-min flight at 1 Hz, GPS, white noise (elevation dependent), clock, iono and tropo
-$SIM --trajectory flight --start 2024-03-01T00:00:00 --duration 600 --interval 1 \
-     --systems G --seed 7 --errors clock,noise,iono,tropo --out-dir sample_rinex/flight --quiet
