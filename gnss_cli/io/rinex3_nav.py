@@ -37,6 +37,7 @@ from gnss_cli.io.rinex3_obs import (
     SYSTEM_CHARS,
     civil2datetime64,
     gather_columns,
+    parse_float_fields,
     parse_uint_columns,
     check_rinex34_type,
     split_lines,
@@ -153,19 +154,7 @@ def _parse_d19(chars: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -
         return out
     sub = chars[filled]
     sub = np.where((sub == ord("D")) | (sub == ord("d")), np.uint8(ord("E")), sub)
-    text = np.ascontiguousarray(sub).view(f"S{_FIELD_WIDTH}").ravel()
-    try:
-        out[filled] = text.astype(np.float64)
-    except ValueError:
-        for i, t in enumerate(text):
-            try:
-                float(t)
-            except ValueError:
-                raise RinexFormatError(
-                    f"{name}: bad number {t.decode('ascii', 'replace').strip()!r} "
-                    f"on line {int(lineno[filled[i]])}"
-                ) from None
-        raise  # pragma: no cover
+    out[filled] = parse_float_fields(sub, lineno[filled], name, "number", strip=True)
     return out
 
 

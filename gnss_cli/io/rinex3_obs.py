@@ -612,7 +612,7 @@ def read_obs3(
             chars = gather_columns(buf, r_starts, r_lengths, _SV_WIDTH + _FIELD_WIDTH * k, _VALUE_WIDTH)
             values, odd = parse_f14_3(chars)
             if np.any(odd):
-                values[odd] = _parse_general(chars[odd], lineno[data_idx[rows[odd]]], code, name)
+                values[odd] = parse_float_fields(chars[odd], lineno[data_idx[rows[odd]]], name, f"{code} value")
             if code not in variables:
                 variables[code] = np.full(n_t * n_sv, np.nan)
             variables[code][flat] = values
@@ -626,10 +626,14 @@ def read_obs3(
     return ds
 
 
-def _parse_general(
-    chars: NDArray[np.uint8], lineno: NDArray[np.int64], code: str, name: str
+def parse_float_fields(
+    chars: NDArray[np.uint8], lineno: NDArray[np.int64], name: str, what: str, strip: bool = False
 ) -> NDArray[np.float64]:
-    """Decode observation fields that are not plain ``F14.3`` (rare; one conversion per field)."""
+    """Decode fixed-width number fields ``(n, width)`` one conversion per field.
+
+    A field that is not a number raises :class:`RinexFormatError` naming the file, ``what``
+    was expected and the line (``lineno[i]`` of field ``i``).
+    """
     text = np.ascontiguousarray(chars).view(f"S{chars.shape[1]}").ravel()
     try:
         return text.astype(np.float64)
@@ -638,7 +642,8 @@ def _parse_general(
             try:
                 float(t)
             except ValueError:
+                shown = t.decode("ascii", "replace")
                 raise RinexFormatError(
-                    f"{name}: bad {code} value {t.decode('ascii', 'replace')!r} on line {int(lineno[i])}"
+                    f"{name}: bad {what} {(shown.strip() if strip else shown)!r} on line {int(lineno[i])}"
                 ) from None
         raise  # pragma: no cover - astype failed but every field parses alone
