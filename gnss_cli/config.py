@@ -1,4 +1,4 @@
-"""Processing configuration: defaults from ``configs/default.toml``, a user TOML, and flags.
+"""Processing configuration: defaults from ``gnss_cli/configs/default.toml``, a user TOML, and flags.
 
 Precedence: command-line flags > ``--config FILE`` > the packaged defaults.
 """
@@ -8,8 +8,9 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
+from importlib.resources import files
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of
@@ -18,17 +19,20 @@ if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
+if TYPE_CHECKING:
+    from importlib.resources.abc import Traversable
 
 METHOD_NAMES = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
-DEFAULT_CONFIG_PATH = Path(__file__).resolve().parent.parent / "configs" / "default.toml"
+DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
+"""The packaged defaults (package data, so a non-editable install has them too)."""
 
 
 @dataclass(frozen=True)
 class WeightConfig:
-    """Pseudorange variance model (see ``configs/default.toml``)."""
+    """Pseudorange variance model (see ``gnss_cli/configs/default.toml``)."""
 
     model: str = "rtklib"
     a_m: float = 0.3
@@ -135,9 +139,9 @@ def parse_systems(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     return letters
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
+def _read_toml(path: Path | Traversable) -> dict[str, Any]:
     try:
-        with open(path, "rb") as f:
+        with path.open("rb") as f:
             return tomllib.load(f)
     except FileNotFoundError:
         raise ConfigError(f"{path}: configuration file not found") from None
@@ -203,8 +207,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> ProcessingConfig:
     """Packaged defaults, then ``path`` (TOML), then ``overrides`` (``[processing]`` keys), validated."""
     cfg = ProcessingConfig()
-    if DEFAULT_CONFIG_PATH.exists():
-        cfg = _apply(cfg, _read_toml(DEFAULT_CONFIG_PATH), str(DEFAULT_CONFIG_PATH))
+    cfg = _apply(cfg, _read_toml(DEFAULT_CONFIG_PATH), str(DEFAULT_CONFIG_PATH))
     if path is not None:
         cfg = _apply(cfg, _read_toml(Path(path)), str(path))
     if overrides:

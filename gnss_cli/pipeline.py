@@ -368,7 +368,7 @@ def ephemeris_sigma_m(system: str, accuracy_m: F64) -> F64:
 def pseudorange_variance_m2(
     config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0
 ) -> F64:
-    """Pseudorange variances (m^2) of the configured weight model (see ``configs/default.toml``).
+    """Pseudorange variances (m^2) of the configured weight model (see ``gnss_cli/configs/default.toml``).
 
     ``ura_m`` is the broadcast orbit-and-clock sigma (:func:`ephemeris_sigma_m`); ``efact``
     scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).

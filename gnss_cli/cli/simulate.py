@@ -1,7 +1,7 @@
 """``gnss-simulate``: write simulated RINEX observation and navigation files with their truth.
 
 A thin shell over :mod:`gnss_cli.sim.scenario`: options -> :class:`ScenarioConfig`
-(flags > ``--config`` TOML > built-in defaults, which equal ``configs/simulate.toml``),
+(flags > ``--config`` TOML > built-in defaults, which equal ``gnss_cli/configs/simulate.toml``),
 then ``run_scenario`` and ``write_scenario``. The list of files written goes to stderr
 unless ``--quiet``.
 """
@@ -57,7 +57,7 @@ def simulate(
     truth_ranges: Annotated[
         Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", help="Also write truth_ranges.csv.")
     ] = None,
-    config: Annotated[Optional[Path], typer.Option(help="TOML settings (see configs/simulate.toml).")] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML settings (see gnss_cli/configs/simulate.toml).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No summary on stderr.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Tracebacks for internal errors.")] = False,
 ) -> None:

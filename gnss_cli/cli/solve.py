@@ -61,7 +61,7 @@ def solve(
     reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns."),
     reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name."),
     reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv)."),
-    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see configs/default.toml)."),
+    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see gnss_cli/configs/default.toml)."),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout, the default)."),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here."),
     lag: int = typer.Option(0, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods."),

@@ -3,7 +3,7 @@
 Signal priority per system (first present wins, per satellite and epoch). RINEX 2 codes
 are listed beside their RINEX 3 equivalents: ``C1`` is the L1 C/A code (= ``C1C``),
 ``P1`` the L1 P(Y) code (= ``C1W``). The defaults follow RTKLIB's L1 priority (C/A first),
-so both programs use the same observable on the same file; ``configs/default.toml``
+so both programs use the same observable on the same file; ``gnss_cli/configs/default.toml``
 can change them.
 """
 
@@ -33,7 +33,7 @@ DEFAULT_SECOND_SIGNAL_PRIORITY: dict[str, tuple[str, ...]] = {
     "J": ("C2L", "C2S", "C2X"),
     "R": ("C2P", "P2", "C2C", "C2"),
 }
-"""Second frequency of the ionosphere-free combination (``configs/default.toml``
+"""Second frequency of the ionosphere-free combination (``gnss_cli/configs/default.toml``
 ``[signals.second]`` explains the choice): GPS/QZSS L2 (P(Y) first, as RTKLIB), Galileo E5b
 then E5a, BeiDou B2I then B3I, GLONASS G2 (P code first)."""
 

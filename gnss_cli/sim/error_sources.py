@@ -8,7 +8,7 @@ process per satellite, larger at low elevation) and ``outliers`` (a bias on chos
 satellites over a time window). Every random draw comes from the ``numpy.random.Generator``
 passed in; nothing here reads global state.
 
-The defaults of :class:`ErrorConfig` are the values of ``configs/simulate.toml``.
+The defaults of :class:`ErrorConfig` are the values of ``gnss_cli/configs/simulate.toml``.
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ KLOBUCHAR_BETA = (9.0112e04, 4.9152e04, -1.3107e05, -3.2768e05)
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """Settings of one run (defaults = ``configs/simulate.toml``).
+    """Settings of one run (defaults = ``gnss_cli/configs/simulate.toml``).
 
     Attributes
     ----------

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+from importlib.resources import as_file, files
 from pathlib import Path
 
 import numpy as np
@@ -179,7 +180,9 @@ def test_errors_none_is_exact_and_noise_is_white(tmp_path: Path) -> None:
 
 
 def test_configs_toml_equals_built_in_defaults() -> None:
-    assert load_config(ROOT / "configs" / "simulate.toml") == ScenarioConfig()
+    """The packaged simulate.toml (package data, what gnss-simulate --help points to)."""
+    with as_file(files("gnss_cli") / "configs" / "simulate.toml") as path:
+        assert load_config(path) == ScenarioConfig()
 
 
 def test_config_rejects_unknown_keys(tmp_path: Path) -> None:
