@@ -239,8 +239,89 @@ def test_cli_writes_files_and_csv_trajectory(tmp_path: Path, capsys: pytest.Capt
     assert np.nanmax(np.abs(p1 - p2)) <= 1.5e-3
 
 
+ORBIT_RADIUS_M = 3.0e7
+"""Larger than any GNSS orbit radius: an angle error of x rad moves a satellite by < x * 3e7 m."""
+FIT_S = 4 * 3600.0
+"""Longer than any ephemeris fit interval: a clock-drift error of x s/s is < x * 4 h at its end."""
+POSITION_TOL_M = 1e-6
+TIME_TOL_S = 1e-12
+NAV_TOL = {
+    # clock terms: 1e-12 s of clock over the fit interval
+    "SVclockBias": TIME_TOL_S, "SVclockDrift": TIME_TOL_S / FIT_S, "SVclockDriftRate": TIME_TOL_S / FIT_S**2,
+    "TGD": TIME_TOL_S, "BGDe5a": TIME_TOL_S, "BGDe5b": TIME_TOL_S,
+    # orbit terms: 1e-6 m of satellite position over the fit interval
+    "Crs": POSITION_TOL_M, "Crc": POSITION_TOL_M,
+    "M0": POSITION_TOL_M / ORBIT_RADIUS_M, "omega": POSITION_TOL_M / ORBIT_RADIUS_M,
+    "Omega0": POSITION_TOL_M / ORBIT_RADIUS_M, "Io": POSITION_TOL_M / ORBIT_RADIUS_M,
+    "Cuc": POSITION_TOL_M / ORBIT_RADIUS_M, "Cus": POSITION_TOL_M / ORBIT_RADIUS_M,
+    "Cic": POSITION_TOL_M / ORBIT_RADIUS_M, "Cis": POSITION_TOL_M / ORBIT_RADIUS_M,
+    "Eccentricity": POSITION_TOL_M / ORBIT_RADIUS_M,
+    "DeltaN": POSITION_TOL_M / ORBIT_RADIUS_M / FIT_S, "OmegaDot": POSITION_TOL_M / ORBIT_RADIUS_M / FIT_S,
+    "IDOT": POSITION_TOL_M / ORBIT_RADIUS_M / FIT_S,
+    "sqrtA": POSITION_TOL_M / (2.0 * np.sqrt(ORBIT_RADIUS_M)),  # da = 2 sqrt(A) d(sqrtA)
+    "Toe": TIME_TOL_S, "TransTime": TIME_TOL_S,
+}
+"""Per nav field, the change that moves a satellite by 1e-6 m or its clock by 1e-12 s; other
+fields (week, IODE, health, accuracy, flags) are integers or codes and must be equal. RINEX
+writes 12 significant digits, so no field is held to less than 2e-12 of its size."""
+OBS_TOL = {"C": POSITION_TOL_M, "L": POSITION_TOL_M / 0.19, "D": POSITION_TOL_M / 0.19, "S": 1e-6}
+"""Per observation type: pseudorange m, phase cycles and Doppler Hz (L1 wavelength 0.19 m), dB-Hz."""
+TRUTH_TOL = {"tow_s": TIME_TOL_S, "clock_drift_m_s": POSITION_TOL_M}
+"""truth.csv columns not in metres (positions, velocities per s, clock in m: 1e-6; angles below)."""
+
+
+def _sample_differences(new_dir: Path, old_dir: Path) -> list[str]:
+    """Values of the regenerated files that differ from the committed ones by more than the
+    physics-sized tolerances (empty list: the same data set)."""
+    from gnss_cli.io.rinex3_nav import read_nav3
+    from gnss_cli.io.rinex3_obs import read_obs3
+
+    problems: list[str] = []
+
+    def compare(name: str, a: np.ndarray, b: np.ndarray, tol: float) -> None:
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        if a.shape != b.shape or not np.array_equal(np.isnan(a), np.isnan(b)):
+            problems.append(f"{name}: shape or missing values differ")
+            return
+        ok = ~np.isnan(a)
+        allowed = np.maximum(tol, 2e-12 * np.maximum(np.abs(a[ok]), np.abs(b[ok])))
+        excess = np.abs(a[ok] - b[ok]) - allowed
+        if excess.size and excess.max() > 0:
+            k = int(np.argmax(excess))
+            problems.append(f"{name}: differs by {abs(a[ok][k] - b[ok][k]):.3g} (tolerance {allowed[k]:.3g})")
+
+    obs_new, obs_old = read_obs3(new_dir / "obs.rnx"), read_obs3(old_dir / "obs.rnx")
+    if not (np.array_equal(obs_new["time"].values, obs_old["time"].values)
+            and np.array_equal(obs_new["sv"].values, obs_old["sv"].values)
+            and set(obs_new.data_vars) == set(obs_old.data_vars)):
+        return ["obs.rnx: epochs, satellites or observation codes differ"]
+    for code in obs_new.data_vars:
+        compare(f"obs.rnx {code}", obs_new[code].values, obs_old[code].values, OBS_TOL[str(code)[0]])
+
+    nav_new, nav_old = read_nav3(new_dir / "nav.rnx"), read_nav3(old_dir / "nav.rnx")
+    if not (np.array_equal(nav_new["time"].values, nav_old["time"].values)
+            and np.array_equal(nav_new["sv"].values, nav_old["sv"].values)
+            and set(nav_new.data_vars) == set(nav_old.data_vars)):
+        return ["nav.rnx: records (toc, satellites or fields) differ"]
+    for field in nav_new.data_vars:
+        compare(f"nav.rnx {field}", nav_new[field].values, nav_old[field].values, NAV_TOL.get(str(field), 0.0))
+    for key in ("ionospheric_corr_GPS",):
+        compare(f"nav.rnx {key}", np.asarray(nav_new.attrs.get(key, [])), np.asarray(nav_old.attrs.get(key, [])), 0.0)
+
+    truth_new, truth_old = pd.read_csv(new_dir / "truth.csv"), pd.read_csv(old_dir / "truth.csv")
+    if list(truth_new.columns) != list(truth_old.columns) or list(truth_new["time"]) != list(truth_old["time"]):
+        return problems + ["truth.csv: columns or epochs differ"]
+    for col in truth_new.columns.drop("time"):
+        tol = TRUTH_TOL.get(col, POSITION_TOL_M / ORBIT_RADIUS_M * 180 / np.pi if col.endswith("_deg") else POSITION_TOL_M)
+        compare(f"truth.csv {col}", truth_new[col].to_numpy(), truth_old[col].to_numpy(), tol)
+    return problems
+
+
 def test_committed_samples_are_reproduced_by_their_command(tmp_path: Path) -> None:
-    """sample_rinex/ is what make_samples.sh writes (same seed, same bytes)."""
+    """sample_rinex/ is what make_samples.sh writes (same seed, same data): every value of the
+    regenerated obs.rnx, nav.rnx and truth.csv equals the committed one within what moves a
+    position or range by 1e-6 m or a time or clock by 1e-12 s (not byte for byte: the last of
+    a nav number's 12 digits may differ between library versions)."""
     script = (ROOT / "sample_rinex" / "make_samples.sh").read_text()
     assert "--out-dir sample_rinex/static" in script
     commands = [
@@ -253,10 +334,25 @@ def test_committed_samples_are_reproduced_by_their_command(tmp_path: Path) -> No
         with pytest.raises(SystemExit) as exc:
             run_app(app, "gnss-simulate", [*args, "--out-dir", str(tmp_path / name)])
         assert exc.value.code == 0
-        for f in ("obs.rnx", "nav.rnx", "truth.csv"):
-            assert (tmp_path / name / f).read_bytes() == (ROOT / "sample_rinex" / name / f).read_bytes(), (name, f)
+        assert _sample_differences(tmp_path / name, ROOT / "sample_rinex" / name) == [], name
     total = sum(p.stat().st_size for p in (ROOT / "sample_rinex").rglob("*") if p.is_file())
     assert total < 300_000
+
+
+def test_sample_comparison_sees_a_1_mm_change(tmp_path: Path) -> None:
+    """The comparison above is not blind: one pseudorange off by 1 mm is reported."""
+    committed = ROOT / "sample_rinex" / "static"
+    assert _sample_differences(committed, committed) == []
+    for name in ("obs.rnx", "nav.rnx", "truth.csv"):
+        (tmp_path / name).write_bytes((committed / name).read_bytes())
+    obs = (tmp_path / "obs.rnx").read_text().splitlines(keepends=True)
+    end = next(i for i, line in enumerate(obs) if "END OF HEADER" in line)
+    row = next(i for i in range(end + 1, len(obs)) if obs[i][:1] in "GE")
+    value = float(obs[row][3:17])
+    obs[row] = obs[row][:3] + f"{value + 0.001:14.3f}" + obs[row][17:]
+    (tmp_path / "obs.rnx").write_text("".join(obs))
+    problems = _sample_differences(tmp_path, committed)
+    assert len(problems) == 1 and problems[0].startswith("obs.rnx C1C"), problems
 
 
 def test_semicircle_is_annihilated_by_its_lag3_kernel() -> None:
