@@ -13,6 +13,15 @@ RINEX = SHARED / "rinex"
 PEER_CONF = SHARED / "peer" / "rnx2rtkp-spp.conf"
 
 
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """With ``--doctest-modules`` (pyproject addopts) pytest would also import conftest.py and
+    helper modules of tests/ as doctest modules, a second time under other names; only the
+    test_*.py files are collected here (the helpers and conftests still load as usual)."""
+    if collection_path.suffix == ".py" and not collection_path.name.startswith("test_"):
+        return True
+    return None
+
+
 @pytest.fixture(scope="session")
 def rinex_dir() -> Path:
     """``../shared/rinex``; tests that need it are skipped when it is missing."""
