@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from gnss_cli.behavior.banded import SINGULAR_RTOL
 from gnss_cli.behavior.kernel import shared_kernel_coefficients
 from gnss_cli.behavior.result import StlsStatus
-from gnss_cli.behavior.stls import MU_INITIAL, MU_REJECTED
+from gnss_cli.behavior.descent import MU_INITIAL, MU_REJECTED
 from gnss_cli.errors import UsageError
 
 __all__ = ["WindowFits", "identify_windows", "project_windows", "CHUNK"]
@@ -303,7 +303,7 @@ def _wtls_tilde(win: _Windows, fixed: F64, deg: int) -> F64:
 
 
 def _derivatives(win: _Windows, r: F64, conv_free: F64, proj: _Proj) -> tuple[F64, F64, F64]:
-    """Half gradient, exact half Hessian and Gauss--Newton matrix (see ``stls._derivatives``)."""
+    """Half gradient, exact half Hessian and Gauss--Newton matrix (see ``descent._derivatives``)."""
     n_b, n_p = conv_free.shape[0], conv_free.shape[2]
     d_mat = np.einsum("bip,bjia->bjap", conv_free, proj.w_hat[:, win.idx]).reshape(n_b, win.m, n_p)
     jac = _solve_lower(proj.chol, d_mat, win.kd)
