@@ -12,8 +12,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gnss_cli.errors import ConfigError
-from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of
+from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -69,6 +68,8 @@ class ProcessingConfig:
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
+        from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of  # numpy: not needed for --help
+
         bad = [m for m in self.methods if m not in METHOD_NAMES]
         if bad or not self.methods:
             raise ConfigError(f"methods: expected some of {', '.join(METHOD_NAMES)} or 'all'; received {list(self.methods)}")
@@ -144,7 +145,9 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
         with path.open("rb") as f:
             return tomllib.load(f)
     except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found") from None
+        raise InputFileNotFoundError(f"{path}: configuration file not found") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read configuration file ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
 
@@ -202,6 +205,11 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             raise
         raise ConfigError(f"{source}: bad value ({exc})") from None
     return cfg
+
+
+def packaged_defaults() -> dict[str, Any]:
+    """The packaged default configuration as TOML tables (no validation; cheap: for ``--help``)."""
+    return _read_toml(DEFAULT_CONFIG_PATH)
 
 
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> ProcessingConfig:

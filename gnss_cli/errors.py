@@ -12,6 +12,8 @@ Exit codes
 3  bad configuration file or option value
 4  missing, unreadable or malformed input (not RINEX, wrong RINEX type, no data)
 5  the run completed but produced no solution for an input
+6  an output file could not be written (read-only folder, disk full, not a folder)
+130, 143  interrupted by SIGINT (Ctrl-C) or terminated by SIGTERM
 """
 
 from __future__ import annotations
@@ -53,3 +55,9 @@ class NoSolutionError(GnssError, RuntimeError):
     """Processing ran but no epoch could be solved."""
 
     exit_code = 5
+
+
+class OutputError(GnssError, OSError):
+    """An output file could not be written; nothing of the run's output is left behind."""
+
+    exit_code = 6

@@ -128,18 +128,3 @@ class EpochCovariance:
         """The covariances of epochs ``start .. stop-1``."""
         vals = None if self.values is None else self.values[start:stop]
         return EpochCovariance(self.kind, stop - start, self.q, vals)
-
-    def pair_gram(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``A Sigma_t B^T`` for every epoch: ``a`` ``(g, q)``, ``b`` ``(g, q)`` -> ``(T, g, g)``.
-
-        For the identity form the result is a read-only broadcast view.
-        """
-        g = a.shape[0]
-        if self.kind == "identity":
-            return np.broadcast_to(a @ b.T, (self.n_t, g, g))
-        assert self.values is not None
-        if self.kind == "diag":
-            kmat = (a[:, None, :] * b[None, :, :]).reshape(g * g, self.q)  # [(i,j), c] = a[i,c] b[j,c]
-            return (self.values @ kmat.T).reshape(self.n_t, g, g)
-        kmat = np.einsum("ic,jd->cdij", a, b).reshape(self.q * self.q, g * g)
-        return (self.values.reshape(self.n_t, self.q * self.q) @ kmat).reshape(self.n_t, g, g)

@@ -8,22 +8,39 @@ several kernels estimated from the data alone (never from a reference model):
 * :func:`modal_kernel` -- for a square (autonomous) kernel, the behavior with the poles of a
   previous fit and output directions re-fitted to the data by linear least squares.
 
-Both whiten the data with the mean covariance, as the WTLS does.
+Both whiten the data with the mean covariance, as the WTLS does. The module also turns the
+candidates into charted, evaluated starting points (:func:`start_candidates`,
+:func:`chart_point`) and gives the restart of a descent from mirrored poles
+(:func:`mirrored_start`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
+from gnss_cli.behavior.banded import BandedGram, InnerProblem
+from gnss_cli.behavior.chart import FullChart, SharedChart
 from gnss_cli.behavior.covariance import EpochCovariance
-from gnss_cli.behavior.kernel import KernelRepresentation
-from gnss_cli.behavior.wtls import whitening_factor
+from gnss_cli.behavior.descent import Descent
+from gnss_cli.behavior.kernel import KernelRepresentation, kernel_from
+from gnss_cli.behavior.wtls import full_wtls_kernel, shared_wtls_tilde, whitening_factor
+from gnss_cli.errors import UsageError
 
-__all__ = ["subspace_kernel", "modal_kernel"]
+__all__ = [
+    "subspace_kernel", "modal_kernel", "StartPoint", "chart_point", "start_candidates", "fallback_start",
+    "mirrored_start",
+]
 
 #: Relative singular-value gap below which an estimated observability matrix is rank deficient.
 RANK_RTOL = 1e-10
+#: Subspace starts (full structure, series shorter than ``COARSE_MIN_SAMPLES`` of
+#: :mod:`gnss_cli.behavior.stls`): Hankel matrices with these multiples of ``l + 1`` block rows.
+SUBSPACE_DEPTHS = (2, 3)
+#: Poles farther than this outside the unit circle trigger a restart from the mirrored kernel.
+MIRROR_MARGIN = 1e-3
 
 
 def _left_null_space(obs: NDArray[np.float64], rank: int) -> NDArray[np.float64] | None:
@@ -133,3 +150,96 @@ def modal_kernel(w: NDArray[np.float64], kernel: KernelRepresentation, cov: Epoc
     obs = np.vstack([d_mat * poles[None, :] ** k for k in range(kernel.lag + 1)])
     r_v = _left_null_space(np.hstack([obs.real, obs.imag]), n_order)
     return None if r_v is None else r_v @ np.kron(np.eye(kernel.lag + 1), np.linalg.inv(c))
+
+
+# ---------------------------------------------------------------------- starting points of stls
+@dataclass(slots=True)
+class StartPoint:
+    """A kernel in chart coordinates with its projection."""
+
+    origin: str
+    chart: FullChart | SharedChart
+    theta: NDArray[np.float64]
+    state: BandedGram
+
+
+def chart_point(problem: InnerProblem, cand: NDArray[np.float64], structure: str, fixed: NDArray[np.float64],
+                 q: int, origin: str) -> StartPoint:
+    """Chart a starting kernel (``R`` or ``r~``) and evaluate it; raises on a singular Gram matrix."""
+    chart: FullChart | SharedChart
+    if structure == "shared":
+        chart = SharedChart(fixed, cand, q)
+        theta = chart.coordinates_tilde(cand)
+    else:
+        chart = FullChart(cand, q)
+        theta = chart.coordinates(cand)
+    return StartPoint(origin, chart, theta, problem.project(chart.blocks(theta)))
+
+
+def _shared_start(kernel0: KernelRepresentation | ArrayLike, lag: int, fixed: NDArray[np.float64],
+                  q: int) -> NDArray[np.float64]:
+    """``r~`` of a shared starting kernel (``r`` divided by the fixed factor)."""
+    if isinstance(kernel0, KernelRepresentation) or np.ndim(kernel0) != 1:
+        r0 = kernel_from(kernel0, q).shared_coefficients()
+    else:
+        r0 = np.asarray(kernel0, dtype=np.float64)
+    if r0.size != lag + 1:
+        raise UsageError(f"kernel0: expected a shared kernel of lag {lag}, received {r0.size - 1}")
+    quot, _ = np.polydiv(r0[::-1], fixed[::-1])
+    return np.asarray(quot[::-1], dtype=np.float64)
+
+
+def _full_start(kernel0: KernelRepresentation | ArrayLike, lag: int, g: int, q: int) -> NDArray[np.float64]:
+    k0 = kernel_from(kernel0, q)
+    if k0.lag != lag or k0.p != g:
+        raise UsageError(f"kernel0: expected {g} rows and lag {lag}, received {k0.p} rows and lag {k0.lag}")
+    return np.array(k0.R)
+
+
+def start_candidates(
+    arr: NDArray[np.float64], lag: int, g: int, fixed: NDArray[np.float64], cov: EpochCovariance,
+    structure: str, kernel0: KernelRepresentation | ArrayLike | None, coarse: KernelRepresentation | None,
+) -> list[tuple[str, NDArray[np.float64]]]:
+    """Starting points ``(origin, R or r~)`` in priority order (ties in misfit keep this order)."""
+    q = arr.shape[1]
+    given = [("kernel0", kernel0), ("coarse", coarse)]
+    out: list[tuple[str, NDArray[np.float64]]] = []
+    deg = lag - (fixed.size - 1)
+    if structure == "shared":
+        out += [(name, _shared_start(k, lag, fixed, q)) for name, k in given if k is not None]
+        out.append(("wtls", shared_wtls_tilde(arr, lag, fixed, cov)))
+        out.append(("polynomial", np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[: deg + 1].astype(np.float64)))
+        return out
+    out += [(name, _full_start(k, lag, g, q)) for name, k in given if k is not None]
+    out.append(("wtls", full_wtls_kernel(arr, lag, g, cov)))
+    if coarse is None:
+        for factor in SUBSPACE_DEPTHS:
+            deeper = subspace_kernel(arr, lag, g, cov, factor * (lag + 1))
+            if deeper is not None:
+                out.append(("subspace", deeper))
+    return out
+
+
+def fallback_start(lag: int, g: int, q: int, structure: str) -> tuple[str, NDArray[np.float64]] | None:
+    """``(z-1)^l I`` for a full square kernel, tried only when every other start is singular."""
+    if structure == "full" and g == q:
+        return "polynomial", np.array(KernelRepresentation.shared(np.polynomial.polynomial.polypow([-1.0, 1.0], lag), q).R)
+    return None
+
+
+def mirrored_start(run: Descent, structure: str, q: int) -> NDArray[np.float64] | None:
+    """``R`` (or ``r~``) with the unstable poles of a descent's result mirrored into the unit disc."""
+    if isinstance(run.chart, SharedChart):
+        rt = run.chart.r_tilde(run.theta)
+        if rt.size < 2:
+            return None
+        roots = np.roots(rt[::-1])
+        out = np.abs(roots) > 1.0 + MIRROR_MARGIN
+        if not np.any(out):
+            return None
+        roots = np.where(out, 1.0 / np.conj(roots), roots)
+        return np.real(np.poly(roots))[::-1].copy()
+    if run.chart.g != q:
+        return None
+    mirrored = KernelRepresentation(run.chart.kernel(run.theta), q=q).mirrored(margin=MIRROR_MARGIN)
+    return None if mirrored is None else np.array(mirrored.R)

@@ -33,138 +33,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import lapack
 
-from gnss_cli.behavior.banded import BandedGram, InnerProblem, SingularGramError, project, solve_lower
-from gnss_cli.behavior.chart import FullChart, SharedChart
+from gnss_cli.behavior.banded import InnerProblem, SingularGramError
 from gnss_cli.behavior.covariance import EpochCovariance
-from gnss_cli.behavior.hankel import as_series, hankel_rows
-from gnss_cli.behavior.kernel import KernelRepresentation, kernel_from
+from gnss_cli.behavior.descent import Descent, final_kernel, minimize
+from gnss_cli.behavior.kernel import KernelRepresentation
+from gnss_cli.behavior.projection import PROJECTION_MAX_SIZE, misfit, projection_matrix
 from gnss_cli.behavior.result import STATUS_MESSAGES, StlsResult, StlsStatus
-from gnss_cli.behavior.starts import modal_kernel, subspace_kernel
-from gnss_cli.behavior.wtls import full_wtls_kernel, shared_wtls_tilde, validate_problem
+from gnss_cli.behavior.starts import StartPoint, chart_point, fallback_start, mirrored_start, modal_kernel, start_candidates
+from gnss_cli.behavior.wtls import validate_problem
 from gnss_cli.errors import UsageError
 
-__all__ = ["misfit", "stls", "projection_matrix"]
+__all__ = ["misfit", "stls", "projection_matrix", "PROJECTION_MAX_SIZE"]
 
-#: Largest ``T * q`` for which :func:`projection_matrix` builds its dense result.
-PROJECTION_MAX_SIZE = 6000
-
-
-def misfit(
-    w: ArrayLike, kernel: KernelRepresentation | ArrayLike, cov: ArrayLike | None = None
-) -> tuple[float, NDArray[np.float64]]:
-    """Misfit of a fixed kernel and the closest trajectory of its behavior (the inner problem).
-
-    Parameters
-    ----------
-    w : array_like, shape (T, q)
-        Data (e.g. ENU positions in metres), ``T > lag``.
-    kernel : KernelRepresentation or array_like (p, q(l+1))
-        The kernel ``R``.
-    cov : array_like, optional
-        Covariances ``(T, q, q)``, variances ``(T, q)`` or None (identity).
-
-    Returns
-    -------
-    misfit : float
-        ``min sum_t (w - w_hat)^T Sigma_t^{-1} (w - w_hat)`` over trajectories of the kernel
-        (dimensionless with covariances of ``w``; unit of ``w`` squared for ``cov=None``).
-    w_hat : ndarray, shape (T, q)
-        The minimizer, ``w - Sigma G^T (G Sigma G^T)^{-1} G vec(w)``.
-
-    Raises
-    ------
-    UsageError
-        Invalid shapes or values.
-    SingularGramError
-        ``G Sigma G^T`` is singular for this kernel (a :class:`~gnss_cli.errors.NoSolutionError`),
-        e.g. more kernel rows than the data can satisfy.
-
-    Notes
-    -----
-    O(T) time and memory: ``G Sigma G^T`` is block banded and factored by a banded Cholesky.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> w = np.array([[0.0], [1.0], [0.0], [1.0]])
-    >>> m, w_hat = misfit(w, KernelRepresentation.static(1))
-    >>> round(m, 12), w_hat.ravel().round(12).tolist()
-    (1.0, [0.5, 0.5, 0.5, 0.5])
-    """
-    arr = as_series(w)
-    n_t, q = arr.shape
-    ker = kernel_from(kernel, q)
-    if n_t <= ker.lag:
-        raise UsageError(f"w: expected more than lag = {ker.lag} samples, received {n_t}")
-    covariance = EpochCovariance.from_arg(cov, n_t, q)
-    proj = project(arr, np.asarray(ker.blocks), covariance)
-    return proj.misfit, proj.w_hat
-
-
-def projection_matrix(
-    kernel: KernelRepresentation | ArrayLike, n_t: int, cov: ArrayLike | None = None
-) -> NDArray[np.float64]:
-    """First-order sensitivity ``d vec(w_hat) / d vec(w)`` of the fixed-kernel projection.
-
-    Parameters
-    ----------
-    kernel : KernelRepresentation or array_like (p, q(l+1))
-        The (fixed) kernel.
-    n_t : int
-        Number of epochs ``T`` (``T * q <= 6000``: the result is dense).
-    cov : array_like, optional
-        Covariances ``(T, q, q)``, ``(T, q)`` or None.
-
-    Returns
-    -------
-    P : ndarray, shape (T q, T q)
-        ``P = I - Sigma G^T (G Sigma G^T)^{-1} G``, the ``Sigma^{-1}``-orthogonal projector onto
-        the trajectories of the kernel (``vec`` stacks epochs: index ``t q + i``). For a fixed
-        kernel ``w_hat = P w`` exactly; for an identified kernel it is the first-order gain with
-        the kernel held fixed. The covariance of ``w_hat`` is ``P Sigma P^T = P Sigma``, whose
-        ``(t, t)`` blocks give a multi-epoch DOP of the smoothed trajectory.
-
-    Raises
-    ------
-    UsageError
-        Invalid arguments or ``T q > 6000``.
-    SingularGramError
-        ``G Sigma G^T`` is singular.
-    """
-    if isinstance(n_t, bool) or not isinstance(n_t, (int, np.integer)) or n_t < 1:
-        raise UsageError(f"n_t: expected a positive integer, received {n_t!r}")
-    if isinstance(kernel, KernelRepresentation):
-        ker = kernel
-    else:
-        ker = KernelRepresentation(np.asarray(kernel, dtype=np.float64))
-    q, lag, g = ker.q, ker.lag, ker.p
-    if n_t <= lag:
-        raise UsageError(f"n_t: expected more than lag = {lag} epochs, received {n_t}")
-    if n_t * q > PROJECTION_MAX_SIZE:
-        raise UsageError(f"n_t: the dense projector needs T q <= {PROJECTION_MAX_SIZE}, received {n_t * q}")
-    covariance = EpochCovariance.from_arg(cov, n_t, q)
-    n = n_t - lag
-    big_g = np.zeros((n * g, n_t * q))
-    for j in range(n):
-        big_g[j * g : (j + 1) * g, j * q : (j + lag + 1) * q] = ker.R
-    # factor Gamma with a zero data series (only the factor is used)
-    chol = project(np.zeros((n_t, q)), np.asarray(ker.blocks), covariance).chol
-    x = solve_lower(chol, solve_lower(chol, big_g), transpose=True)  # Gamma^{-1} G
-    y = (big_g.T @ x).reshape(n_t, q, n_t * q)
-    if covariance.kind == "identity":
-        sy = y
-    elif covariance.kind == "diag":
-        assert covariance.values is not None
-        sy = covariance.values[:, :, None] * y
-    else:
-        assert covariance.values is not None
-        sy = np.einsum("tab,tbk->tak", covariance.values, y)
-    return np.eye(n_t * q) - sy.reshape(n_t * q, n_t * q)
-
-
-# ---------------------------------------------------------------------- outer problem
 #: From this many samples on, the leading ``T // COARSE_FACTOR`` samples are identified first
 #: (recursively) and their kernel competes with the WTLS kernel as the starting point: the
 #: kernel of a long stretch of an LTI series is close to that of the whole, so the descent at
@@ -175,123 +56,14 @@ COARSE_FACTOR = 4
 #: starting point).
 COARSE_TOL = 1e-6
 COARSE_MAX_ITER = 50
-#: Initial Levenberg--Marquardt damping, relative to the diagonal of the curvature. The misfit
-#: curvature is ill-conditioned (the Hankel data excite some kernel directions far more than
-#: others), so a large initial damping would hold back the weak directions for many iterations.
-MU_INITIAL = 1e-8
-#: Damping after a rejected step (at least): a step that failed with almost no damping is
-#: rejected again after a mere doubling, so the damping jumps to where it shortens the step.
-MU_REJECTED = 1e-3
-#: Subspace starts (full structure, series shorter than ``COARSE_MIN_SAMPLES``): Hankel
-#: matrices with these multiples of ``l + 1`` block rows.
-SUBSPACE_DEPTHS = (2, 3)
-#: Poles farther than this outside the unit circle trigger a restart from the mirrored kernel.
-MIRROR_MARGIN = 1e-3
 #: Restarts from mirrored kernels after one descent.
 MIRROR_ROUNDS = 2
 
 
-@dataclass(slots=True)
-class _Point:
-    """A kernel in chart coordinates with its projection."""
-
-    origin: str
-    chart: FullChart | SharedChart
-    theta: NDArray[np.float64]
-    state: BandedGram
-
-
-@dataclass(slots=True)
-class _Descent:
-    chart: FullChart | SharedChart
-    theta: NDArray[np.float64]
-    state: BandedGram
-    status: StlsStatus
-    iterations: int
-    n_eval: int
-    grad_norm: float
-
-
-def _chart_point(problem: InnerProblem, cand: NDArray[np.float64], structure: str, fixed: NDArray[np.float64],
-                 q: int, origin: str) -> _Point:
-    """Chart a starting kernel (``R`` or ``r~``) and evaluate it; raises on a singular Gram matrix."""
-    chart: FullChart | SharedChart
-    if structure == "shared":
-        chart = SharedChart(fixed, cand, q)
-        theta = chart.coordinates_tilde(cand)
-    else:
-        chart = FullChart(cand, q)
-        theta = chart.coordinates(cand)
-    return _Point(origin, chart, theta, problem.project(chart.blocks(theta)))
-
-
-def _shared_start(kernel0: KernelRepresentation | ArrayLike, lag: int, fixed: NDArray[np.float64],
-                  q: int) -> NDArray[np.float64]:
-    """``r~`` of a shared starting kernel (``r`` divided by the fixed factor)."""
-    if isinstance(kernel0, KernelRepresentation) or np.ndim(kernel0) != 1:
-        r0 = kernel_from(kernel0, q).shared_coefficients()
-    else:
-        r0 = np.asarray(kernel0, dtype=np.float64)
-    if r0.size != lag + 1:
-        raise UsageError(f"kernel0: expected a shared kernel of lag {lag}, received {r0.size - 1}")
-    quot, _ = np.polydiv(r0[::-1], fixed[::-1])
-    return np.asarray(quot[::-1], dtype=np.float64)
-
-
-def _full_start(kernel0: KernelRepresentation | ArrayLike, lag: int, g: int, q: int) -> NDArray[np.float64]:
-    k0 = kernel_from(kernel0, q)
-    if k0.lag != lag or k0.p != g:
-        raise UsageError(f"kernel0: expected {g} rows and lag {lag}, received {k0.p} rows and lag {k0.lag}")
-    return np.array(k0.R)
-
-
-def _start_candidates(
-    arr: NDArray[np.float64], lag: int, g: int, fixed: NDArray[np.float64], cov: EpochCovariance,
-    structure: str, kernel0: KernelRepresentation | ArrayLike | None, coarse: KernelRepresentation | None,
-) -> list[tuple[str, NDArray[np.float64]]]:
-    """Starting points ``(origin, R or r~)`` in priority order (ties in misfit keep this order)."""
-    q = arr.shape[1]
-    given = [("kernel0", kernel0), ("coarse", coarse)]
-    out: list[tuple[str, NDArray[np.float64]]] = []
-    deg = lag - (fixed.size - 1)
-    if structure == "shared":
-        out += [(name, _shared_start(k, lag, fixed, q)) for name, k in given if k is not None]
-        out.append(("wtls", shared_wtls_tilde(arr, lag, fixed, cov)))
-        out.append(("polynomial", np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[: deg + 1].astype(np.float64)))
-        return out
-    out += [(name, _full_start(k, lag, g, q)) for name, k in given if k is not None]
-    out.append(("wtls", full_wtls_kernel(arr, lag, g, cov)))
-    if coarse is None:
-        for factor in SUBSPACE_DEPTHS:
-            deeper = subspace_kernel(arr, lag, g, cov, factor * (lag + 1))
-            if deeper is not None:
-                out.append(("subspace", deeper))
-    return out
-
-
-def _fallback_start(lag: int, g: int, q: int, structure: str) -> tuple[str, NDArray[np.float64]] | None:
-    """``(z-1)^l I`` for a full square kernel, tried only when every other start is singular."""
-    if structure == "full" and g == q:
-        return "polynomial", np.array(KernelRepresentation.shared(np.polynomial.polynomial.polypow([-1.0, 1.0], lag), q).R)
-    return None
-
-
-def stls(
-    w: ArrayLike,
-    lag: int,
-    order: int | None = None,
-    cov: ArrayLike | None = None,
-    kernel0: KernelRepresentation | ArrayLike | None = None,
-    tol: float = 1e-10,
-    max_iter: int = 200,
-    *,
-    structure: str = "full",
-    fixed_roots: Sequence[complex] = (),
-    rechart_threshold: float = 10.0,
-    hessian: str = "auto",
-    max_starts: int = 3,
-    restarts: bool = True,
-) -> StlsResult:
+def stls(w: ArrayLike, lag: int, order: int | None = None, cov: ArrayLike | None = None,
+         kernel0: KernelRepresentation | ArrayLike | None = None, tol: float = 1e-10, max_iter: int = 200, *,
+         structure: str = "full", fixed_roots: Sequence[complex] = (), rechart_threshold: float = 10.0,
+         hessian: str = "auto", max_starts: int = 3, restarts: bool = True) -> StlsResult:
     """Identify a kernel of lag ``lag`` by weighted Hankel structured low-rank approximation.
 
     Parameters
@@ -389,259 +161,168 @@ def stls(
     [0.0, 0.1]
     """
     arr, covariance, g, fixed = validate_problem(w, lag, order, cov, structure, fixed_roots)
-    lag = int(lag)
-    if not (isinstance(tol, (float, int)) and 0.0 < tol < 1.0):
-        raise UsageError(f"tol: expected a number in (0, 1), received {tol!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
-        raise UsageError(f"max_iter: expected a non-negative integer, received {max_iter!r}")
-    if hessian not in ("auto", "exact", "gauss-newton"):
-        raise UsageError(f"hessian: expected 'auto', 'exact' or 'gauss-newton', received {hessian!r}")
-    if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
-        raise UsageError(f"max_starts: expected a positive integer, received {max_starts!r}")
-    if not isinstance(restarts, bool):
-        raise UsageError(f"restarts: expected True or False, received {restarts!r}")
-    if hessian == "auto":
-        hessian = "exact" if structure == "shared" else "gauss-newton"
+    settings = _Settings.checked(int(lag), order, g, fixed, structure, fixed_roots, tol, max_iter,
+                                 rechart_threshold, hessian, max_starts, restarts)
+    return _identify(arr, covariance, settings, kernel0)
+
+
+@dataclass(frozen=True, slots=True)
+class _Settings:
+    """The validated options of one :func:`stls` call (``g`` rows, ``fixed`` factor of ``r(z)``)."""
+
+    lag: int
+    order: int | None
+    g: int
+    fixed: NDArray[np.float64]
+    structure: str
+    fixed_roots: Sequence[complex]
+    tol: float
+    max_iter: int
+    rechart_threshold: float
+    hessian: str
+    max_starts: int
+    restarts: bool
+
+    @classmethod
+    def checked(cls, lag: int, order: int | None, g: int, fixed: NDArray[np.float64], structure: str,
+                fixed_roots: Sequence[complex], tol: float, max_iter: int, rechart_threshold: float,
+                hessian: str, max_starts: int, restarts: bool) -> _Settings:
+        """Validate the descent options; ``hessian="auto"`` is resolved for the structure."""
+        if not (isinstance(tol, (float, int)) and 0.0 < tol < 1.0):
+            raise UsageError(f"tol: expected a number in (0, 1), received {tol!r}")
+        if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
+            raise UsageError(f"max_iter: expected a non-negative integer, received {max_iter!r}")
+        if hessian not in ("auto", "exact", "gauss-newton"):
+            raise UsageError(f"hessian: expected 'auto', 'exact' or 'gauss-newton', received {hessian!r}")
+        if isinstance(max_starts, bool) or not isinstance(max_starts, (int, np.integer)) or max_starts < 1:
+            raise UsageError(f"max_starts: expected a positive integer, received {max_starts!r}")
+        if not isinstance(restarts, bool):
+            raise UsageError(f"restarts: expected True or False, received {restarts!r}")
+        if hessian == "auto":
+            hessian = "exact" if structure == "shared" else "gauss-newton"
+        return cls(lag, order, g, fixed, structure, fixed_roots, tol, max_iter, rechart_threshold, hessian,
+                   max_starts, restarts)
+
+
+@dataclass(slots=True)
+class _Search:
+    """One identification in progress: the inner problem, the options and the evaluation count."""
+
+    problem: InnerProblem
+    settings: _Settings
+    q: int
+    exact_level: float
+    n_eval: int = 0
+
+    def start(self, cand: NDArray[np.float64], origin: str) -> StartPoint:
+        """Chart and evaluate a starting kernel (counted even when its Gram matrix is singular)."""
+        self.n_eval += 1
+        s = self.settings
+        return chart_point(self.problem, cand, s.structure, s.fixed, self.q, origin)
+
+    def descend(self, point: StartPoint) -> Descent:
+        """One damped Newton descent from ``point``."""
+        s = self.settings
+        run = minimize(self.problem, point.chart, point.theta, point.state, s.fixed, self.q, s.tol, s.max_iter,
+                       s.rechart_threshold, s.hessian, self.exact_level)
+        self.n_eval += run.n_eval
+        return run
+
+
+def _identify(arr: NDArray[np.float64], covariance: EpochCovariance, settings: _Settings,
+              kernel0: KernelRepresentation | ArrayLike | None) -> StlsResult:
+    """The body of :func:`stls` on validated arguments: starts, descents, restarts, best result."""
     n_t, q = arr.shape
     data_norm2 = covariance.weighted_norm2(arr)
     exact_level = (64.0 * np.finfo(float).eps) ** 2 * max(data_norm2, np.finfo(float).tiny)
-    n_eval = 0
-
-    coarse: KernelRepresentation | None = None
-    if kernel0 is None and n_t >= COARSE_MIN_SAMPLES:
-        n_sub = n_t // COARSE_FACTOR
-        sub = stls(arr[:n_sub], lag, order, covariance.window(0, n_sub), tol=max(float(tol), COARSE_TOL),
-                   max_iter=min(int(max_iter), COARSE_MAX_ITER), structure=structure, fixed_roots=fixed_roots,
-                   rechart_threshold=rechart_threshold, hessian=hessian, max_starts=max_starts, restarts=restarts)
-        n_eval += sub.n_evaluations
-        if np.isfinite(sub.misfit):
-            coarse = sub.kernel
-
-    problem = InnerProblem(arr, covariance, lag)
-    points: list[_Point] = []
-    last_error = ""
-    for origin, cand in _start_candidates(arr, lag, g, fixed, covariance, structure, kernel0, coarse):
-        n_eval += 1
-        try:
-            points.append(_chart_point(problem, cand, structure, fixed, q, origin))
-        except (SingularGramError, np.linalg.LinAlgError) as exc:
-            last_error = str(exc)
-    fallback = _fallback_start(lag, g, q, structure)
-    if not points and fallback is not None:
-        n_eval += 1
-        try:
-            points.append(_chart_point(problem, fallback[1], structure, fixed, q, fallback[0]))
-        except (SingularGramError, np.linalg.LinAlgError) as exc:
-            last_error = str(exc)
+    coarse, n_coarse = _coarse_kernel(arr, covariance, settings, kernel0)
+    search = _Search(InnerProblem(arr, covariance, settings.lag), settings, q, exact_level, n_coarse)
+    points, last_error = _start_points(search, arr, covariance, kernel0, coarse)
     if not points:
-        ker = KernelRepresentation(np.zeros((lag + 1, g, q)))
+        ker = KernelRepresentation(np.zeros((settings.lag + 1, settings.g, q)))
         return StlsResult(ker, arr.copy(), float("inf"), 0, StlsStatus.INFEASIBLE,
-                          f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {last_error}", "stls", structure, n_eval, 0.0)
+                          f"{STATUS_MESSAGES[StlsStatus.INFEASIBLE]}: {last_error}", "stls", settings.structure,
+                          search.n_eval, 0.0)
     points.sort(key=lambda p: p.state.misfit)
     warm = points[0].origin in ("kernel0", "coarse")
-    queue = points[:1] if warm else points[:max_starts]
-
-    best: _Descent | None = None
+    queue = points[:1] if warm else points[: settings.max_starts]
+    best: Descent | None = None
     for point in queue:
-        run = _minimize(problem, point.chart, point.theta, point.state, fixed, q, tol, max_iter,
-                        rechart_threshold, hessian, exact_level)
-        n_eval += run.n_eval
-        for _ in range(MIRROR_ROUNDS if restarts else 0):
-            cand = _mirrored_start(run, structure, q)
-            if cand is None:
-                break
-            n_eval += 1
-            try:
-                start = _chart_point(problem, cand, structure, fixed, q, "mirrored")
-            except (SingularGramError, np.linalg.LinAlgError):
-                break
-            other = _minimize(problem, start.chart, start.theta, start.state, fixed, q, tol, max_iter,
-                              rechart_threshold, hessian, exact_level)
-            n_eval += other.n_eval
-            if other.state.misfit >= run.state.misfit:
-                break
-            run = other
+        run = _descend_with_mirrors(search, point)
         if best is None or run.state.misfit < best.state.misfit:
             best = run
     assert best is not None
-    if restarts and structure == "full" and g == q and n_t < COARSE_MIN_SAMPLES:
-        # poles of the best fit with re-fitted output directions (one restart)
-        cand = modal_kernel(arr, _final_kernel(best.chart, best.theta, q), covariance)
-        if cand is not None:
-            n_eval += 1
-            try:
-                start = _chart_point(problem, cand, structure, fixed, q, "modal")
-            except (SingularGramError, np.linalg.LinAlgError):
-                start = None
-            if start is not None:
-                other = _minimize(problem, start.chart, start.theta, start.state, fixed, q, tol, max_iter,
-                                  rechart_threshold, hessian, exact_level)
-                n_eval += other.n_eval
-                if other.state.misfit < best.state.misfit:
-                    best = other
-    kernel = _final_kernel(best.chart, best.theta, q)
+    best = _modal_restart(search, arr, covariance, best)
+    kernel = final_kernel(best.chart, best.theta, q)
     return StlsResult(kernel, best.state.w_hat, best.state.misfit, best.iterations, best.status,
-                      STATUS_MESSAGES[best.status], "stls", structure, n_eval, best.grad_norm)
+                      STATUS_MESSAGES[best.status], "stls", settings.structure, search.n_eval, best.grad_norm)
 
 
-def _mirrored_start(run: _Descent, structure: str, q: int) -> NDArray[np.float64] | None:
-    """``R`` (or ``r~``) with the unstable poles of a descent's result mirrored into the unit disc."""
-    if isinstance(run.chart, SharedChart):
-        rt = run.chart.r_tilde(run.theta)
-        if rt.size < 2:
-            return None
-        roots = np.roots(rt[::-1])
-        out = np.abs(roots) > 1.0 + MIRROR_MARGIN
-        if not np.any(out):
-            return None
-        roots = np.where(out, 1.0 / np.conj(roots), roots)
-        return np.real(np.poly(roots))[::-1].copy()
-    if run.chart.g != q:
-        return None
-    mirrored = KernelRepresentation(run.chart.kernel(run.theta), q=q).mirrored(margin=MIRROR_MARGIN)
-    return None if mirrored is None else np.array(mirrored.R)
+def _coarse_kernel(arr: NDArray[np.float64], covariance: EpochCovariance, settings: _Settings,
+                   kernel0: KernelRepresentation | ArrayLike | None) -> tuple[KernelRepresentation | None, int]:
+    """Kernel identified on the leading ``T // COARSE_FACTOR`` samples of a long series, and its evaluations."""
+    n_t = arr.shape[0]
+    if kernel0 is not None or n_t < COARSE_MIN_SAMPLES:
+        return None, 0
+    s = settings
+    n_sub = n_t // COARSE_FACTOR
+    sub = stls(arr[:n_sub], s.lag, s.order, covariance.window(0, n_sub), tol=max(float(s.tol), COARSE_TOL),
+               max_iter=min(int(s.max_iter), COARSE_MAX_ITER), structure=s.structure, fixed_roots=s.fixed_roots,
+               rechart_threshold=s.rechart_threshold, hessian=s.hessian, max_starts=s.max_starts,
+               restarts=s.restarts)
+    return (sub.kernel if np.isfinite(sub.misfit) else None), sub.n_evaluations
 
 
-def _derivatives(
-    problem: InnerProblem, chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
-    hessian: str,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64] | None]:
-    """Half gradient ``J^T f``, half Hessian and (exact mode) Gauss--Newton matrix in chart coordinates.
-
-    With ``lambda = Gamma^{-1} e``, ``u_k = (dG/dtheta_k)^T lambda`` and
-    ``c_k = (dG/dtheta_k) w_hat - G Sigma u_k`` the exact half Hessian is
-    ``a_k^T a_m - u_k^T Sigma u_m`` with ``a_k = L^{-1} c_k``; Gauss--Newton keeps ``J^T J``.
-    """
-    d_mat = chart.jacobian_rhs(state.w_hat)
-    jac = solve_lower(state.chol, d_mat)
-    grad = jac.T @ state.f
-    gn_mat = jac.T @ jac
-    if hessian == "gauss-newton":
-        return grad, gn_mat, None
-    basis = chart.basis_blocks()  # (n_p, l+1, g, q)
-    n_p, n_blk, g, q = basis.shape
-    lam = state.lam
-    n = lam.shape[0]
-    n_t = n + n_blk - 1
-    big = (lam @ basis.transpose(2, 1, 3, 0).reshape(g, n_blk * q * n_p)).reshape(n, n_blk, q, n_p)
-    u = np.zeros((n_t, q, n_p))
-    for i in range(n_blk):
-        u[i : i + n] += big[:, i]
-    s = problem.cov.apply_batch(u)
-    r_mat = chart.blocks(theta).transpose(1, 0, 2).reshape(g, n_blk * q)
-    s_rows = hankel_rows(s.reshape(n_t, q * n_p), n_blk).reshape(n, n_blk * q, n_p)
-    gs = r_mat @ s_rows  # (n, g, n_p): G Sigma u_k
-    a = solve_lower(state.chol, d_mat - gs.reshape(n * g, n_p))
-    hess = a.T @ a - u.reshape(n_t * q, n_p).T @ s.reshape(n_t * q, n_p)
-    return grad, 0.5 * (hess + hess.T), gn_mat
+def _start_points(search: _Search, arr: NDArray[np.float64], covariance: EpochCovariance,
+                  kernel0: KernelRepresentation | ArrayLike | None,
+                  coarse: KernelRepresentation | None) -> tuple[list[StartPoint], str]:
+    """Every starting kernel with a regular Gram matrix, and the last error of the singular ones."""
+    s = search.settings
+    points: list[StartPoint] = []
+    last_error = ""
+    for origin, cand in start_candidates(arr, s.lag, s.g, s.fixed, covariance, s.structure, kernel0, coarse):
+        try:
+            points.append(search.start(cand, origin))
+        except (SingularGramError, np.linalg.LinAlgError) as exc:
+            last_error = str(exc)
+    fallback = fallback_start(s.lag, s.g, search.q, s.structure)
+    if not points and fallback is not None:
+        try:
+            points.append(search.start(fallback[1], fallback[0]))
+        except (SingularGramError, np.linalg.LinAlgError) as exc:
+            last_error = str(exc)
+    return points, last_error
 
 
-def _cholesky_solve(a_mat: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """``a_mat^{-1} rhs`` for a symmetric positive definite ``a_mat``; None when the Cholesky factorization fails."""
-    fac, info = lapack.dpotrf(a_mat, lower=1)
-    if info != 0:
-        return None
-    x, info = lapack.dpotrs(fac, rhs, lower=1)
-    return x if info == 0 else None
-
-
-def _minimize(
-    problem: InnerProblem, chart: FullChart | SharedChart, theta: NDArray[np.float64], state: BandedGram,
-    fixed: NDArray[np.float64], q: int, tol: float, max_iter: int, rechart_threshold: float, hessian: str,
-    exact_level: float,
-) -> _Descent:
-    """Damped Newton / Levenberg--Marquardt descent from ``theta`` (only decreasing steps accepted).
-
-    With the exact Hessian, an iteration where it is not positive definite (far from a
-    minimum) takes the Gauss--Newton curvature instead.
-    """
-    status = StlsStatus.ITERATION_LIMIT
-    iterations = 0
-    n_eval = 0
-    grad_norm = 0.0
-    mu = MU_INITIAL
-    nu = 2.0
-    if chart.n_params == 0:
-        status = StlsStatus.DIRECT
-    while status == StlsStatus.ITERATION_LIMIT and iterations < max_iter:
-        if state.misfit <= exact_level:
-            status = StlsStatus.EXACT
+def _descend_with_mirrors(search: _Search, point: StartPoint) -> Descent:
+    """Descend from ``point``, then restart from mirrored unstable poles while that lowers the misfit."""
+    run = search.descend(point)
+    for _ in range(MIRROR_ROUNDS if search.settings.restarts else 0):
+        cand = mirrored_start(run, search.settings.structure, search.q)
+        if cand is None:
             break
-        grad, a_mat, gn_mat = _derivatives(problem, chart, theta, state, hessian)
-        grad_norm = float(np.abs(grad).max())
-        iterations += 1
-        if grad_norm == 0.0:
-            status = StlsStatus.CONVERGED
+        try:
+            start = search.start(cand, "mirrored")
+        except (SingularGramError, np.linalg.LinAlgError):
             break
-        newton = _cholesky_solve(a_mat, grad)
-        if newton is not None:  # Newton decrement: the predicted decrease of an undamped step
-            if float(grad @ newton) <= 0.1 * tol * state.misfit:
-                status = StlsStatus.CONVERGED
-                break
-        elif gn_mat is not None:
-            a_mat = gn_mat
-        diag = np.abs(a_mat.diagonal())
-        diag = np.maximum(diag, 1e-12 * max(float(diag.max()), np.finfo(float).tiny))
-        theta_norm = float(np.sqrt(theta @ theta))
-        while True:
-            damped = a_mat.copy()
-            damped.flat[:: damped.shape[0] + 1] += mu * diag
-            sol = _cholesky_solve(damped, grad)
-            step = -sol if sol is not None else None
-            finite = step is not None and bool(np.isfinite(step).all())
-            predicted = float(-2.0 * grad @ step - step @ a_mat @ step) if finite and step is not None else -1.0
-            trial: BandedGram | None = None
-            if predicted > 0.0:
-                try:
-                    n_eval += 1
-                    trial = problem.project(chart.blocks(theta + step))
-                except SingularGramError:
-                    trial = None
-            if trial is not None and trial.misfit < state.misfit and step is not None:
-                rho = (state.misfit - trial.misfit) / predicted
-                mu *= max(1.0 / 10.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu = 2.0
-                decrease = state.misfit - trial.misfit
-                theta = theta + step
-                state = trial
-                step_norm = float(np.sqrt(step @ step))
-                small_step = step_norm <= tol * (float(np.sqrt(theta @ theta)) + tol)
-                if (decrease <= tol * state.misfit and rho > 0.25) or small_step:
-                    status = StlsStatus.CONVERGED
-                elif chart.needs_rechart(theta, rechart_threshold):
-                    chart, theta = _rechart(chart, theta, fixed, q)
-                break
-            mu = max(mu * nu, MU_REJECTED)
-            nu *= 2.0
-            if mu > 1e16 or (finite and step is not None
-                             and float(np.sqrt(step @ step)) <= 1e-15 * (theta_norm + 1e-15)):
-                status = StlsStatus.NO_FURTHER_DECREASE
-                break
-    if status == StlsStatus.ITERATION_LIMIT and state.misfit <= exact_level:
-        status = StlsStatus.EXACT
-    return _Descent(chart, theta, state, status, iterations, n_eval, grad_norm)
+        other = search.descend(start)
+        if other.state.misfit >= run.state.misfit:
+            break
+        run = other
+    return run
 
 
-def _rechart(chart: FullChart | SharedChart, theta: NDArray[np.float64], fixed: NDArray[np.float64],
-             q: int) -> tuple[FullChart | SharedChart, NDArray[np.float64]]:
-    """Move to the chart whose identity block (or pinned coefficient) is best conditioned."""
-    if isinstance(chart, SharedChart):
-        rt = chart.r_tilde(theta)
-        new_s = SharedChart(fixed, rt, q)
-        return new_s, new_s.coordinates_tilde(rt)
-    r_mat = chart.kernel(theta)
-    new_f = FullChart(r_mat, q)
-    if np.array_equal(new_f.ident, chart.ident):
-        return chart, theta
+def _modal_restart(search: _Search, arr: NDArray[np.float64], covariance: EpochCovariance, best: Descent) -> Descent:
+    """One restart from the poles of the best fit with re-fitted output directions (full square kernels)."""
+    s, q = search.settings, search.q
+    if not (s.restarts and s.structure == "full" and s.g == q and arr.shape[0] < COARSE_MIN_SAMPLES):
+        return best
+    cand = modal_kernel(arr, final_kernel(best.chart, best.theta, q), covariance)
+    if cand is None:
+        return best
     try:
-        return new_f, new_f.coordinates(r_mat)
-    except np.linalg.LinAlgError:  # pragma: no cover - pivoted QR picks a regular block
-        return chart, theta
-
-
-def _final_kernel(chart: FullChart | SharedChart, theta: NDArray[np.float64], q: int) -> KernelRepresentation:
-    if isinstance(chart, SharedChart):
-        r = chart.shared_r(theta)
-        scale = r[-1] if abs(r[-1]) > 1e-8 * np.max(np.abs(r)) else np.linalg.norm(r)
-        return KernelRepresentation.shared(r / scale, q)
-    return KernelRepresentation(chart.kernel(theta), q=q).normalized()
+        start = search.start(cand, "modal")
+    except (SingularGramError, np.linalg.LinAlgError):
+        return best
+    other = search.descend(start)
+    return other if other.state.misfit < best.state.misfit else best

@@ -1,29 +1,96 @@
-"""Turning library failures into one stderr line and a documented exit code.
+"""The exit-code contract of every console script (the README's table).
 
-Every console script calls :func:`run_app`. A :class:`~gnss_cli.errors.GnssError` becomes
-``<prog>: error: <message>`` on stderr and its ``exit_code``; any other exception is a bug:
-exit 1 with a one-line message, and the traceback only when ``--debug`` is on the command
-line (or ``GNSS_SOLVE_DEBUG=1``).
+Every console script calls :func:`run_app`, which works with the Click that Typer brings
+(the separate ``click`` package for older Typer, Typer's own copy for newer ones):
+
+- usage mistakes (missing argument, unknown option, a value of the wrong type): Click's
+  usual message with its "did you mean", exit 2;
+- a :class:`~gnss_cli.errors.GnssError`: ``<prog>: error: <message>`` and its
+  ``exit_code`` (3 bad configuration or out-of-range value, 4 bad input, 5 nothing solved,
+  6 output not writable);
+- SIGINT (Ctrl-C) and SIGTERM: one line, exit 130 and 143; output files are not left
+  behind (:mod:`gnss_cli.cli.output` removes what was staged);
+- a closed stdout pipe (``| head``): exit 0, quietly;
+- anything else is a bug: exit 1 with a one-line message, and the traceback only with
+  ``--debug`` on the command line (or ``GNSS_SOLVE_DEBUG=1``).
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable
+from types import FrameType, ModuleType
 from typing import NoReturn
 
-import click
 import typer
 
 from gnss_cli.errors import GnssError
+
+EXIT_INTERRUPTED = 128 + signal.SIGINT
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+class Interrupted(BaseException):
+    """Raised in the main thread by SIGINT or SIGTERM; not an ``Exception``, so nothing in
+    the libraries below swallows it, while their ``finally`` blocks still run."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+class PipeClosed(BaseException):
+    """stdout's reader went away (``gnss-solve ... | head``)."""
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    raise Interrupted(signum)
+
+
+HELP_OPTIONS = {"help_option_names": ["-h", "--help"]}
+"""Typer ``context_settings`` of every command: ``-h`` as well as ``--help``."""
+
+
+def version_callback(prog_name: str) -> Callable[[bool], None]:
+    """The callback of an eager ``--version`` flag: print ``<prog> <version>`` and exit 0."""
+
+    def show(value: bool) -> None:
+        if value:
+            from gnss_cli import __version__
+
+            sys.stdout.write(f"{prog_name} {__version__}\n")
+            raise typer.Exit()
+
+    return show
+
+
+def _click_exceptions() -> ModuleType:
+    """The ``exceptions`` module of the Click that this Typer uses."""
+    return sys.modules[typer.BadParameter.__module__]
 
 
 def _debug_requested(argv: list[str]) -> bool:
     return "--debug" in argv or os.environ.get("GNSS_SOLVE_DEBUG", "") not in ("", "0")
 
 
-def run_app(app: typer.Typer | Callable[..., object], prog_name: str, argv: list[str] | None = None) -> NoReturn:
+def write_stdout(text: str) -> None:
+    """Write ``text`` to stdout; a closed pipe ends the run quietly (:class:`PipeClosed`)."""
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise PipeClosed() from None
+
+
+def _exit_code_of(exc: BaseException) -> int | None:
+    """The exit code carried by a Click/Typer ``Exit``, or None."""
+    code = getattr(exc, "exit_code", None)
+    return int(code) if isinstance(code, int) else None
+
+
+def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> NoReturn:
     """Run a Typer app as a console script with gnss-solve's exit-code contract.
 
     Parameters
@@ -37,35 +104,43 @@ def run_app(app: typer.Typer | Callable[..., object], prog_name: str, argv: list
     """
     args = list(sys.argv[1:] if argv is None else argv)
     debug = _debug_requested(args)
+    click_exc = _click_exceptions()
+    exits = tuple({click_exc.Exit, typer.Exit} if hasattr(click_exc, "Exit") else {typer.Exit})
+    aborts = tuple({click_exc.Abort, typer.Abort} if hasattr(click_exc, "Abort") else {typer.Abort})
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        command = typer.main.get_command(app) if isinstance(app, typer.Typer) else app
-        command.main(args=args, prog_name=prog_name, standalone_mode=False)  # type: ignore[union-attr]
+        command = typer.main.get_command(app)
+        rv = command.main(args=args, prog_name=prog_name, standalone_mode=False)
+        code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
+    except Interrupted as exc:
+        word = "interrupted" if exc.signum == signal.SIGINT else "terminated"
+        sys.stderr.write(f"\n{prog_name}: {word} ({signal.Signals(exc.signum).name}); no output written\n")
+        code = 128 + exc.signum
+    except PipeClosed:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        code = 0
     except GnssError as exc:
         if debug:
             raise
-        sys.stderr.write(f"{prog_name}: error: {exc}\n")
-        sys.exit(exc.exit_code)
-    except click.exceptions.Abort:
+        message = " ".join(str(exc).split())
+        sys.stderr.write(f"{prog_name}: error: {message}\n")
+        code = exc.exit_code
+    except exits as exc:
+        code = _exit_code_of(exc) or 0
+    except aborts:
         sys.stderr.write(f"{prog_name}: aborted\n")
-        sys.exit(130)
-    except click.exceptions.Exit as exc:
-        sys.exit(exc.exit_code)
-    except click.ClickException as exc:
+        code = EXIT_INTERRUPTED
+    except click_exc.ClickException as exc:
         exc.show(file=sys.stderr)
-        sys.exit(2)
-    except BrokenPipeError:
-        # Downstream of a pipe closed early (e.g. `| head`): not an error.
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        sys.exit(0)
-    except KeyboardInterrupt:
-        sys.stderr.write(f"{prog_name}: interrupted\n")
-        sys.exit(130)
+        code = exc.exit_code if exc.exit_code else 2
     except Exception as exc:  # noqa: BLE001 - the bug path of the exit-code contract
         if debug:
             raise
-        sys.stderr.write(
-            f"{prog_name}: internal error: {type(exc).__name__}: {exc} (run with --debug for a traceback)\n"
-        )
-        sys.exit(1)
-    sys.exit(0)
+        message = " ".join(str(exc).split())
+        sys.stderr.write(f"{prog_name}: internal error: {type(exc).__name__}: {message} (run with --debug for a traceback)\n")
+        code = 1
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    sys.exit(code)

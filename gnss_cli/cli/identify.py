@@ -25,12 +25,12 @@ import typer
 from numpy.typing import NDArray
 
 from gnss_cli.behavior import StlsResult, stls, wtls
-from gnss_cli.cli.exits import run_app
-from gnss_cli.errors import InputError, InputFileNotFoundError, NoSolutionError, UsageError
+from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
+from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError, NoSolutionError, UsageError
 from gnss_cli.gnss.frames import ecef2enu, enu2ecef
 from gnss_cli.gnss.time import datetime2gps_s, gps_s2datetime, gps_s2week_tow
 
-app = typer.Typer(add_completion=False, help=__doc__.split("\n\n")[0])
+app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help=__doc__.split("\n\n")[0])
 
 #: Relative tolerance on the sampling interval (uniform sampling is required).
 STEP_RTOL = 1e-6
@@ -207,23 +207,32 @@ def identify(
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the model as JSON."),
     output: str = typer.Option("-", "-o", "--output", help="Output CSV ('-' = stdout)."),
     debug: bool = typer.Option(False, "--debug", help="Tracebacks for internal errors."),
+    version: bool = typer.Option(False, "--version", callback=version_callback("gnss-identify"), is_eager=True,
+                                 help="Print the version and exit."),
 ) -> None:
     """Identify a lag-L kernel in local ENU (origin: the first sample), write fit and prediction CSV."""
     if method not in ("stls", "wtls"):
-        raise UsageError(f"--method: expected stls or wtls, received {method!r}")
+        raise ConfigError(f"--method: expected stls or wtls, received {method!r}")
     if structure not in ("full", "shared"):
-        raise UsageError(f"--structure: expected full or shared, received {structure!r}")
+        raise ConfigError(f"--structure: expected full or shared, received {structure!r}")
     if lag < 1:
-        raise UsageError(f"--lag: expected an integer >= 1, received {lag}")
-    traj = read_trajectory(trajectory, source_method)
-    table, model, res = identify_trajectory(traj, lag, order, method, structure, train, predict)
-    if model_out is not None:
-        model_out.write_text(json.dumps(model, indent=2) + "\n")
-    text = table.to_csv(index=False, float_format="%.4f", lineterminator="\n")
+        raise ConfigError(f"--lag: expected an integer >= 1, received {lag}")
+    from gnss_cli.cli.output import OutputSet
+
+    with OutputSet([trajectory]) as outputs:
+        if model_out is not None:
+            outputs.add(model_out, "--model-out")
+        if output != "-":
+            outputs.add(Path(output), "-o/--output")
+        traj = read_trajectory(trajectory, source_method)
+        table, model, res = identify_trajectory(traj, lag, order, method, structure, train, predict)
+        text = table.to_csv(index=False, float_format="%.4f", lineterminator="\n")
+        if model_out is not None:
+            outputs.write_text(model_out, json.dumps(model, indent=2) + "\n")
+        if output != "-":
+            outputs.write_text(Path(output), text)
     if output == "-":
-        sys.stdout.write(text)
-    else:
-        Path(output).write_text(text)
+        write_stdout(text)
     sys.stderr.write(f"gnss-identify: {method} lag {lag}: misfit {res.misfit:.6g} m^2, {res.iterations} iterations, {res.message}\n")
 
 

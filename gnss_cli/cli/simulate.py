@@ -15,12 +15,12 @@ from typing import Annotated, Optional
 
 import typer
 
-from gnss_cli.cli.exits import run_app
+from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
 from gnss_cli.errors import UsageError
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, load_config, parse_systems, run_scenario, write_scenario
 
-app = typer.Typer(add_completion=False, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
+app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
 
 _RINEX_VERSIONS = {"3": "3.04", "3.04": "3.04", "3.05": "3.05", "2": "2.11", "2.11": "2.11"}
 
@@ -60,6 +60,8 @@ def simulate(
     config: Annotated[Optional[Path], typer.Option(help="TOML settings (see gnss_cli/configs/simulate.toml).")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No summary on stderr.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Tracebacks for internal errors.")] = False,
+    version: Annotated[bool, typer.Option("--version", callback=version_callback("gnss-simulate"), is_eager=True,
+                                          help="Print the version and exit.")] = False,
 ) -> None:
     """Write obs.rnx, nav.rnx and truth.csv for a simulated receiver."""
     cfg = load_config(config) if config is not None else ScenarioConfig()
@@ -112,7 +114,12 @@ def simulate(
         err = replace(err, outlier_m=outlier_m)
     cfg = replace(cfg, errors=err, **changes)  # type: ignore[arg-type]
     scenario = run_scenario(cfg)
-    written = write_scenario(scenario, out_dir)
+    from gnss_cli.cli.output import OutputSet
+
+    with OutputSet() as outputs:
+        staging = outputs.staging_dir(out_dir)
+        write_scenario(scenario, staging)
+        written = outputs.adopt_staged(staging, out_dir)
     if not quiet:
         n_obs = int(scenario.observations.visible.sum())
         sys.stderr.write(

@@ -2,76 +2,64 @@
 
 Data go to stdout (or ``-o FILE`` / ``--out-dir DIR``); progress, warnings and the summary
 go to stderr. Exit codes: 0 ok, 1 bug, 2 usage, 3 bad configuration, 4 bad input file,
-5 no epoch solved.
+5 no epoch solved, 6 output not writable, 130 / 143 interrupted.
+
+Only Typer and the configuration defaults are imported at start-up, so that ``--help``
+answers at once; the numerical modules are imported when a run starts.
 """
 
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import typer
 
-from gnss_cli.cli.exits import run_app
-from gnss_cli.config import load_config
+from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
+from gnss_cli.config import packaged_defaults
 from gnss_cli.errors import ConfigError, UsageError
-from gnss_cli.pipeline import run
-from gnss_cli.report import (
-    dop_table,
-    errors_table,
-    parse_reference,
-    positions_table,
-    reference_from_csv,
-    reference_from_sinex,
-    summary_table,
-    to_csv_text,
-    write_atomic,
-)
 
-app = typer.Typer(add_completion=False, help=__doc__)
+_DEFAULTS = packaged_defaults()
+_PROC = _DEFAULTS.get("processing", {})
 
 
-class _Progress:
-    """Progress lines on stderr, only when stderr is a terminal and not ``--quiet``."""
+def _shown(value: Any) -> str:
+    """A packaged default as it is written on the command line."""
+    if isinstance(value, (list, tuple)):
+        return ",".join(str(v) for v in value)
+    return str(value)
 
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.t0 = time.perf_counter()
 
-    def __call__(self, stage: str, fraction: float) -> None:
-        if self.enabled:
-            sys.stderr.write(f"\r[{time.perf_counter() - self.t0:6.1f} s] {stage:<32} {100 * fraction:5.1f} %")
-            sys.stderr.flush()
+app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTIONS, rich_markup_mode=None)
 
-    def done(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
+
+SMOOTHING_FLAGS = ("--model", "--kernel", "--order", "--window", "--model-out")
 
 
 @app.command()
 def solve(
-    files: list[Path] = typer.Argument(..., help="OBS NAV [NAV ...]: a RINEX observation file and one or more navigation files."),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, a comma list, or all [config: wls]."),
-    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV) [config: all]."),
-    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | iono-free (dual-frequency combination) | none [config: klobuchar]."),
-    tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none [config: saastamoinen]."),
-    elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees [config: 10]."),
-    reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns."),
-    reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name."),
-    reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv)."),
-    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (see gnss_cli/configs/default.toml)."),
-    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout, the default)."),
-    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here."),
+    files: list[Path] = typer.Argument(..., help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, a comma list, or all.", show_default=_shown(_PROC.get("methods"))),
+    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=_shown(_PROC.get("systems"))),
+    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=_shown(_PROC.get("iono"))),
+    tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none.", show_default=_shown(_PROC.get("tropo"))),
+    elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees.", show_default=_shown(_PROC.get("elevation_mask_deg"))),
+    reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns.", show_default="none"),
+    reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name.", show_default="none"),
+    reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv).", show_default="none"),
+    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults"),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout).", show_default="stdout"),
+    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here.", show_default="none"),
     lag: int = typer.Option(0, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods."),
-    model: str = typer.Option("identify", "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag)."),
-    kernel: str = typer.Option("shared", "--kernel", help="shared | full: structure of the identified kernel (with --lag)."),
-    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel [3 L]."),
-    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments [15]."),
-    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON)."),
+    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag).", show_default="identify"),
+    kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default="shared"),
+    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full).", show_default="3 L"),
+    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default="15"),
+    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
+    version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, help="Print the version and exit."),
 ) -> None:
     """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
     if len(files) < 2:
@@ -80,25 +68,79 @@ def solve(
         raise UsageError("give one of --reference, --reference-sinex, --reference-csv")
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
-    overrides: dict[str, object] = {
-        "methods": method,
-        "iono": iono,
-        "tropo": tropo,
-        "elevation_mask_deg": elevation_mask,
-        "systems": [s.strip().upper() for s in systems.split(",") if s.strip()] if systems else None,
-    }
-    cfg = load_config(config, overrides)
-    ref = parse_reference(reference) if reference else None
-    progress = _Progress(not quiet)
+    given = [flag for flag, v in zip(SMOOTHING_FLAGS, (model, kernel, order, window, model_out)) if v is not None]
+    if lag == 0 and given:
+        raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
     if lag < 0:
-        raise UsageError(f"--lag: expected an integer >= 0, received {lag}")
-    if lag > 0 and "stls" not in cfg.methods:
-        raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
-    if lag > 0:
-        result = _smooth_stls(files, cfg, progress, lag, model, kernel, order, window, model_out)
+        raise ConfigError(f"--lag: expected an integer >= 0, received {lag}")
+    from gnss_cli.cli.output import OutputSet
+    from gnss_cli.cli.progress import Progress
+
+    inputs = [*files, *(p for p in (config, reference_sinex, reference_csv) if p is not None)]
+    with OutputSet(inputs) as outputs:
+        targets = _register_outputs(outputs, output, out_dir, model_out)
+        overrides: dict[str, object] = {
+            "methods": method,
+            "iono": iono,
+            "tropo": tropo,
+            "elevation_mask_deg": elevation_mask,
+            "systems": systems,
+        }
+        from gnss_cli.config import load_config
+
+        cfg = load_config(config, overrides)
+        if lag > 0 and "stls" not in cfg.methods:
+            raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
+        progress = Progress("gnss-solve", enabled=not quiet)
+        try:
+            smoothing = dict(lag=lag, model=model or "identify", kernel=kernel or "shared", order=order, window=window)
+            tables, models, warnings = _run(files, cfg, progress, smoothing, reference, reference_sinex, reference_csv)
+        finally:
+            progress.done()
+        _write(outputs, targets, tables, models)
+    if not quiet:
+        for w in warnings:
+            sys.stderr.write(f"gnss-solve: warning: {w}\n")
+        _print_summary(tables["summary"], "errors" in tables)
+
+
+def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Path], model_out: Optional[Path]) -> dict[str, Path]:
+    """Check every output path before anything is computed (refuse inputs, unusable folders)."""
+    targets: dict[str, Path] = {}
+    if out_dir is not None:
+        if out_dir.exists() and not out_dir.is_dir():
+            from gnss_cli.errors import OutputError
+
+            raise OutputError(f"{out_dir}: cannot write output (not a folder)")
+        for name in ("positions", "errors", "dop", "summary"):
+            targets[name] = outputs.add(out_dir / f"{name}.csv", "--out-dir")
+    elif output not in (None, "-"):
+        targets["positions"] = outputs.add(Path(output), "-o/--output")
+    if model_out is not None:
+        targets["models"] = outputs.add(model_out, "--model-out")
+    return targets
+
+
+def _run(files: list[Path], cfg: Any, progress: Any, smoothing: dict[str, Any], reference: Optional[str],
+         reference_sinex: Optional[Path], reference_csv: Optional[Path]) -> tuple[dict[str, Any], Any, list[str]]:
+    """Process the files and build the tables (heavy imports happen here)."""
+    from gnss_cli.pipeline import run
+    from gnss_cli.report import (
+        dop_table,
+        errors_table,
+        parse_reference,
+        positions_table,
+        reference_from_csv,
+        reference_from_sinex,
+        summary_table,
+    )
+
+    ref = parse_reference(reference) if reference else None
+    models = None
+    if smoothing["lag"] > 0:
+        result, models = _smooth_stls(files, cfg, progress, **smoothing)
     else:
         result = run(files[0], files[1:], cfg, progress=progress)
-    progress.done()
     if reference_sinex is not None:
         if not result.epochs.marker_name:
             raise ConfigError(f"--reference-sinex: {files[0]} has no MARKER NAME to look up")
@@ -106,45 +148,44 @@ def solve(
     if reference_csv is not None:
         ref = reference_from_csv(reference_csv, result.epochs.time_gps_s)
     positions = positions_table(result, ref)
-    if not quiet:
-        for w in result.warnings:
-            sys.stderr.write(f"gnss-solve: warning: {w}\n")
-    summary = summary_table(result, ref)
-    if out_dir is not None:
-        write_atomic(out_dir / "positions.csv", to_csv_text(positions))
-        if ref is not None:
-            write_atomic(out_dir / "errors.csv", to_csv_text(errors_table(positions)))
-        write_atomic(out_dir / "dop.csv", to_csv_text(dop_table(positions)))
-        write_atomic(out_dir / "summary.csv", to_csv_text(summary))
-    elif output not in (None, "-"):
-        write_atomic(output, to_csv_text(positions))
-    else:
-        sys.stdout.write(to_csv_text(positions))
-        sys.stdout.flush()
-    if not quiet:
-        _print_summary(summary, ref is not None)
+    tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref)}
+    if ref is not None:
+        tables["errors"] = errors_table(positions)
+    return tables, models, list(result.warnings)
+
+
+def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], models: Any) -> None:
+    """Stage every output (committed together when the ``OutputSet`` closes), or print to stdout."""
+    import json
+
+    from gnss_cli.report import to_csv_text
+
+    for name, path in targets.items():
+        if name == "models":
+            outputs.write_text(path, json.dumps(models, indent=1) + "\n")
+        elif name in tables:
+            outputs.write_text(path, to_csv_text(tables[name]))
+    if "positions" not in targets:
+        write_stdout(to_csv_text(tables["positions"]))
 
 
 def _smooth_stls(files, cfg, progress, lag: int, model: str, kernel: str, order: Optional[int],  # type: ignore[no-untyped-def]
-                 window: Optional[int], model_out: Optional[Path]):
+                 window: Optional[int]):
     """Run the other methods (and WLS), then make the stls rows the behavioral smoothing of the WLS fixes."""
     import dataclasses
-    import json
 
     from gnss_cli.kinematic import DEFAULT_WINDOW, smooth
+    from gnss_cli.pipeline import run
 
     others = tuple(m for m in cfg.methods if m != "stls")
     result = run(files[0], files[1:], dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",))),
                  progress=progress)
-    if progress is not None:
-        progress(f"stls: smoothing, lag {lag}", 0.0)
+    progress(f"stls: smoothing, lag {lag}", 0.0)
     sol, models = smooth(result.epochs, result.solutions["wls"], cfg, lag, model=model, kernel=kernel, order=order,
                          window=DEFAULT_WINDOW if window is None else window)
-    if model_out is not None:
-        text = json.dumps({"lag": lag, "model": model, "kernel": kernel, "windows": models}, indent=1)
-        write_atomic(model_out, text + "\n")
     solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in cfg.methods}
-    return dataclasses.replace(result, solutions=solutions)
+    record = {"lag": lag, "model": model, "kernel": kernel, "windows": models}
+    return dataclasses.replace(result, solutions=solutions), record
 
 
 def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]

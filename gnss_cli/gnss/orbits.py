@@ -158,38 +158,3 @@ def broadcast_states(
     tgd = np.where(valid, g(eph.tgd_s), np.nan)
     rel = np.where(valid, rel, np.nan)
     return SatelliteStates(pos, vel, clock, tgd, rel, valid)
-
-
-def transmit_time_states(
-    eph: KeplerEphemeris,
-    idx: NDArray[np.intp],
-    t_rx_gps_s: F64,
-    pseudorange_m: F64,
-    *,
-    gm_m3_s2: float = GM_GPS_M3_S2,
-    omega_e_rad_s: float = OMEGA_E_RAD_S,
-    n_iter: int = 2,
-) -> SatelliteStates:
-    """Satellite states at the signal transmit time implied by a pseudorange.
-
-    ``t_tx = t_rx - P / c - dt_sv(t_tx)``; the satellite clock is a slow polynomial, so two
-    fixed-point passes give the transmit time to well under a nanosecond. The receiver clock
-    error inside ``P`` (up to a millisecond) moves the satellite by under 4 m along track,
-    which the estimated receiver clock absorbs exactly as in every single-point positioner.
-
-    Parameters
-    ----------
-    t_rx_gps_s
-        Reception times, shape broadcastable to ``idx`` (e.g. ``(T, 1)``), s since the GPS epoch.
-    pseudorange_m
-        Pseudoranges, same shape as ``idx``, m.
-    """
-    t_tx = np.asarray(t_rx_gps_s, dtype=np.float64) - np.asarray(pseudorange_m, dtype=np.float64) / C_M_S
-    t_tx = np.where(np.isfinite(t_tx), t_tx, np.broadcast_to(t_rx_gps_s, np.shape(t_tx)))
-    t_first = t_tx
-    states = broadcast_states(eph, idx, t_tx, gm_m3_s2=gm_m3_s2, omega_e_rad_s=omega_e_rad_s)
-    for _ in range(n_iter):
-        corr = np.where(np.isfinite(states.clock_s), states.clock_s, 0.0)
-        t_tx = t_first - corr
-        states = broadcast_states(eph, idx, t_tx, gm_m3_s2=gm_m3_s2, omega_e_rad_s=omega_e_rad_s)
-    return states

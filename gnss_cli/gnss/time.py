@@ -31,8 +31,3 @@ def gps_s2week_tow(t_gps_s: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.fl
     t = np.asarray(t_gps_s, dtype=np.float64)
     week = np.floor(t / SECONDS_PER_WEEK).astype(np.int64)
     return week, t - week * SECONDS_PER_WEEK
-
-
-def week_tow2gps_s(week: ArrayLike, tow_s: ArrayLike) -> NDArray[np.float64]:
-    """Combine GPS week and seconds of week into seconds since the GPS epoch."""
-    return np.asarray(week, dtype=np.float64) * SECONDS_PER_WEEK + np.asarray(tow_s, dtype=np.float64)

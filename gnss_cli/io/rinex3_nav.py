@@ -32,17 +32,18 @@ import xarray
 from numpy.typing import NDArray
 
 from gnss_cli.errors import RinexFormatError, UsageError
-from gnss_cli.io.compression import open_bytes
-from gnss_cli.io.rinex3_obs import (
-    SYSTEM_CHARS,
+from gnss_cli.io.fixed_width import (
+    SPACE,
     civil2datetime64,
+    civil_ranges_ok,
     gather_columns,
     parse_float_fields,
-    parse_uint_columns,
-    check_rinex34_type,
+    parse_uint_fields,
     split_lines,
     sv_codes2str,
 )
+from gnss_cli.io.nav_layout import Layout, layout_v3, layout_v4
+from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_nav_header, validate_systems
 
 __all__ = ["read_nav3", "FIELD_NAMES"]
 
@@ -91,47 +92,13 @@ m, m/s, m/s^2 (as georinex does). Fields after the last name (the 4th GLONASS li
 RINEX 3.05 / 4.00) are not read.
 """
 
+_RECORD_START_SPANS = ((1, 3), (4, 8), (9, 11), (12, 14), (15, 17), (18, 20), (21, 23))
+"""Columns of the PRN, year, month, day, hour, minute and second on a record's first line."""
+
 _KM_FIELDS = {"X", "dX", "dX2", "Y", "dY", "dY2", "Z", "dZ", "dZ2"}
-
-_RINEX4_EPH_TYPES = {
-    "G": {"LNAV"}, "J": {"LNAV"}, "I": {"LNAV"}, "E": {"INAV", "FNAV"},
-    "C": {"D1", "D2"}, "R": {"FDMA"}, "S": {"SBAS"},
-}  # fmt: skip
-"""RINEX 4 EPH message types whose body has the RINEX 3 layout (read); others are skipped."""
-
-_ION_ATTRS = {("G", "LNAV"): "ionospheric_corr_GPS", ("E", "IFNV"): "ionospheric_corr_GAL",
-              ("C", "D1D2"): "ionospheric_corr_BDS", ("J", "LNAV"): "ionospheric_corr_QZS",
-              ("I", "LNAV"): "ionospheric_corr_IRN"}  # fmt: skip
-_ION_COUNTS = {"ionospheric_corr_GAL": 3}  # others: alpha0..3, beta0..3
 
 _FIELD_WIDTH = 19
 _N_FIELDS = 31
-_SPACE = 32
-
-
-def _read_nav_header(header: str, name: str) -> dict[str, Any]:
-    lines = header.splitlines()
-    version, _ = check_rinex34_type(lines[0], name, "N")
-    attrs: dict[str, Any] = {"version": version, "rinextype": "nav"}
-    iono: dict[str, NDArray[np.float64]] = {}
-    for lineno, line in enumerate(lines[1:], start=2):
-        if line[60:].strip() != "IONOSPHERIC CORR":
-            continue
-        kind = line[:4].strip()
-        n = 3 if kind == "GAL" else 4
-        try:
-            iono[kind] = np.array(
-                [float(line[5 + 12 * i : 17 + 12 * i].upper().replace("D", "E")) for i in range(n)]
-            )
-        except ValueError:
-            raise RinexFormatError(f"{name}: bad IONOSPHERIC CORR header line {lineno}") from None
-    for a, b, key in (("GPSA", "GPSB", "GPS"), ("QZSA", "QZSB", "QZS"), ("BDSA", "BDSB", "BDS"),
-                      ("IRNA", "IRNB", "IRN")):  # fmt: skip
-        if a in iono and b in iono:
-            attrs[f"ionospheric_corr_{key}"] = np.hstack((iono[a], iono[b]))
-    if "GAL" in iono:
-        attrs["ionospheric_corr_GAL"] = iono["GAL"]
-    return attrs
 
 
 class _Records:
@@ -147,7 +114,7 @@ class _Records:
 
 def _parse_d19(chars: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -> NDArray[np.float64]:
     """Decode ``D19.12`` fields ``(n, 19)``; blank fields give NaN."""
-    blank = np.all(chars == _SPACE, axis=1)
+    blank = np.all(chars == SPACE, axis=1)
     out = np.full(chars.shape[0], np.nan)
     filled = np.flatnonzero(~blank)
     if filled.size == 0:
@@ -159,17 +126,9 @@ def _parse_d19(chars: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -
 
 
 def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_Records, dict[str, Any]]:
-    name = Path(path).name
-    content = open_bytes(path)
-    if not content or content.isspace():
-        raise RinexFormatError(f"{name}: empty file")
-    pos = content.find(b"END OF HEADER")
-    if pos < 0:
-        raise RinexFormatError(f"{name}: no 'END OF HEADER' line (not a RINEX file, or truncated)")
-    nl = content.find(b"\n", pos)
-    hdr_end = len(content) if nl < 0 else nl + 1
-    header = content[:hdr_end].decode("ascii", errors="replace")
-    attrs = _read_nav_header(header, name)
+    """Decode the records of one navigation file (of the ``systems`` when given) and its header."""
+    name, content, hdr_end, header = read_header(path)
+    attrs = read_nav_header(header, name)
     attrs["filename"] = name
     n_header_lines = header.count("\n")
 
@@ -177,37 +136,48 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     lineno = np.arange(starts.size, dtype=np.int64) + n_header_lines + 1
     head = gather_columns(buf, starts, lengths, 0, 14)
     if attrs["version"] >= 4.0:
-        layout = _layout_v4(buf, starts, lengths, head, lineno, attrs, name)
+        layout = layout_v4(buf, starts, lengths, head, lineno, attrs, name)
     else:
-        layout = _layout_v3(head, lineno, name)
-    line_idx, ordinal, rec_of_line, first_lines = layout
-
+        layout = layout_v3(head, lineno, name)
+    first_lines = layout[3]
     if first_lines.size == 0:
         raise RinexFormatError(f"{name}: no navigation records")
-    # satellite and toc from each record's first line: 'G01 2020 06 24 23 15 00'
     fl = gather_columns(buf, starts[first_lines], lengths[first_lines], 0, 23)
     sys_chars = fl[:, 0]
+    sv_code, toc = _record_starts(fl, lineno[first_lines], name)
+    values = _record_values(buf, starts, lengths, lineno, layout, name)
+    keep = np.ones(first_lines.size, dtype=bool)
+    if systems is not None:
+        keep = np.isin(sys_chars, np.frombuffer("".join(sorted(systems)).encode(), dtype=np.uint8))
+    return _Records(sv_code[keep], toc[keep], values[keep]), attrs
+
+
+def _record_starts(
+    fl: NDArray[np.uint8], lineno: NDArray[np.int64], name: str
+) -> tuple[NDArray[np.int64], NDArray[np.datetime64]]:
+    """Satellite codes and toc from the records' first lines ``'G01 2020 06 24 23 15 00'``."""
+    sys_chars = fl[:, 0]
     known = np.isin(sys_chars, np.frombuffer(SYSTEM_CHARS.encode(), dtype=np.uint8))
-    prn, ok_prn = parse_uint_columns(fl[:, 1:3])
-    year, ok_y = parse_uint_columns(fl[:, 4:8])
-    month, ok_mo = parse_uint_columns(fl[:, 9:11])
-    day, ok_d = parse_uint_columns(fl[:, 12:14])
-    hour, ok_h = parse_uint_columns(fl[:, 15:17])
-    minute, ok_mi = parse_uint_columns(fl[:, 18:20])
-    sec, ok_s = parse_uint_columns(fl[:, 21:23])
-    ok = (known & ok_prn & ok_y & ok_mo & ok_d & ok_h & ok_mi & ok_s & (month >= 1) & (month <= 12)
-          & (day >= 1) & (day <= 31) & (hour <= 23) & (minute <= 59) & (sec <= 60))  # fmt: skip
+    (prn, year, month, day, hour, minute, sec), ok_fields = parse_uint_fields(fl, _RECORD_START_SPANS)
+    ok = known & ok_fields & civil_ranges_ok(month, day, hour, minute, sec)
     if not np.all(ok):
         i = int(np.flatnonzero(~ok)[0])
         text = fl[i].tobytes().decode("ascii", "replace").rstrip()
         raise RinexFormatError(
-            f"{name}: bad record start (satellite / epoch) on line {int(lineno[first_lines[i]])}: {text!r}"
+            f"{name}: bad record start (satellite / epoch) on line {int(lineno[i])}: {text!r}"
         )
     toc = civil2datetime64(year, month, day, ((hour * 60 + minute) * 60 + sec) * 1_000_000_000)
     c1 = (prn // 10) + 48
     c2 = (prn % 10) + 48
-    sv_code = (sys_chars.astype(np.int64) << 16) | (c1 << 8) | c2
+    return (sys_chars.astype(np.int64) << 16) | (c1 << 8) | c2, toc
 
+
+def _record_values(
+    buf: NDArray[np.uint8], starts: NDArray[np.int64], lengths: NDArray[np.int64], lineno: NDArray[np.int64],
+    layout: Layout, name: str,
+) -> NDArray[np.float64]:
+    """The ``D19.12`` fields of every record, ``(n_records, 31)`` in file order, NaN where blank."""
+    line_idx, ordinal, rec_of_line, first_lines = layout
     # field grid: first line fields at columns 23, 42, 61; later lines at 4, 23, 42, 61
     n_rec = first_lines.size
     col0 = np.where(ordinal == 0, 23, 4).astype(np.int64)
@@ -226,109 +196,7 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
         raise RinexFormatError(f"{name}: inconsistent record structure")
     values = np.full((n_rec, _N_FIELDS), np.nan)
     values[rec_index[li], field_no[li, mi]] = values_flat
-
-    keep = np.ones(n_rec, dtype=bool)
-    if systems is not None:
-        keep = np.isin(sys_chars, np.frombuffer("".join(sorted(systems)).encode(), dtype=np.uint8))
-    return _Records(sv_code[keep], toc[keep], values[keep]), attrs
-
-
-def _stray_check(
-    owner: NDArray[np.int64], head: NDArray[np.uint8], lineno: NDArray[np.int64], name: str
-) -> None:
-    """Refuse non-blank text between the header and the first record."""
-    stray = (owner < 0) & np.any(head != _SPACE, axis=1)
-    if np.any(stray):
-        line = int(lineno[np.flatnonzero(stray)[0]])
-        raise RinexFormatError(f"{name}: unexpected text on line {line} before the first record")
-
-
-_Layout = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]
-
-
-def _layout_v3(head: NDArray[np.uint8], lineno: NDArray[np.int64], name: str) -> _Layout:
-    """RINEX 3 records: a record starts on each line whose first column is not blank.
-
-    Returns the body lines of the records, their ordinal within the record (0 = the
-    satellite / toc line), their record number and the first line of each record.
-    """
-    is_start = head[:, 0] != _SPACE
-    owner = np.cumsum(is_start) - 1
-    _stray_check(owner, head, lineno, name)
-    line_idx = np.flatnonzero(owner >= 0)
-    record_first = np.flatnonzero(is_start)
-    ordinal = line_idx - record_first[owner[line_idx]]
-    return line_idx, ordinal, owner[line_idx], record_first
-
-
-def _layout_v4(
-    buf: NDArray[np.uint8],
-    starts: NDArray[np.int64],
-    lengths: NDArray[np.int64],
-    head: NDArray[np.uint8],
-    lineno: NDArray[np.int64],
-    attrs: dict[str, Any],
-    name: str,
-) -> _Layout:
-    """RINEX 4 records: ``> EPH G01 LNAV`` lines open records; keep the readable EPH types.
-
-    ION records of known types are decoded into ``attrs`` on the way. Returns the same
-    arrays as :func:`_layout_v3`.
-    """
-    is_marker = head[:, 0] == ord(">")
-    markers = np.flatnonzero(is_marker)
-    owner = np.cumsum(is_marker) - 1
-    _stray_check(owner, head, lineno, name)
-    kinds = [
-        (head[m, 2:5].tobytes().decode("ascii", "replace"), chr(head[m, 6]),
-         head[m, 10:14].tobytes().decode("ascii", "replace").strip())
-        for m in markers
-    ]  # fmt: skip
-    eph_ok = np.array([t == "EPH" and msg in _RINEX4_EPH_TYPES.get(s, ()) for t, s, msg in kinds], dtype=bool)
-    for m_i, (t, s, msg) in enumerate(kinds):
-        key = _ION_ATTRS.get((s, msg))
-        if t == "ION" and key is not None and key not in attrs:
-            attrs[key] = _ion_record(buf, starts, lengths, markers, m_i, starts.size, key, name, lineno)
-    if not eph_ok.any():
-        found = sorted({f"{t} {msg}" for t, _, msg in kinds})
-        raise RinexFormatError(
-            f"{name}: no navigation records of a readable type (LNAV, INAV, FNAV, D1, D2, FDMA, SBAS); "
-            f"found {found}"
-        )
-    in_record = (owner >= 0) & ~is_marker
-    in_record &= eph_ok[np.maximum(owner, 0)]
-    line_idx = np.flatnonzero(in_record)
-    ordinal = line_idx - markers[owner[line_idx]] - 1
-    return line_idx, ordinal, owner[line_idx], line_idx[ordinal == 0]
-
-
-def _ion_record(
-    buf: NDArray[np.uint8],
-    starts: NDArray[np.int64],
-    lengths: NDArray[np.int64],
-    markers: NDArray[np.int64],
-    m_i: int,
-    n_lines: int,
-    key: str,
-    name: str,
-    lineno: NDArray[np.int64],
-) -> NDArray[np.float64]:
-    """Decode one RINEX 4 ION record body into alpha/beta (or a_i0..a_i2) coefficients."""
-    first = int(markers[m_i]) + 1
-    last = int(markers[m_i + 1]) if m_i + 1 < markers.size else n_lines
-    fields: list[str] = []
-    for j, li in enumerate(range(first, last)):
-        text = buf[starts[li] : starts[li] + lengths[li]].tobytes().decode("ascii", "replace")
-        cols = (23, 42, 61) if j == 0 else (4, 23, 42, 61)
-        fields += [text[c : c + _FIELD_WIDTH] for c in cols]
-    count = _ION_COUNTS.get(key, 8)
-    try:
-        vals = np.array([float(f.upper().replace("D", "E")) for f in fields[:count]], dtype=np.float64)
-    except ValueError:
-        raise RinexFormatError(f"{name}: bad ION record on line {int(lineno[first])}") from None
-    if vals.size != count:
-        raise RinexFormatError(f"{name}: short ION record on line {int(lineno[first])}")
-    return vals
+    return values
 
 
 def _validate_paths(
@@ -409,17 +277,8 @@ def read_nav3(
     5153.692346573
     """
     paths = _validate_paths(path_or_paths)
-    if systems is not None:
-        if isinstance(systems, str):
-            systems = [s.strip() for s in systems.replace(",", " ").split()]
-        systems = list(systems)
-        if not systems or any(not isinstance(s, str) or s not in SYSTEM_CHARS or len(s) != 1
-                              for s in systems):  # fmt: skip
-            raise UsageError(
-                f"systems: expected RINEX system letters from {SYSTEM_CHARS!r}, got {systems!r}"
-            )
+    systems = validate_systems(systems)
     wanted = set(systems) if systems is not None else None
-
     parts = [_read_one(p, wanted) for p in paths]
     sv_code = np.concatenate([r.sv_code for r, _ in parts])
     toc = np.concatenate([r.toc for r, _ in parts])
@@ -428,8 +287,17 @@ def read_nav3(
         names = ", ".join(Path(p).name for p in paths)
         which = f" of the systems {''.join(systems)}" if systems else ""
         raise RinexFormatError(f"{names}: no navigation records{which}")
+    sv_code, toc, values = _drop_identical(sv_code, toc, values)
+    svtype = _systems_in_order(sv_code)
+    ds = _dataset(sv_code, toc, values, svtype)
+    ds.attrs.update(_merged_attrs([a for _, a in parts], svtype))
+    return ds
 
-    # drop exact duplicates (same sv, toc and every value, NaN-aware), keep the first
+
+def _drop_identical(
+    sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64]
+) -> tuple[NDArray[np.int64], NDArray[np.datetime64], NDArray[np.float64]]:
+    """Drop exact duplicate records (same sv, toc and every value, NaN-aware), keeping the first."""
     key = np.concatenate(
         [
             sv_code[:, None].view(np.float64),
@@ -441,9 +309,11 @@ def read_nav3(
     row_bytes = np.ascontiguousarray(key).view(np.dtype((np.void, key.dtype.itemsize * key.shape[1])))
     _, first_idx = np.unique(row_bytes.ravel(), return_index=True)
     first_idx = np.sort(first_idx)
-    sv_code, toc, values = sv_code[first_idx], toc[first_idx], values[first_idx]
+    return sv_code[first_idx], toc[first_idx], values[first_idx]
 
-    # occurrence number of each (sv, toc) in file order -> '_1', '_2' suffixes
+
+def _sv_labels(sv_code: NDArray[np.int64], toc: NDArray[np.datetime64]) -> NDArray[np.str_]:
+    """Satellite ids, with ``'_1'``, ``'_2'`` for the 2nd, 3rd record of a (sv, toc) in file order."""
     pair = np.stack([sv_code, toc.astype(np.int64)], axis=1)
     order = np.lexsort((np.arange(pair.shape[0]), pair[:, 1], pair[:, 0]))
     sp = pair[order]
@@ -452,18 +322,29 @@ def read_nav3(
     group_start = np.maximum.accumulate(np.where(new_group, np.arange(order.size), 0))
     occurrence = np.empty(order.size, dtype=np.int64)
     occurrence[order] = np.arange(order.size) - group_start
-
     base = sv_codes2str(sv_code)
-    labels = np.where(occurrence == 0, base, np.char.add(np.char.add(base, "_"), occurrence.astype(str)))
-    sv_values, sv_of_rec = np.unique(labels, return_inverse=True)
+    return np.where(occurrence == 0, base, np.char.add(np.char.add(base, "_"), occurrence.astype(str)))
+
+
+def _systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
+    """System letters of the records in order of first appearance."""
+    sys_of_rec = (sv_code >> 16).astype(np.uint8)
+    svtype: list[str] = []
+    for c in sys_of_rec[np.sort(np.unique(sys_of_rec, return_index=True)[1])]:
+        svtype.append(chr(c))
+    return svtype
+
+
+def _dataset(
+    sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64], svtype: list[str]
+) -> xarray.Dataset:
+    """The ``(time, sv)`` dataset of the records of the systems ``svtype`` (GLONASS/SBAS km converted to m)."""
+    sv_values, sv_of_rec = np.unique(_sv_labels(sv_code, toc), return_inverse=True)
     time_values, time_of_rec = np.unique(toc, return_inverse=True)
     n_t, n_sv = time_values.size, sv_values.size
     flat = time_of_rec * n_sv + sv_of_rec
 
     sys_of_rec = (sv_code >> 16).astype(np.uint8)
-    svtype: list[str] = []
-    for c in sys_of_rec[np.sort(np.unique(sys_of_rec, return_index=True)[1])]:
-        svtype.append(chr(c))
     data: dict[str, NDArray[np.float64]] = {}
     for s in svtype:
         rows = np.flatnonzero(sys_of_rec == ord(s))
@@ -479,12 +360,16 @@ def read_nav3(
         {k: (("time", "sv"), v.reshape(n_t, n_sv)) for k, v in data.items()},
         coords={"time": time_values, "sv": sv_values},
     )
+    return ds
+
+
+def _merged_attrs(file_attrs: list[dict[str, Any]], svtype: list[str]) -> dict[str, Any]:
+    """Header attributes of several files: the first file that has one gives each; names joined."""
     attrs: dict[str, Any] = {}
-    for _, a in reversed(parts):
+    for a in reversed(file_attrs):
         attrs.update(a)
-    attrs["version"] = parts[0][1]["version"]
+    attrs["version"] = file_attrs[0]["version"]
     attrs["rinextype"] = "nav"
     attrs["svtype"] = svtype
-    attrs["filename"] = ", ".join(a["filename"] for _, a in parts)
-    ds.attrs.update(attrs)
-    return ds
+    attrs["filename"] = ", ".join(a["filename"] for a in file_attrs)
+    return attrs

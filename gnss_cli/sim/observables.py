@@ -185,89 +185,23 @@ def simulate_observations(
     rx_pos = trajectory.pos_ecef_m - trajectory.vel_ecef_m_s * (clock_m / C_M_S)[:, None]
     t_rx = t - clock_m / C_M_S
     lat, lon, h = ecef2geodetic(rx_pos)
-    rot_enu = ecef2enu_rotation(lat, lon)  # (T, 3, 3)
+    rx = _Receiver(t_rx, rx_pos, trajectory.vel_ecef_m_s, lat, lon, h, ecef2enu_rotation(lat, lon), clock_m,
+                   drift_m_s)
     tropo_offset_m = rng.normal(0.0, cfg.tropo_zenith_sigma_m) if cfg.on("tropo") else 0.0
 
     parts: dict[str, list[F64]] = {k: [] for k in ("t_tx", "pos", "range", "el", "az", "clock", "pr", "dop", "snr", "iono", "tropo")}
     svs: list[NDArray[np.str_]] = []
     for system, eph in truth.items():
-        spec = SYSTEMS[system]
-        sv = np.unique(eph.sv)
-        t_tx, pos, pos_rot, _, clk_s = light_time_states(eph, sv, system, t_rx, rx_pos)
-        los = pos_rot - rx_pos[:, None, :]
-        rho = np.linalg.norm(los, axis=-1)
-        az, el = azimuth_elevation(np.einsum("tij,tnj->tni", rot_enu, los))
-        idx = select_ephemeris(eph, sv, t_rx, healthy_only=False)
-        tgd = eph.tgd_s[idx]
-        tgd2 = np.asarray(tgd2_s[system])[idx]
-        # satellite clock rate by a central difference of the broadcast clock
-        cp = broadcast_states(eph, idx, t_tx + 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
-        cm = broadcast_states(eph, idx, t_tx - 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
-        # range rate: central difference of the light-time range itself (h = 0.5 s, error
-        # h^2/6 |d3 rho/dt3| < 1e-5 m/s); it keeps the Earth-rotation terms that los . v drops
-        half_s = 0.5
-        rho_pm = []
-        for sgn in (1.0, -1.0):
-            r_shift = rx_pos + sgn * half_s * trajectory.vel_ecef_m_s
-            rot_shift = light_time_states(eph, sv, system, t_rx + sgn * half_s, r_shift)[2]
-            rho_pm.append(np.linalg.norm(rot_shift - r_shift[:, None, :], axis=-1))
-        range_rate = (rho_pm[0] - rho_pm[1]) / (2.0 * half_s)
-        rate = range_rate + drift_m_s[:, None] - C_M_S * (cp - cm)
-
-        f1, f2 = spec.freqs_hz
-        iono_l1 = np.zeros_like(rho)
-        if cfg.on("iono"):
-            iono_l1 = cfg.iono_factor * klobuchar_delay_m(
-                klobuchar_alpha, klobuchar_beta, lat[:, None], lon[:, None], az, el, t_rx[:, None]
-            )
-        tropo = np.zeros_like(rho)
-        if cfg.on("tropo"):
-            tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el) + tropo_offset_m / np.maximum(np.sin(el), 0.05)
-        if system == "G":
-            gd = (tgd, (f1 / f2) ** 2 * tgd)
-        elif system == "E":
-            gd = (tgd, (f1 / f2) ** 2 * tgd)
-        else:
-            gd = (tgd, tgd2)
-        common = rho + clock_m[:, None] - C_M_S * clk_s + tropo
-        pr = np.stack(
-            [common + C_M_S * gd[k] + iono_l1 * (FREQ_L1_HZ / f) ** 2 for k, f in enumerate((f1, f2))], axis=-1
-        )
-        dop = np.stack([-rate / (C_M_S / f) for f in (f1, f2)], axis=-1)
-        parts["t_tx"].append(t_tx)
-        parts["pos"].append(pos)
-        parts["range"].append(rho)
-        parts["el"].append(el)
-        parts["az"].append(az)
-        parts["clock"].append(C_M_S * clk_s)
-        parts["pr"].append(pr)
-        parts["dop"].append(dop)
-        parts["iono"].append(iono_l1 * (FREQ_L1_HZ / f1) ** 2)
-        parts["tropo"].append(tropo)
+        sv, one = _system_observables(system, eph, np.asarray(tgd2_s[system]), rx, cfg, klobuchar_alpha,
+                                      klobuchar_beta, tropo_offset_m)
+        for key, value in one.items():
+            parts[key].append(value)
         svs.append(sv)
 
     sv_all = np.concatenate(svs)
     el = np.concatenate(parts["el"], axis=1)
-    pr = np.concatenate(parts["pr"], axis=1)
-    dop = np.concatenate(parts["dop"], axis=1)
-    n = sv_all.size
-    wavelengths = np.concatenate(
-        [np.broadcast_to(np.array([C_M_S / f for f in SYSTEMS[s[0]].freqs_hz]), (1, 2)) for s in sv_all]
-    )  # (n, 2)
-    if cfg.on("noise"):
-        sigma = noise_sigma_m(cfg, el)
-        pr = pr + rng.normal(0.0, 1.0, (n_t, n, 2)) * sigma[..., None]
-        dop = dop + rng.normal(0.0, cfg.doppler_sigma_m_s, (n_t, n, 2)) / wavelengths[None]
-    if cfg.on("multipath"):
-        pr = pr + np.stack([multipath_m(cfg, el, interval, rng) for _ in range(2)], axis=-1)
-    if cfg.on("outliers") and cfg.outlier_sats:
-        hit_sv = np.isin(sv_all, np.asarray(cfg.outlier_sats))
-        hit_t = (t_rel >= cfg.outlier_start_s) & (t_rel < cfg.outlier_end_s)
-        pr = pr + cfg.outlier_m * (hit_t[:, None] & hit_sv[None, :])[..., None]
-    snr1 = np.clip(30.0 + 20.0 * np.sin(np.maximum(el, 0.0)), 25.0, 55.0)
-    if cfg.on("noise"):
-        snr1 = snr1 + rng.normal(0.0, 0.5, snr1.shape)
-    snr = np.stack([snr1, snr1 - 3.0], axis=-1)
+    pr, dop, snr = _add_errors(cfg, rng, sv_all, el, np.concatenate(parts["pr"], axis=1),
+                               np.concatenate(parts["dop"], axis=1), t_rel, interval)
     return Observations(
         t_gps_s=t,
         sv=sv_all,
@@ -288,3 +222,97 @@ def simulate_observations(
         rx_clock_m=clock_m,
         rx_clock_drift_m_s=drift_m_s,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class _Receiver:
+    """The receiver at the reception epochs: time, position, velocity, geodetic frame, clock."""
+
+    t_rx: F64
+    pos: F64
+    vel: F64
+    lat: F64
+    lon: F64
+    h: F64
+    rot_enu: F64
+    clock_m: F64
+    drift_m_s: F64
+
+
+def _system_observables(
+    system: str, eph: KeplerEphemeris, tgd2_all: F64, rx: _Receiver, cfg: ErrorConfig, klobuchar_alpha: F64,
+    klobuchar_beta: F64, tropo_offset_m: float,
+) -> tuple[NDArray[np.str_], dict[str, F64]]:
+    """Error-free observables (and their parts) of the satellites of one system, ``(T, n_sv)`` each."""
+    spec = SYSTEMS[system]
+    rx_pos, lat, lon, h, t_rx = rx.pos, rx.lat, rx.lon, rx.h, rx.t_rx
+    sv = np.unique(eph.sv)
+    t_tx, pos, pos_rot, _, clk_s = light_time_states(eph, sv, system, t_rx, rx_pos)
+    los = pos_rot - rx_pos[:, None, :]
+    rho = np.linalg.norm(los, axis=-1)
+    az, el = azimuth_elevation(np.einsum("tij,tnj->tni", rx.rot_enu, los))
+    idx = select_ephemeris(eph, sv, t_rx, healthy_only=False)
+    tgd = eph.tgd_s[idx]
+    tgd2 = tgd2_all[idx]
+    # satellite clock rate by a central difference of the broadcast clock
+    cp = broadcast_states(eph, idx, t_tx + 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
+    cm = broadcast_states(eph, idx, t_tx - 0.5, gm_m3_s2=spec.gm_m3_s2, omega_e_rad_s=spec.omega_e_rad_s).clock_s
+    # range rate: central difference of the light-time range itself (h = 0.5 s, error
+    # h^2/6 |d3 rho/dt3| < 1e-5 m/s); it keeps the Earth-rotation terms that los . v drops
+    half_s = 0.5
+    rho_pm = []
+    for sgn in (1.0, -1.0):
+        r_shift = rx_pos + sgn * half_s * rx.vel
+        rot_shift = light_time_states(eph, sv, system, t_rx + sgn * half_s, r_shift)[2]
+        rho_pm.append(np.linalg.norm(rot_shift - r_shift[:, None, :], axis=-1))
+    range_rate = (rho_pm[0] - rho_pm[1]) / (2.0 * half_s)
+    rate = range_rate + rx.drift_m_s[:, None] - C_M_S * (cp - cm)
+
+    f1, f2 = spec.freqs_hz
+    iono_l1 = np.zeros_like(rho)
+    if cfg.on("iono"):
+        iono_l1 = cfg.iono_factor * klobuchar_delay_m(
+            klobuchar_alpha, klobuchar_beta, lat[:, None], lon[:, None], az, el, t_rx[:, None]
+        )
+    tropo = np.zeros_like(rho)
+    if cfg.on("tropo"):
+        tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el) + tropo_offset_m / np.maximum(np.sin(el), 0.05)
+    if system == "G":
+        gd = (tgd, (f1 / f2) ** 2 * tgd)
+    elif system == "E":
+        gd = (tgd, (f1 / f2) ** 2 * tgd)
+    else:
+        gd = (tgd, tgd2)
+    common = rho + rx.clock_m[:, None] - C_M_S * clk_s + tropo
+    pr = np.stack(
+        [common + C_M_S * gd[k] + iono_l1 * (FREQ_L1_HZ / f) ** 2 for k, f in enumerate((f1, f2))], axis=-1
+    )
+    dop = np.stack([-rate / (C_M_S / f) for f in (f1, f2)], axis=-1)
+    return sv, {"t_tx": t_tx, "pos": pos, "range": rho, "el": el, "az": az, "clock": C_M_S * clk_s, "pr": pr,
+                "dop": dop, "iono": iono_l1 * (FREQ_L1_HZ / f1) ** 2, "tropo": tropo}
+
+
+def _add_errors(
+    cfg: ErrorConfig, rng: np.random.Generator, sv_all: NDArray[np.str_], el: F64, pr: F64, dop: F64, t_rel: F64,
+    interval: float,
+) -> tuple[F64, F64, F64]:
+    """Noise, multipath and outliers on the pseudoranges ``(T, n, 2)``, noise on the Doppler; the SNR."""
+    n_t, n = el.shape
+    wavelengths = np.concatenate(
+        [np.broadcast_to(np.array([C_M_S / f for f in SYSTEMS[s[0]].freqs_hz]), (1, 2)) for s in sv_all]
+    )  # (n, 2)
+    if cfg.on("noise"):
+        sigma = noise_sigma_m(cfg, el)
+        pr = pr + rng.normal(0.0, 1.0, (n_t, n, 2)) * sigma[..., None]
+        dop = dop + rng.normal(0.0, cfg.doppler_sigma_m_s, (n_t, n, 2)) / wavelengths[None]
+    if cfg.on("multipath"):
+        pr = pr + np.stack([multipath_m(cfg, el, interval, rng) for _ in range(2)], axis=-1)
+    if cfg.on("outliers") and cfg.outlier_sats:
+        hit_sv = np.isin(sv_all, np.asarray(cfg.outlier_sats))
+        hit_t = (t_rel >= cfg.outlier_start_s) & (t_rel < cfg.outlier_end_s)
+        pr = pr + cfg.outlier_m * (hit_t[:, None] & hit_sv[None, :])[..., None]
+    snr1 = np.clip(30.0 + 20.0 * np.sin(np.maximum(el, 0.0)), 25.0, 55.0)
+    if cfg.on("noise"):
+        snr1 = snr1 + rng.normal(0.0, 0.5, snr1.shape)
+    snr = np.stack([snr1, snr1 - 3.0], axis=-1)
+    return pr, dop, snr

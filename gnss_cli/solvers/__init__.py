@@ -122,6 +122,29 @@ def _validate(
     options: dict[str, Any],
 ) -> Problem:
     """Check shapes, finiteness and option compatibility; build the masked problem."""
+    A_arr, q_arr, used = _validate_arrays(A, q, mask)
+    m = A_arr.shape[2]
+    sqrt_w = _validate_weights(entry, weights, used)
+    exact = _validate_exact_columns(entry, exact_columns, m)
+    cov_arr = _validate_row_cov(entry, row_cov, weights, used, m - len(exact) + 1)
+
+    allowed = entry.options
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise UsageError(
+            f"method '{entry.name}' has no option {', '.join(map(repr, unknown))}; "
+            f"its options are: {', '.join(allowed) or 'none'}"
+        )
+
+    A0 = np.where(used[:, :, None], A_arr, 0.0)
+    q0 = np.where(used, q_arr, 0.0)
+    return Problem(A=A0, q=q0, sqrt_w=sqrt_w, used=used, exact_columns=exact, row_cov=cov_arr)
+
+
+def _validate_arrays(
+    A: ArrayLike, q: ArrayLike, mask: ArrayLike | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """``A`` ``(T, n, m)``, ``q`` ``(T, n)`` and the used rows, finite where used."""
     A_arr = _as_float("A", A)
     if A_arr.ndim != 3 or A_arr.shape[1] < 1 or A_arr.shape[2] < 1:
         raise UsageError(f"'A' must have shape (T, n, m) with n, m >= 1; received shape {A_arr.shape}")
@@ -144,8 +167,12 @@ def _validate(
     if not np.all(np.isfinite(q_arr[used])):
         t, i = np.argwhere(used & ~np.isfinite(q_arr))[0]
         raise UsageError(f"'q' must be finite in used rows; received {q_arr[t, i]} at epoch {t}, row {i}")
+    return A_arr, q_arr, used
 
-    # weights
+
+def _validate_weights(entry: Method, weights: ArrayLike | None, used: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Square roots of the weights (0 on unused rows); only weighted methods take weights other than 1."""
+    T, n = used.shape
     if weights is None:
         sqrt_w = used.astype(np.float64)
     else:
@@ -162,8 +189,11 @@ def _validate(
                 f"use {'wls' if entry.name == 'ls' else 'wtls'}"
             )
         sqrt_w = np.where(used, np.sqrt(np.where(used, w, 1.0)), 0.0)
+    return sqrt_w
 
-    # exact columns
+
+def _validate_exact_columns(entry: Method, exact_columns: Sequence[int], m: int) -> tuple[int, ...]:
+    """Sorted distinct indices of the exact columns (only for methods that take them)."""
     exact = tuple(int(j) for j in np.atleast_1d(np.asarray(exact_columns, dtype=np.int64)).tolist()) if len(exact_columns) else ()
     if exact:
         if not entry.exact_columns:
@@ -173,15 +203,20 @@ def _validate(
                 f"'exact_columns' must be distinct column indices in [0, {m - 1}]; received {list(exact)}"
             )
         exact = tuple(sorted(exact))
+    return exact
 
-    # row covariance
+
+def _validate_row_cov(
+    entry: Method, row_cov: ArrayLike | None, weights: ArrayLike | None, used: NDArray[np.bool_], k: int
+) -> NDArray[np.float64] | None:
+    """Per-row covariances ``(T, n, k, k)`` of the noisy entries, symmetric PSD where used (identity elsewhere)."""
+    T, n = used.shape
     cov_arr: NDArray[np.float64] | None = None
     if row_cov is not None:
         if not entry.row_cov:
             raise UsageError(f"method '{entry.name}' does not accept 'row_cov'; use 'stls'")
         if weights is not None:
             raise UsageError("give either 'weights' or 'row_cov' to 'stls', not both")
-        k = m - len(exact) + 1
         cov_arr = _as_float("row_cov", row_cov)
         if cov_arr.shape != (T, n, k, k):
             raise UsageError(
@@ -201,19 +236,7 @@ def _validate(
             if np.any(ev_min < -1e-10 * ev_max):
                 raise UsageError("'row_cov' must be positive semidefinite in every used row")
         cov_arr = np.where(used[:, :, None, None], cov_arr, np.eye(k))
-
-    allowed = entry.options
-    unknown = sorted(set(options) - set(allowed))
-    if unknown:
-        raise UsageError(
-            f"method '{entry.name}' has no option {', '.join(map(repr, unknown))}; "
-            f"its options are: {', '.join(allowed) or 'none'}"
-        )
-
-    A0 = np.where(used[:, :, None], A_arr, 0.0)
-    q0 = np.where(used, q_arr, 0.0)
-    return Problem(A=A0, q=q0, sqrt_w=sqrt_w, used=used, exact_columns=exact, row_cov=cov_arr)
-
+    return cov_arr
 
 def solve_batch(
     method: str,

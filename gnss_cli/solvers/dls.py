@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, screen
-from gnss_cli.solvers.result import BatchResult, Status, assemble_batch
+from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, finish_batch, screen
+from gnss_cli.solvers.result import BatchResult, Status
 from gnss_cli.solvers.tls import DEFAULT_GAP_RTOL, augmented_r, misfit_ratio_gain
 
 __all__ = ["solve_dls_batch"]
@@ -96,17 +96,4 @@ def solve_dls_batch(
     status = scr.status.copy()
     status[nongeneric] = Status.NONGENERIC
     status[degenerate] = Status.DEGENERATE_DATA
-    return assemble_batch(
-        "dls",
-        x=x,
-        gain_w=gain_w,
-        sqrt_w=problem.sqrt_w,
-        A=problem.A,
-        q=problem.q,
-        used=problem.used,
-        cost=sigma * sigma,
-        rank=scr.rank,
-        cond=scr.cond,
-        iterations=np.ones(T, dtype=np.int64),
-        status=status,
-    )
+    return finish_batch("dls", problem, scr, x=x, gain_w=gain_w, cost=sigma * sigma, status=status)

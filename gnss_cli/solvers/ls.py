@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, screen
-from gnss_cli.solvers.result import BatchResult, assemble_batch
+from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, finish_batch, screen
+from gnss_cli.solvers.result import BatchResult
 
 __all__ = ["solve_ls_batch", "solve_wls_batch", "ls_gain"]
 
@@ -60,21 +60,7 @@ def _solve(method: str, problem: Problem, rank_rtol: float) -> BatchResult:
     x = np.einsum("tmn,tn->tm", gain_w, qw)
     rw = qw - np.einsum("tnm,tm->tn", work.Aw, x)
     cost = np.sum(rw * rw, axis=1)
-    T = x.shape[0]
-    return assemble_batch(
-        method,
-        x=x,
-        gain_w=gain_w,
-        sqrt_w=problem.sqrt_w,
-        A=problem.A,
-        q=problem.q,
-        used=problem.used,
-        cost=cost,
-        rank=scr.rank,
-        cond=scr.cond,
-        iterations=np.ones(T, dtype=np.int64),
-        status=scr.status,
-    )
+    return finish_batch(method, problem, scr, x=x, gain_w=gain_w, cost=cost, status=scr.status)
 
 
 def solve_ls_batch(problem: Problem, *, rank_rtol: float = DEFAULT_RANK_RTOL) -> BatchResult:

@@ -13,13 +13,14 @@ their results are blanked with NaN afterwards by
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.solvers.result import Status
+from gnss_cli.solvers.result import BatchResult, Status, assemble_batch
 
-__all__ = ["Problem", "Screen", "screen", "DEFAULT_RANK_RTOL"]
+__all__ = ["Problem", "Screen", "screen", "finish_batch", "DEFAULT_RANK_RTOL"]
 
 DEFAULT_RANK_RTOL = 1e-12
 """Singular values of the weighted ``A`` below ``rank_rtol * σ_max`` count as zero."""
@@ -162,3 +163,39 @@ def screen(problem: Problem, rank_rtol: float = DEFAULT_RANK_RTOL) -> Screen:
             row_cov[bad] = np.eye(k)
         work = replace(problem, A=A, q=q, sqrt_w=sqrt_w, used=used, row_cov=row_cov)
     return Screen(work=work, status=status, ok=ok, rank=rank, cond=cond, sv=s)
+
+
+def finish_batch(
+    method: str,
+    problem: Problem,
+    scr: Screen,
+    *,
+    x: NDArray[np.float64],
+    gain_w: NDArray[np.float64],
+    cost: NDArray[np.float64],
+    status: NDArray[np.int8],
+    sqrt_w: NDArray[np.float64] | None = None,
+    iterations: NDArray[np.int64] | None = None,
+    details: Any = None,
+) -> BatchResult:
+    """The ending every batch solver shares: its estimates and gains with the problem and the screen.
+
+    ``A``, ``q`` and ``used`` come from ``problem``, ``rank`` and ``cond`` from ``scr``;
+    ``sqrt_w`` defaults to the problem's weights and ``iterations`` to one per epoch (the
+    closed-form solvers). See :func:`gnss_cli.solvers.result.assemble_batch`.
+    """
+    return assemble_batch(
+        method,
+        x=x,
+        gain_w=gain_w,
+        sqrt_w=problem.sqrt_w if sqrt_w is None else sqrt_w,
+        A=problem.A,
+        q=problem.q,
+        used=problem.used,
+        cost=cost,
+        rank=scr.rank,
+        cond=scr.cond,
+        iterations=np.ones(x.shape[0], dtype=np.int64) if iterations is None else iterations,
+        status=status,
+        details=details,
+    )

@@ -54,8 +54,8 @@ from scipy.optimize import least_squares
 from gnss_cli.errors import UsageError
 from gnss_cli.solvers.ls import ls_gain
 from gnss_cli.solvers.mtls import mtls_core
-from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, screen
-from gnss_cli.solvers.result import BatchResult, Status, assemble_batch
+from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, Screen, finish_batch, screen
+from gnss_cli.solvers.result import BatchResult, Status
 from gnss_cli.solvers.tls import DEFAULT_GAP_RTOL, DEFAULT_VM_TOL
 
 __all__ = ["StlsDetails", "solve_stls_batch", "stls_misfit"]
@@ -301,6 +301,33 @@ def solve_stls_batch(
         raise UsageError(f"'max_iterations' must be >= 1; received {max_iterations}")
     if not xtol > 0:
         raise UsageError(f"'xtol' must be > 0; received {xtol}")
+    scr, args, var_q, sqrt_wq = _whitened_problem(problem, rank_rtol)
+    x0, start = _starting_points(problem, scr, args, gap_rtol, vm_tol)
+    run = _newton if optimizer == "newton" else _scipy_loop
+    x, its, converged = run(x0, args, scr.ok, int(max_iterations), float(xtol))
+    F, grad, J, pd = _noise_gain(x, args, scr.ok)
+    status = scr.status.copy()
+    status[scr.ok & ~converged] = Status.ITERATION_LIMIT
+    status[scr.ok & ~pd] = Status.NONGENERIC
+    finite = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
+    status[scr.ok & ~finite] = Status.NON_FINITE
+    sd_q = np.where(problem.used, np.sqrt(var_q), 0.0)
+    gain_w = J * sd_q[:, None, :]
+    details = StlsDetails(start=start, grad_norm=np.linalg.norm(grad, axis=1))
+    return finish_batch(
+        "stls", problem, scr, x=np.where(np.isfinite(x), x, 0.0), gain_w=np.where(np.isfinite(gain_w), gain_w, 0.0),
+        cost=F, status=status, sqrt_w=sqrt_wq, iterations=its, details=details,
+    )
+
+
+def _whitened_problem(
+    problem: Problem, rank_rtol: float
+) -> tuple[Screen, tuple[NDArray[np.float64], ...], NDArray[np.float64], NDArray[np.float64]]:
+    """Screen of the problem weighted by ``1 / var(q_i)`` and the arguments of :func:`_grad_hess`.
+
+    ``Σ_i`` is ``row_cov`` or ``I / w_i`` from the weights. Returns the screen, the arguments,
+    ``var(q_i)`` ``(T, n)`` and the row weights ``1 / sd(q_i)`` (0 on masked rows).
+    """
     T, n, m = problem.shape
     k = m - len(problem.exact_columns) + 1
     if problem.row_cov is None:
@@ -320,9 +347,15 @@ def solve_stls_batch(
     used_f = work.used.astype(np.float64)
     S = _scatter(problem)
     SSS = np.einsum("ia,tnab,jb->tnij", S, Sig_w[:, :, :-1, :-1], S)
-    args = (work.A, work.q, used_f, Sig_w, S, SSS)
+    return scr, (work.A, work.q, used_f, Sig_w, S, SSS), var_q, sqrt_wq
 
-    # starting points: WLS with 1/var_q, and MTLS with the same row weights
+
+def _starting_points(
+    problem: Problem, scr: Screen, args: tuple[NDArray[np.float64], ...], gap_rtol: float, vm_tol: float
+) -> tuple[NDArray[np.float64], NDArray[np.str_]]:
+    """WLS with ``1 / var(q_i)``, or MTLS with the same row weights where its misfit is lower."""
+    work = scr.work
+    T = problem.shape[0]
     gain_ls, _ = ls_gain(work.Aw)
     x_wls = np.einsum("tmn,tn->tm", gain_ls, work.qw)
     F_wls = _grad_hess(x_wls, *args)[0]
@@ -333,38 +366,18 @@ def solve_stls_batch(
         better = scr.ok & ~ng & (F_mtls < F_wls)
         x0 = np.where(better[:, None], x_mtls, x_wls)
         start = np.where(better, "mtls", start)
+    return x0, start
 
-    run = _newton if optimizer == "newton" else _scipy_loop
-    x, its, converged = run(x0, args, scr.ok, int(max_iterations), float(xtol))
 
+def _noise_gain(
+    x: NDArray[np.float64], args: tuple[NDArray[np.float64], ...], ok: NDArray[np.bool_]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """Misfit, gradient, raw gain ``dx/dq`` ``(T, m, n)`` by implicit differentiation, and where the Hessian is PD."""
     F, grad, H, B = _grad_hess(x, *args)
-    eye = np.eye(m)
+    eye = np.eye(x.shape[1])
     h_min = np.linalg.eigvalsh(H)[:, 0]
     h_scale = np.abs(np.diagonal(H, axis1=1, axis2=2)).max(axis=1)
     pd = h_min > 1e-12 * np.maximum(h_scale, 1e-300)
-    H_safe = np.where((scr.ok & pd)[:, None, None], H, eye)
+    H_safe = np.where((ok & pd)[:, None, None], H, eye)
     J = -np.linalg.solve(H_safe, B)  # raw dx/dq, (T, m, n)
-
-    status = scr.status.copy()
-    status[scr.ok & ~converged] = Status.ITERATION_LIMIT
-    status[scr.ok & ~pd] = Status.NONGENERIC
-    finite = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
-    status[scr.ok & ~finite] = Status.NON_FINITE
-    sd_q = np.where(problem.used, np.sqrt(var_q), 0.0)
-    gain_w = J * sd_q[:, None, :]
-    details = StlsDetails(start=start, grad_norm=np.linalg.norm(grad, axis=1))
-    return assemble_batch(
-        "stls",
-        x=np.where(np.isfinite(x), x, 0.0),
-        gain_w=np.where(np.isfinite(gain_w), gain_w, 0.0),
-        sqrt_w=sqrt_wq,
-        A=problem.A,
-        q=problem.q,
-        used=problem.used,
-        cost=F,
-        rank=scr.rank,
-        cond=scr.cond,
-        iterations=its,
-        status=status,
-        details=details,
-    )
+    return F, grad, J, pd

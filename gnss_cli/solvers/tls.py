@@ -55,8 +55,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, screen
-from gnss_cli.solvers.result import BatchResult, Status, assemble_batch
+from gnss_cli.solvers.problem import DEFAULT_RANK_RTOL, Problem, finish_batch, screen
+from gnss_cli.solvers.result import BatchResult, Status
 
 __all__ = [
     "TlsDetails",
@@ -269,25 +269,10 @@ def tls_batch(
         cov_paper = cov_paper * (d_a[:, None] * d_a[None, :])[None]
     status = scr.status.copy()
     status[nongeneric] = Status.NONGENERIC
-    T = x.shape[0]
     bad = status < 0
     details = TlsDetails(
         sigma_min=np.where(scr.ok, sigma, np.nan),
         sigma_min_A=np.where(scr.ok, sv_A[:, -1], np.nan),
         cov_paper=np.where(bad[:, None, None], np.nan, cov_paper),
     )
-    return assemble_batch(
-        method,
-        x=x,
-        gain_w=gain_w,
-        sqrt_w=problem.sqrt_w,
-        A=problem.A,
-        q=problem.q,
-        used=problem.used,
-        cost=sigma * sigma,
-        rank=scr.rank,
-        cond=scr.cond,
-        iterations=np.ones(T, dtype=np.int64),
-        status=status,
-        details=details,
-    )
+    return finish_batch(method, problem, scr, x=x, gain_w=gain_w, cost=sigma * sigma, status=status, details=details)

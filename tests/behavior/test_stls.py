@@ -155,9 +155,19 @@ def test_infeasible_full_order_is_refused() -> None:
 
 
 def test_order_6_is_feasible_only_for_very_short_windows() -> None:
-    w = np.random.default_rng(0).normal(size=(6, 3))
-    res = stls(w, lag=3, order=6)
-    assert res.status != StlsStatus.INFEASIBLE or np.isinf(res.misfit)
+    """``g = q(l+1) - order = 6`` kernel rows: ``g (T - l) <= q T`` holds only up to ``T = 6``."""
+    rng = np.random.default_rng(0)
+    w = rng.normal(size=(6, 3))
+    for n_t in (7, 20):
+        with pytest.raises(UsageError, match=rf"order: infeasible .* 6 kernel rows over T - lag = {n_t - 3} columns"):
+            stls(rng.normal(size=(n_t, 3)), lag=3, order=6)
+    res = stls(w, lag=3, order=6)  # at the bound: as many constraints as data values, no UsageError
+    assert res.kernel.R.shape == (6, 12)
+    if res.status == StlsStatus.INFEASIBLE:
+        assert not res.success and np.isinf(res.misfit)
+        assert res.w_hat is not w and np.array_equal(res.w_hat, w)
+    else:  # the zero trajectory satisfies every kernel: the misfit is at most |w|^2
+        assert res.success and res.misfit <= float(np.sum(w * w)) * (1 + 1e-12)
 
 
 def test_bad_arguments() -> None:

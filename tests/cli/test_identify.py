@@ -106,8 +106,8 @@ def test_main_missing_columns_and_file(tmp_path: Path, capsys: pytest.CaptureFix
     assert code == 4 and "no such file" in err
 
 
-def test_main_bad_option_is_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_main_bad_option_value_is_a_configuration_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     src = tmp_path / "track.csv"
     write_track(src, 12)
     code, err = _run_main([str(src), "--method", "svd"], capsys)
-    assert code == 2 and "--method" in err
+    assert code == 3 and "--method" in err

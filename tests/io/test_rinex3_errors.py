@@ -14,7 +14,8 @@ import pytest
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError, UsageError
 from gnss_cli.io.compression import open_bytes, open_text
 from gnss_cli.io.rinex3_nav import read_nav3
-from gnss_cli.io.rinex3_obs import parse_f14_3, parse_uint_columns, read_obs3
+from gnss_cli.io.fixed_width import parse_f14_3, parse_uint_columns
+from gnss_cli.io.rinex3_obs import read_obs3
 
 RINEX_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "rinex"
 MALFORMED = RINEX_DIR / "malformed"

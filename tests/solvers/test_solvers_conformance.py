@@ -10,9 +10,64 @@ from gnss_cli.errors import UsageError
 from gnss_cli.solvers import METHODS, REGISTRY, BatchResult, SolveResult, Status, solve, solve_batch
 
 
-def test_registry_matches_methods() -> None:
-    assert set(REGISTRY) == set(METHODS)
-    assert METHODS == ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+# The registry seen from outside: its entries against the solver modules and an independent solution.
+_MODULE_OF = {"wls": "ls"}  # weighted LS lives with LS; every other method has a module of its own name
+
+
+def _solver_functions() -> set[object]:
+    """Every ``solve_*_batch`` function defined in a module of gnss_cli.solvers (found by import, not the registry)."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import gnss_cli.solvers as pkg
+
+    found = set()
+    for info in pkgutil.iter_modules(pkg.__path__):
+        mod = importlib.import_module(f"gnss_cli.solvers.{info.name}")
+        found |= {f for name, f in inspect.getmembers(mod, inspect.isfunction)
+                  if name.startswith("solve_") and name.endswith("_batch") and f.__module__ == mod.__name__}
+    return found
+
+
+def test_registry_holds_every_solver_module_function_once() -> None:
+    functions = [REGISTRY[name].function for name in METHODS]
+    assert len(set(functions)) == len(METHODS)
+    assert set(functions) == _solver_functions()
+    for name in METHODS:
+        entry = REGISTRY[name]
+        assert entry.name == name
+        assert entry.function.__module__ == f"gnss_cli.solvers.{_MODULE_OF.get(name, name)}"
+        assert entry.function.__name__ == f"solve_{name}_batch"
+
+
+def _problem(A: np.ndarray, q: np.ndarray, w: np.ndarray | None = None):
+    from gnss_cli.solvers.problem import Problem
+
+    used = np.ones(q.shape, dtype=bool)
+    sqrt_w = np.ones(q.shape) if w is None else np.sqrt(w)
+    return Problem(A=A, q=q, sqrt_w=sqrt_w, used=used, exact_columns=(), row_cov=None)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_registry_functions_solve_a_small_problem(method: str) -> None:
+    rng = np.random.default_rng(11)
+    T, n = 3, 9
+    A = np.stack([sky_matrix(rng, n) for _ in range(T)])
+    x_true = rng.normal(0.0, 20.0, (T, 4))
+    w = rng.uniform(0.5, 2.0, (T, n))
+    fn = REGISTRY[method].function
+    # consistent data: every estimator returns the exact solution
+    exact = fn(_problem(A, np.einsum("tnm,tm->tn", A, x_true)))
+    np.testing.assert_allclose(exact.x, x_true, rtol=0, atol=1e-8)
+    # noisy data: LS and WLS equal numpy's least squares on the (weighted) system
+    q = np.einsum("tnm,tm->tn", A, x_true) + rng.normal(0.0, 3.0, (T, n))
+    if method in ("ls", "wls"):
+        weights = w if method == "wls" else np.ones((T, n))
+        res = fn(_problem(A, q, weights))
+        sw = np.sqrt(weights)
+        expected = np.stack([np.linalg.lstsq(sw[t, :, None] * A[t], sw[t] * q[t], rcond=None)[0] for t in range(T)])
+        np.testing.assert_allclose(res.x, expected, rtol=0, atol=1e-9)
 
 
 def _noisy_batch(rng: np.random.Generator, T: int, n: int, sigma_a: float, sigma_q: float):

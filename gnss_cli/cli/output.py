@@ -1,0 +1,224 @@
+"""All-or-nothing output files for the command-line tools.
+
+A run stages every output file next to its target (a hidden temporary file in the same
+folder), and only when all of them are written does it rename them into place. Any failure
+on the way (disk full, read-only folder, a path that is not a folder, Ctrl-C, SIGTERM)
+removes every staged file and every folder the run created, so no partial file of any kind
+is left behind. Renames and the creation of temporary files run with SIGINT and SIGTERM
+blocked, so a signal cannot land between creating a temporary file and recording it.
+
+Files get the permissions of an ordinary ``open()``: ``0o666`` less the user's umask (an
+existing regular file keeps its own mode). A target that exists and is not a regular file
+(``/dev/stdout``, a named pipe, ``/dev/full``) is written directly, since it cannot be
+replaced by a rename.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import stat
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+from gnss_cli.errors import ConfigError, OutputError
+
+_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block ends (they are delivered right after it)."""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def _file_mode(target: Path) -> int:
+    """Mode of a new file: the existing regular file's, else 0o666 less the umask."""
+    try:
+        st = target.stat()
+        if stat.S_ISREG(st.st_mode):
+            return stat.S_IMODE(st.st_mode)
+    except OSError:
+        pass
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _message(path: Path, exc: OSError) -> str:
+    reason = exc.strerror or str(exc)
+    return f"{path}: cannot write output ({reason})"
+
+
+class OutputSet:
+    """Output files that appear together or not at all.
+
+    Parameters
+    ----------
+    inputs
+        Files the run reads; an output naming one of them is refused (:class:`ConfigError`),
+        before anything is computed when :meth:`add` is called early.
+    """
+
+    def __init__(self, inputs: Iterable[Path | str] = ()) -> None:
+        self._inputs = [Path(p) for p in inputs]
+        self._targets: list[Path] = []
+        self._staged: list[tuple[Path, Path]] = []
+        self._direct: list[Path] = []
+        self._created_dirs: list[Path] = []
+        self._staging_dirs: list[Path] = []
+
+    def add(self, path: Path | str, option: str) -> Path:
+        """Register an output path (checked against the inputs and for a usable folder)."""
+        target = Path(path)
+        for source in self._inputs:
+            if _same_file(target, source):
+                raise ConfigError(f"{option}: {target} is one of the input files; refusing to overwrite it")
+        if any(_same_file(target, t) for t in self._targets):
+            raise ConfigError(f"{option}: {target} is given as two outputs")
+        if target.is_dir():
+            raise OutputError(f"{target}: cannot write output (is a folder)")
+        parent = target.parent
+        for p in (parent, *parent.parents):
+            if p.exists():
+                if not p.is_dir():
+                    raise OutputError(f"{target}: cannot write output ({p} is not a folder)")
+                if not os.access(p, os.W_OK | os.X_OK) and p == parent:
+                    raise OutputError(f"{target}: cannot write output (folder {p} is not writable)")
+                break
+        self._targets.append(target)
+        return target
+
+    def _make_dirs(self, folder: Path) -> None:
+        missing = []
+        p = folder
+        while not p.exists():
+            missing.append(p)
+            p = p.parent
+        for d in reversed(missing):
+            with signals_deferred():
+                d.mkdir()
+                self._created_dirs.append(d)
+
+    def _temporary(self, target: Path) -> Path:
+        self._make_dirs(target.parent)
+        with signals_deferred():
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+            self._staged.append((Path(tmp), target))
+        try:
+            os.fchmod(fd, _file_mode(target))
+        finally:
+            os.close(fd)
+        return Path(tmp)
+
+    def write_text(self, path: Path | str, text: str) -> None:
+        """Stage ``text`` for ``path`` (which must have been :meth:`add`-ed)."""
+        target = Path(path)
+        try:
+            if target.exists() and not target.is_file() and not target.is_dir():
+                # A device or a pipe: it cannot be renamed over, so write into it.
+                self._direct.append(target)
+                with open(target, "w", newline="") as f:
+                    f.write(text)
+                return
+            tmp = self._temporary(target)
+            with open(tmp, "w", newline="") as f:
+                f.write(text)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise OutputError(_message(target, exc)) from None
+
+    def write_with(self, path: Path | str, writer: Callable[[Path], object]) -> None:
+        """Stage ``path`` by calling ``writer(temporary_path)``."""
+        target = Path(path)
+        try:
+            writer(self._temporary(target))
+        except OSError as exc:
+            raise OutputError(_message(target, exc)) from None
+
+    def staging_dir(self, final_dir: Path | str) -> Path:
+        """A hidden temporary folder inside ``final_dir`` whose files :meth:`commit` moves there."""
+        final = Path(final_dir)
+        if final.exists() and not final.is_dir():
+            raise OutputError(f"{final}: cannot write output (not a folder)")
+        try:
+            self._make_dirs(final)
+            with signals_deferred():
+                tmp = Path(tempfile.mkdtemp(prefix=".staging.", dir=final))
+                self._staging_dirs.append(tmp)
+        except OSError as exc:
+            raise OutputError(_message(final, exc)) from None
+        return tmp
+
+    def adopt_staged(self, staging: Path, final_dir: Path | str) -> list[Path]:
+        """Record every file written into ``staging`` as output of ``final_dir``; returns the targets."""
+        targets = []
+        for f in sorted(staging.iterdir()):
+            target = Path(final_dir) / f.name
+            self.add(target, "--out-dir")
+            self._staged.append((f, target))
+            targets.append(target)
+        return targets
+
+    def commit(self) -> None:
+        """Rename every staged file into place (all of them, with signals held)."""
+        with signals_deferred():
+            done: list[Path] = []
+            try:
+                for tmp, target in self._staged:
+                    os.replace(tmp, target)
+                    done.append(target)
+            except OSError as exc:
+                for target in done:
+                    with contextlib.suppress(OSError):
+                        target.unlink()
+                self._staged = [(t, g) for t, g in self._staged if g not in done]
+                raise OutputError(_message(target, exc)) from None
+            self._staged = []
+            self._created_dirs = []
+            for d in self._staging_dirs:
+                shutil.rmtree(d, ignore_errors=True)
+            self._staging_dirs = []
+
+    def discard(self) -> None:
+        """Remove every staged file, staging folder and folder this set created."""
+        with signals_deferred():
+            for tmp, _ in self._staged:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+            self._staged = []
+            for d in self._staging_dirs:
+                shutil.rmtree(d, ignore_errors=True)
+            self._staging_dirs = []
+            for d in reversed(self._created_dirs):
+                with contextlib.suppress(OSError):
+                    d.rmdir()
+            self._created_dirs = []
+
+    def __enter__(self) -> "OutputSet":
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is not None:
+            self.discard()
+            return
+        try:
+            self.commit()
+        except BaseException:
+            self.discard()
+            raise

@@ -1,0 +1,153 @@
+"""The README's exit-code table, row by row, as a user meets it: each case runs a console
+script in its own process (so signals and the real Click/Typer error paths are exercised)
+from an empty working folder, and checks the exit code, the message on stderr and that no
+file was left behind — temporary ones included.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SAMPLE = REPO / "sample_rinex" / "static"
+OBS, NAV, TRUTH = SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", SAMPLE / "truth.csv"
+MODULES = {"solve": "gnss_cli.cli.solve", "simulate": "gnss_cli.cli.simulate", "identify": "gnss_cli.cli.identify"}
+
+# (id, command, arguments, exit code, regular expression the stderr must match)
+# Arguments: "{obs}", "{nav}", "{truth}" are the sample files, "{here}/" the working folder.
+CASES = [
+    ("no arguments", "solve", [], 2, r"Missing argument"),
+    ("only OBS", "solve", ["{obs}"], 2, r"expected OBS NAV"),
+    ("unknown option, did you mean", "solve", ["{obs}", "{nav}", "--metod", "ls"], 2, r"No such option: --metod.*--method"),
+    ("--lag not a number", "solve", ["{obs}", "{nav}", "--lag", "abc"], 2, r"Invalid value for '--lag'"),
+    ("two references", "solve", ["{obs}", "{nav}", "--reference", "1,2,3", "--reference-csv", "{truth}"], 2, r"give one of --reference"),
+    ("-o and --out-dir", "solve", ["{obs}", "{nav}", "-o", "a.csv", "--out-dir", "d"], 2, r"not both"),
+    ("--model without --lag", "solve", ["{obs}", "{nav}", "--model", "pva"], 2, r"--model: only with --lag"),
+    ("--lag without stls", "solve", ["{obs}", "{nav}", "--lag", "3", "--method", "wls"], 2, r"needs --method stls"),
+    ("unknown method", "solve", ["{obs}", "{nav}", "--method", "foo"], 3, r"unknown method 'foo'"),
+    ("elevation mask out of range", "solve", ["{obs}", "{nav}", "--elevation-mask", "95"], 3, r"elevation_mask_deg: expected 0 <= value < 90"),
+    ("negative lag", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "-1"], 3, r"--lag: expected an integer >= 0"),
+    ("bad reference", "solve", ["{obs}", "{nav}", "--reference", "1,2"], 3, r"--reference: expected"),
+    ("bad TOML", "solve", ["{obs}", "{nav}", "--config", "{here}/bad.toml"], 3, r"bad.toml: invalid TOML"),
+    ("-o names an input", "solve", ["{here}/obs.rnx", "{nav}", "-o", "{here}/obs.rnx"], 3, r"is one of the input files"),
+    ("missing OBS", "solve", ["{here}/nothere.rnx", "{nav}"], 4, r"nothere.rnx: no such file"),
+    ("folder as NAV", "solve", ["{obs}", "{here}/"], 4, r"not a regular file"),
+    ("OBS and NAV swapped", "solve", ["{nav}", "{obs}"], 4, r"OBS and NAV swapped"),
+    ("not RINEX", "solve", ["{truth}", "{nav}"], 4, r"truth.csv"),
+    ("missing --config file", "solve", ["{obs}", "{nav}", "--config", "{here}/nothere.toml"], 4, r"configuration file not found"),
+    ("-o inside a file", "solve", ["{obs}", "{nav}", "-o", "{here}/obs.rnx/x.csv"], 6, r"obs.rnx is not a folder"),
+    ("--out-dir is a file", "solve", ["{obs}", "{nav}", "--out-dir", "{here}/obs.rnx"], 6, r"not a folder"),
+    ("disk full", "solve", ["{obs}", "{nav}", "-o", "/dev/full"], 6, r"/dev/full: cannot write output \(No space left on device\)"),
+    ("simulate without --out-dir", "simulate", [], 2, r"Missing option '--out-dir'"),
+    ("simulate unknown option", "simulate", ["--out-dir", "s", "--duraton", "5"], 2, r"No such option: --duraton"),
+    ("simulate bad config", "simulate", ["--out-dir", "s", "--config", "{here}/bad.toml"], 3, r"bad.toml"),
+    ("identify no arguments", "identify", [], 2, r"Missing argument"),
+    ("identify missing file", "identify", ["{here}/nothere.csv"], 4, r"nothere.csv: no such file"),
+    ("identify lag 0", "identify", ["{truth}", "--lag", "0"], 3, r"--lag: expected an integer >= 1"),
+]
+
+
+def _prepare(here: Path) -> set[str]:
+    shutil.copy(OBS, here / "obs.rnx")
+    (here / "bad.toml").write_text("[processing\nmethods = \n")
+    return {"obs.rnx", "bad.toml"}
+
+
+def _run(command: str, args: list[str], cwd: Path, **kw: object) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    return subprocess.run([sys.executable, "-m", MODULES[command], *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=120, env=env, **kw)  # type: ignore[call-overload]
+
+
+def _fill(args: list[str], here: Path) -> list[str]:
+    return [a.format(obs=OBS, nav=NAV, truth=TRUTH, here=here) for a in args]
+
+
+def _all_files(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+@pytest.mark.parametrize(("command", "args", "code", "pattern"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_exit_code_and_message(tmp_path: Path, command: str, args: list[str], code: int, pattern: str) -> None:
+    before = _prepare(tmp_path)
+    proc = _run(command, _fill(args, tmp_path), tmp_path)
+    assert proc.returncode == code, proc.stderr
+    assert re.search(pattern, proc.stderr, re.S), proc.stderr
+    assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr
+    assert proc.stdout == ""
+    assert _all_files(tmp_path) == before  # nothing written, no temporary file left
+    assert (tmp_path / "obs.rnx").read_bytes() == OBS.read_bytes()
+
+
+def test_help_version_and_short_help_show_every_default(tmp_path: Path) -> None:
+    for command in MODULES:
+        long, short = _run(command, ["--help"], tmp_path), _run(command, ["-h"], tmp_path)
+        assert long.returncode == short.returncode == 0
+        assert long.stdout == short.stdout
+        version = _run(command, ["--version"], tmp_path)
+        assert version.returncode == 0 and re.fullmatch(rf"gnss-{command} \d+\.\d+\.\d+\n", version.stdout)
+    text = " ".join(_run("solve", ["--help"], tmp_path).stdout.split())
+    for flag, default in [("--method", "wls"), ("--systems", "all"), ("--iono", "klobuchar"),
+                          ("--tropo", "saastamoinen"), ("--elevation-mask", "10.0")]:
+        assert re.search(rf"{flag} .*?\[default: \(?{re.escape(default)}\)?\]", text), (flag, text)
+
+
+def _simulated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("long")
+    proc = _run("simulate", ["--out-dir", str(folder), "--duration", "3600", "--interval", "1", "--systems", "G,E",
+                             "--quiet"], folder)
+    assert proc.returncode == 0, proc.stderr
+    return folder
+
+
+@pytest.fixture(scope="module")
+def long_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A simulated 1 h, 1 Hz GPS+Galileo data set: a run long enough to interrupt."""
+    return _simulated(tmp_path_factory)
+
+
+@pytest.mark.parametrize(("signum", "code", "word"), [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
+def test_signal_exits_with_one_line_and_no_file(long_run: Path, tmp_path: Path, signum: int, code: int, word: str) -> None:
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", MODULES["solve"], str(long_run / "obs.rnx"), str(long_run / "nav.rnx"),
+           "--method", "all", "--out-dir", str(out)]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None
+    first = proc.stderr.readline()  # the first progress line: the run has lasted a second
+    assert re.match(r"gnss-solve: \[ *\d+\.\d s\] ", first), first
+    time.sleep(0.2)
+    proc.send_signal(signum)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == code, stderr
+    assert re.search(rf"gnss-solve: {word} \(SIG(INT|TERM)\); no output written", stderr)
+    assert "Traceback" not in stderr and stdout == ""
+    assert not out.exists() and _all_files(tmp_path) == set()
+
+
+def test_progress_lines_when_stderr_is_a_file(long_run: Path, tmp_path: Path) -> None:
+    proc = _run("solve", [str(long_run / "obs.rnx"), str(long_run / "nav.rnx"), "--method", "all", "-o", "p.csv"], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if re.match(r"gnss-solve: \[ *\d+\.\d s\] ", ln)]
+    assert lines, proc.stderr
+    quiet = _run("solve", [str(long_run / "obs.rnx"), str(long_run / "nav.rnx"), "--method", "all", "-q", "-o", "q.csv"], tmp_path)
+    assert quiet.returncode == 0 and quiet.stderr == ""
+    assert (tmp_path / "p.csv").read_bytes() == (tmp_path / "q.csv").read_bytes()
+
+
+def test_files_get_the_umask(tmp_path: Path) -> None:
+    for mask, mode in ((0o022, 0o644), (0o077, 0o600), (0o002, 0o664)):
+        out = tmp_path / f"out{mask:o}"
+        proc = _run("solve", [str(OBS), str(NAV), "--out-dir", str(out), "-q"], tmp_path,
+                    preexec_fn=lambda m=mask: os.umask(m))
+        assert proc.returncode == 0, proc.stderr
+        for f in out.iterdir():
+            assert f.stat().st_mode & 0o777 == mode, (f, oct(f.stat().st_mode))
