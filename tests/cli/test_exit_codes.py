@@ -151,3 +151,18 @@ def test_files_get_the_umask(tmp_path: Path) -> None:
         assert proc.returncode == 0, proc.stderr
         for f in out.iterdir():
             assert f.stat().st_mode & 0o777 == mode, (f, oct(f.stat().st_mode))
+
+
+def test_readme_table_lists_every_case_with_its_exit_code() -> None:
+    """The README's table and the cases run above are the same list."""
+    text = (REPO / "README.md").read_text()
+    section = text[text.index("### Exit codes"):text.index("### Output columns")]
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[2].isdigit():
+            rows[cells[0]] = int(cells[2])
+    expected = {case[0]: case[3] for case in CASES}
+    expected.update({"Ctrl-C during a run": 130, "SIGTERM during a run": 143})
+    assert rows == expected
+    assert len(rows) >= 15
