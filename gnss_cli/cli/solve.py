@@ -17,14 +17,13 @@ import typer
 from gnss_cli.cli.exits import run_app
 from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError, UsageError
-from gnss_cli.pipeline import run
+from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_sinex
+from gnss_cli.pipeline import process
 from gnss_cli.report import (
     dop_table,
     errors_table,
-    parse_reference,
+    models_json,
     positions_table,
-    reference_from_csv,
-    reference_from_sinex,
     summary_table,
     to_csv_text,
     write_atomic,
@@ -86,18 +85,16 @@ def solve(
         "tropo": tropo,
         "elevation_mask_deg": elevation_mask,
         "systems": [s.strip().upper() for s in systems.split(",") if s.strip()] if systems else None,
+        **_given_on_command_line("smoothing", lag=lag, model=model, kernel=kernel, order=order, window=window),
     }
     cfg = load_config(config, overrides)
     ref = parse_reference(reference) if reference else None
     progress = _Progress(not quiet)
-    if lag < 0:
-        raise UsageError(f"--lag: expected an integer >= 0, received {lag}")
-    if lag > 0 and "stls" not in cfg.methods:
+    if cfg.smoothing.lag > 0 and "stls" not in cfg.methods:
         raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
-    if lag > 0:
-        result = _smooth_stls(files, cfg, progress, lag, model, kernel, order, window, model_out)
-    else:
-        result = run(files[0], files[1:], cfg, progress=progress)
+    result = process(files[0], files[1:], cfg, progress=progress)
+    if model_out is not None and cfg.smoothing.lag > 0:
+        write_atomic(model_out, models_json(cfg.smoothing, result.models))
     progress.done()
     if reference_sinex is not None:
         if not result.epochs.marker_name:
@@ -125,26 +122,15 @@ def solve(
         _print_summary(summary, ref is not None)
 
 
-def _smooth_stls(files, cfg, progress, lag: int, model: str, kernel: str, order: Optional[int],  # type: ignore[no-untyped-def]
-                 window: Optional[int], model_out: Optional[Path]):
-    """Run the other methods (and WLS), then make the stls rows the behavioral smoothing of the WLS fixes."""
-    import dataclasses
-    import json
+_SMOOTHING_FLAG_DEFAULTS = {"lag": 0, "model": "identify", "kernel": "shared", "order": None, "window": None}
+"""The declared defaults of the smoothing flags: a flag at its default is left to ``--config``."""
 
-    from gnss_cli.kinematic import DEFAULT_WINDOW, smooth
 
-    others = tuple(m for m in cfg.methods if m != "stls")
-    result = run(files[0], files[1:], dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",))),
-                 progress=progress)
-    if progress is not None:
-        progress(f"stls: smoothing, lag {lag}", 0.0)
-    sol, models = smooth(result.epochs, result.solutions["wls"], cfg, lag, model=model, kernel=kernel, order=order,
-                         window=DEFAULT_WINDOW if window is None else window)
-    if model_out is not None:
-        text = json.dumps({"lag": lag, "model": model, "kernel": kernel, "windows": models}, indent=1)
-        write_atomic(model_out, text + "\n")
-    solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in cfg.methods}
-    return dataclasses.replace(result, solutions=solutions)
+def _given_on_command_line(section: str, **values: object) -> dict[str, object]:
+    """``{"section.name": value}`` of the flags not at their declared default, so that ``--config``
+    and the packaged defaults apply to the others (a flag given as its default value is not
+    told apart from an absent one)."""
+    return {f"{section}.{k}": v for k, v in values.items() if v != _SMOOTHING_FLAG_DEFAULTS.get(k)}
 
 
 def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]
