@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import SmoothingConfig
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_s2datetime, gps_s2week_tow
+from gnss_cli.pipeline.identification import Identification
 from gnss_cli.pipeline.results import EpochStatus, RunResult, WindowModel
 
 F64 = NDArray[np.float64]
@@ -190,6 +191,31 @@ def dop_table(positions: pd.DataFrame) -> pd.DataFrame:
     return positions[[*cols, "status"]]
 
 
+IDENTIFICATION_COLUMNS = ["time", "gps_week", "tow_s", "x_m", "y_m", "z_m", "e_m", "n_m", "u_m", "kind"]
+"""Columns of the ``gnss-identify`` CSV."""
+
+
+def identification_table(ident: Identification) -> pd.DataFrame:
+    """One row per fitted or predicted sample: time, ECEF and ENU positions (m), ``kind``.
+
+    With GPS time stamps ``time`` is ISO-8601 (GPS scale) with ``gps_week`` and ``tow_s``;
+    with numeric input ``time`` is the input's seconds and the week columns are empty.
+    """
+    xyz, enu, times = ident.xyz_m, ident.enu_m, ident.t_s
+    table = pd.DataFrame({"x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
+                          "e_m": enu[:, 0], "n_m": enu[:, 1], "u_m": enu[:, 2], "kind": ident.kinds})
+    if ident.is_gps_time:
+        week, tow = gps_s2week_tow(times)
+        table.insert(0, "tow_s", np.round(tow, 3))
+        table.insert(0, "gps_week", week)
+        table.insert(0, "time", _iso(times))
+    else:
+        table.insert(0, "tow_s", np.nan)
+        table.insert(0, "gps_week", pd.array([None] * len(times), dtype="Int64"))
+        table.insert(0, "time", times)
+    return table
+
+
 def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> str:
     """The ``--model-out`` document: the smoothing options and one record per window (JSON text)."""
     doc = {"lag": smoothing.lag, "model": smoothing.model, "kernel": smoothing.kernel,
@@ -199,5 +225,5 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 __all__: Sequence[str] = [
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text", "write_atomic",
-    "enu_errors", "models_json",
+    "enu_errors", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
 ]

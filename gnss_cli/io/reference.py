@@ -15,14 +15,14 @@ from numpy.typing import ArrayLike, NDArray
 from gnss_cli.constants import GPS_EPOCH
 from gnss_cli.errors import ConfigError, InputFileNotFoundError
 
-__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv"]
+__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "timestamps_gps_s"]
 
 F64 = NDArray[np.float64]
 
 
-def _datetime2gps_s(t: ArrayLike) -> F64:
-    """``datetime64`` (GPS time scale) -> s since the GPS epoch, as :func:`gnss_cli.gnss.time.datetime2gps_s`
-    (io sits below gnss in the layers)."""
+def timestamps_gps_s(t: ArrayLike) -> F64:
+    """``datetime64`` time stamps (GPS time scale) -> s since the GPS epoch, as
+    :func:`gnss_cli.gnss.time.datetime2gps_s` (io sits below gnss in the layers)."""
     t64 = np.asarray(t, dtype="datetime64[ns]")
     return (t64 - GPS_EPOCH).astype(np.int64).astype(np.float64) * 1e-9
 
@@ -85,7 +85,7 @@ def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
     if missing:
         raise ConfigError(f"{p}: reference CSV lacks column(s) {missing}; expected time, x_m, y_m, z_m")
     try:
-        t_ref = _datetime2gps_s(pd.to_datetime(df["time"]).to_numpy(dtype="datetime64[ns]"))
+        t_ref = timestamps_gps_s(pd.to_datetime(df["time"]).to_numpy(dtype="datetime64[ns]"))
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{p}: bad time column ({exc})") from None
     xyz = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
