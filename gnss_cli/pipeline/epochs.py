@@ -166,6 +166,25 @@ def _systems_with_data(obs: xr.Dataset, nav: xr.Dataset, obs_path: str | Path, n
     return systems
 
 
+def _check_coverage(arrays: _SatelliteArrays, prs: Pseudoranges, have_obs: NDArray[np.bool_], toe_span: tuple[float, float],
+                    systems: list[str], obs_path: str | Path, nav_name: str, warnings: list[str]) -> None:
+    """Raise when the ephemerides do not cover the observations; warn about satellites without one."""
+    t = prs.time_gps_s
+    toe_lo, toe_hi = toe_span
+    if not np.isfinite(toe_lo):
+        raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
+    if t.max() < toe_lo - _COMMON_SPAN_MARGIN_S or t.min() > toe_hi + _COMMON_SPAN_MARGIN_S:
+        raise RinexFormatError(
+            f"{nav_name}: no common time span with {Path(obs_path).name} "
+            f"(observations {_span_text(t.min(), t.max())}, ephemerides {_span_text(toe_lo, toe_hi)} GPST)"
+        )
+    if not arrays.usable.any():
+        raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {Path(obs_path).name}")
+    missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~arrays.usable.any(axis=0)]))
+    if missing:
+        warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
+
+
 def _iono_free_usable(arrays: _SatelliteArrays, prs: Pseudoranges, systems: list[str],
                       priority2: dict[str, tuple[str, ...]], obs_path: str | Path, warnings: list[str]) -> NDArray[np.bool_]:
     """Usable observations with a second-frequency pseudorange; raises when there is none."""
@@ -256,19 +275,8 @@ def load_epochs(
         toe_lo, toe_hi = min(toe_lo, toe.min()), max(toe_hi, toe.max())
         _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
 
-    if not np.isfinite(toe_lo):
-        raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
-    if t.max() < toe_lo - _COMMON_SPAN_MARGIN_S or t.min() > toe_hi + _COMMON_SPAN_MARGIN_S:
-        raise RinexFormatError(
-            f"{nav_name}: no common time span with {Path(obs_path).name} "
-            f"(observations {_span_text(t.min(), t.max())}, ephemerides {_span_text(toe_lo, toe_hi)} GPST)"
-        )
+    _check_coverage(arrays, prs, have_obs, (toe_lo, toe_hi), systems, obs_path, nav_name, warnings)
     usable = arrays.usable
-    if not usable.any():
-        raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {Path(obs_path).name}")
-    missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~usable.any(axis=0)]))
-    if missing:
-        warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
     if iono_free:
         usable = _iono_free_usable(arrays, prs, systems, priority2, obs_path, warnings)
     used_systems = tuple(sy for sy in systems if usable[:, sys_of == sy].any())
