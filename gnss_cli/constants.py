@@ -40,9 +40,15 @@ GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ns")
 
 SECONDS_PER_WEEK = 604_800.0
 
+BDT_MINUS_GPST_S = -14.0
+"""BDT - GPST, s (BDT started 2006-01-01 00:00:00 UTC, 14 s behind GPST; integer leap-second offset)."""
+
 FREQ_L1_HZ = 1_575.42e6
 FREQ_L2_HZ = 1_227.60e6
 FREQ_L5_HZ = 1_176.45e6
 FREQ_E5B_HZ = 1_207.14e6
 FREQ_B1I_HZ = 1_561.098e6
 FREQ_B3I_HZ = 1_268.52e6
+
+METHOD_KEYS: tuple[str, ...] = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+"""Estimator keys, the user's words everywhere (CLI, configuration, solver registry, CSV ``method``)."""

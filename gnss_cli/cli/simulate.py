@@ -9,7 +9,6 @@ unless ``--quiet``.
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -18,7 +17,14 @@ import typer
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
 from gnss_cli.errors import UsageError
 from gnss_cli.sim.error_sources import parse_error_list
-from gnss_cli.sim.scenario import ScenarioConfig, load_config, parse_systems, run_scenario, write_scenario
+from gnss_cli.sim.scenario import (
+    ScenarioConfig,
+    config_from_mapping,
+    load_config,
+    parse_systems,
+    run_scenario,
+    write_scenario,
+)
 
 app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
 
@@ -65,54 +71,36 @@ def simulate(
 ) -> None:
     """Write obs.rnx, nav.rnx and truth.csv for a simulated receiver."""
     cfg = load_config(config) if config is not None else ScenarioConfig()
-    changes: dict[str, object] = {}
-    if trajectory is not None:
-        changes["trajectory"] = trajectory
-    if start is not None:
-        changes["start"] = start
-    if duration is not None:
-        changes["duration_s"] = duration
-    if interval is not None:
-        changes["interval_s"] = interval
     if systems is not None:
-        changes["systems"] = parse_systems(systems)
-    if seed is not None:
-        changes["seed"] = seed
-    if elevation_mask is not None:
-        changes["elevation_mask_deg"] = elevation_mask
+        parse_systems(systems)  # flag errors are usage errors (exit 2), not configuration errors
+    if errors is not None:
+        parse_error_list(errors)
+    if noise_model is not None and noise_model not in ("elevation", "constant"):
+        raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
+    if rinex_version is not None and rinex_version not in _RINEX_VERSIONS:
+        raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
+    site: dict[str, float] = {}
     if position is not None:
-        parts = position.split(",")
         try:
-            lat, lon, h = (float(v) for v in parts)
+            lat, lon, h = (float(v) for v in position.split(","))
         except ValueError as exc:
             raise UsageError(f"--position: expected LAT_DEG,LON_DEG,HEIGHT_M, got {position!r}") from exc
-        changes.update(latitude_deg=lat, longitude_deg=lon, height_m=h)
-    if rinex_version is not None:
-        if rinex_version not in _RINEX_VERSIONS:
-            raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
-        changes["rinex_version"] = _RINEX_VERSIONS[rinex_version]
-    if dual_frequency is not None:
-        changes["layout"] = replace(cfg.layout, dual_frequency=dual_frequency)
-    if truth_ranges is not None:
-        changes["truth_ranges"] = truth_ranges
-    err = cfg.errors
-    if errors is not None:
-        err = err.with_sources(parse_error_list(errors))
-    if noise_sigma is not None:
-        err = replace(err, noise_sigma_m=noise_sigma)
-    if noise_model is not None:
-        if noise_model not in ("elevation", "constant"):
-            raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
-        err = replace(err, noise_elevation_dependent=noise_model == "elevation")
-    if orbit_rms is not None:
-        err = replace(err, orbit_rms_m=orbit_rms)
-    if iono_factor is not None:
-        err = replace(err, iono_factor=iono_factor)
-    if outlier_sats is not None:
-        err = replace(err, outlier_sats=tuple(s.strip().upper() for s in outlier_sats.split(",") if s.strip()))
-    if outlier_m is not None:
-        err = replace(err, outlier_m=outlier_m)
-    cfg = replace(cfg, errors=err, **changes)  # type: ignore[arg-type]
+        site = {"latitude_deg": lat, "longitude_deg": lon, "height_m": h}
+    flags = {
+        "simulate": {
+            "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
+            "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
+            "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
+            "truth_ranges": truth_ranges, "errors": errors,
+        },
+        "errors": {
+            "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",
+            "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_m": outlier_m,
+            "outlier_sats": None if outlier_sats is None else [s.strip().upper() for s in outlier_sats.split(",") if s.strip()],
+        },
+    }
+    mapping = {table: {k: v for k, v in keys.items() if v is not None} for table, keys in flags.items()}
+    cfg = config_from_mapping(mapping, cfg, source="command line")
     scenario = run_scenario(cfg)
     from gnss_cli.cli.output import OutputSet
 
