@@ -327,9 +327,10 @@ def _sections(overrides: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
     return tables
 
 
-def packaged_defaults() -> dict[str, Any]:
-    """The packaged default configuration as TOML tables (no validation; cheap: for ``--help``)."""
-    return _read_toml(DEFAULT_CONFIG_PATH)
+def packaged_defaults(name: str = "default.toml") -> dict[str, Any]:
+    """A packaged configuration file (``default.toml`` or ``simulate.toml``) as TOML tables;
+    no validation, no numpy: cheap enough for ``--help``."""
+    return _read_toml(DEFAULT_CONFIG_PATH.parent / name)
 
 
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> ProcessingConfig:

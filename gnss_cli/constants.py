@@ -6,7 +6,6 @@ BeiDou ICD, GLONASS ICD (PZ-90).
 
 from __future__ import annotations
 
-import numpy as np
 
 C_M_S = 299_792_458.0
 """Speed of light in vacuum, m/s."""
@@ -35,8 +34,9 @@ WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 """WGS-84 first eccentricity squared."""
 
-GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ns")
-"""Origin of GPS time (week 0, second 0)."""
+GPS_EPOCH_ISO = "1980-01-06T00:00:00"
+"""Origin of GPS time (week 0, second 0), ISO 8601 (``numpy.datetime64(GPS_EPOCH_ISO, "ns")``).
+A string, so that this module, read by the command line's start-up, needs no numpy."""
 
 SECONDS_PER_WEEK = 604_800.0
 

@@ -12,12 +12,14 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
-from gnss_cli.constants import GPS_EPOCH
+from gnss_cli.constants import GPS_EPOCH_ISO
 from gnss_cli.errors import ConfigError, InputFileNotFoundError
 
 __all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "timestamps_gps_s"]
 
 F64 = NDArray[np.float64]
+
+GPS_EPOCH = np.datetime64(GPS_EPOCH_ISO, "ns")
 
 
 def timestamps_gps_s(t: ArrayLike) -> F64:
