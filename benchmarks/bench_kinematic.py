@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +29,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from gnss_cli.config import load_config  # noqa: E402
-from gnss_cli.kinematic import DEFAULT_WINDOW, smooth  # noqa: E402
-from gnss_cli.pipeline import load_epochs, solve_method  # noqa: E402
-from gnss_cli.report import reference_from_csv  # noqa: E402
+from gnss_cli.config import ProcessingConfig, SmoothingConfig, load_config  # noqa: E402
+from gnss_cli.io.reference import reference_from_csv  # noqa: E402
+from gnss_cli.pipeline import load_epochs, smooth, solve_method  # noqa: E402
 
 WINDOWS = (8, 10, 12, 15, 20, 25, 30, 40)
 VARIANTS = {"shared": dict(model="identify", kernel="shared"), "pva": dict(model="pva"),
@@ -44,6 +44,10 @@ def simulate(out: Path, trajectory: str, duration_s: int) -> Path:
            "--out-dir", str(out)]
     subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)
     return out
+
+
+def with_smoothing(cfg: ProcessingConfig, **options: object) -> ProcessingConfig:
+    return replace(cfg, smoothing=replace(cfg.smoothing, **options))
 
 
 def rms_3d(x: np.ndarray, ref: np.ndarray) -> float:
@@ -65,9 +69,9 @@ def tradeoff(d: Path) -> list[dict[str, object]]:
             if name == "full" and window < 13:
                 continue
             t0 = time.perf_counter()
-            sol, models = smooth(data, wls, cfg, 3, window=window, **kw)  # type: ignore[arg-type]
+            sol, models = smooth(data, wls, with_smoothing(cfg, lag=3, window=window, **kw))
             dt = time.perf_counter() - t0
-            statuses = sorted({str(m["status"]) for m in models})
+            statuses = sorted({m.status for m in models})
             rows.append({"variant": name, "window": window, "rms_3d_m": rms_3d(sol.x_ecef_m, ref),
                          "ratio_to_ls": rms_3d(sol.x_ecef_m, ref) / rms_ls, "mean_gdop": float(np.nanmean(sol.gdop)),
                          "time_s": dt, "windows": len(models), "window_statuses": statuses})
@@ -101,10 +105,10 @@ def day_timing(d: Path) -> dict[str, float]:
     data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
     wls = solve_method(data, "wls", cfg)
     t0 = time.perf_counter()
-    sol, models = smooth(data, wls, cfg, 3)
+    sol, models = smooth(data, wls, with_smoothing(cfg, lag=3))
     out["smoothing_s"] = time.perf_counter() - t0
     return {"epochs": int(data.time_gps_s.size), **out, "ratio": out["stls_lag3_s"] / out["ls_s"],
-            "windows": len(models), "window": DEFAULT_WINDOW, "smoothed_epochs": int((sol.status == "ok").sum())}
+            "windows": len(models), "window": SmoothingConfig().window, "smoothed_epochs": int((sol.status == "ok").sum())}
 
 
 def main() -> None:

@@ -12,6 +12,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gnss_cli.constants import METHOD_KEYS
 from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -21,7 +22,6 @@ else:  # pragma: no cover
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
-METHOD_NAMES = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
@@ -42,6 +42,97 @@ class WeightConfig:
     iono_off_sigma_m: float = 5.0
     tropo_off_sigma_m: float = 3.0
     iono_free_factor: float = 3.0
+
+
+SMOOTHING_MODELS = ("identify", "pva", "static")
+SMOOTHING_KERNELS = ("shared", "full")
+FIXED_MODEL_LAGS = {"static": 1, "pva": 3}
+"""Lags of the fixed kernels ``(z-1) I`` and ``(z-1)^3 I`` (they ignore ``lag``)."""
+
+
+@dataclass(frozen=True)
+class SmoothingConfig:
+    """Behavioral multi-epoch smoothing of the stls rows (``[smoothing]`` in ``gnss_cli/configs/default.toml``).
+
+    ``lag = 0``: no smoothing (the stls rows are single-epoch STLS). ``order = 0``: the
+    default order ``3 lag`` of a full identified kernel. The defaults equal the packaged TOML.
+    """
+
+    lag: int = 0
+    model: str = "identify"
+    kernel: str = "shared"
+    order: int = 0
+    window: int = 15
+    tolerance: float = 1e-6
+    max_iterations: int = 200
+
+    @property
+    def effective_lag(self) -> int:
+        """The kernel's lag: ``lag`` for an identified kernel, 1 (static) or 3 (pva) for the fixed ones."""
+        return FIXED_MODEL_LAGS.get(self.model, self.lag)
+
+    @property
+    def structure(self) -> str:
+        """Kernel structure of the fits: ``kernel`` when identified; the fixed kernels are shared."""
+        return self.kernel if self.model == "identify" else "shared"
+
+    @property
+    def full_order(self) -> int | None:
+        """Order of a full identified kernel (``order``, or ``3 lag`` for 0); None for the other models."""
+        if self.model != "identify" or self.kernel != "full":
+            return None
+        return self.order if self.order > 0 else 3 * self.effective_lag
+
+    def min_window(self) -> int:
+        """Shortest window (epochs) the model can be fitted on: static 2, pva 5, shared
+        ``2 lag + 2``, full ``3 (lag + 1) + 1``."""
+        lag = self.effective_lag
+        need = {"static": 2, "pva": 5}.get(self.model)
+        if need is None:
+            need = 2 * lag + 2 if self.kernel == "shared" else 3 * (lag + 1) + 1
+        return max(need, 2)
+
+    def validated(self) -> "SmoothingConfig":
+        """Self, after checking every value; raises :class:`ConfigError` naming the option."""
+        for name in ("lag", "order", "window", "max_iterations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "max_iterations" else 0):
+                low = 1 if name == "max_iterations" else 0
+                raise ConfigError(f"smoothing.{name}: expected an integer >= {low}; received {value!r}")
+        if self.model not in SMOOTHING_MODELS:
+            raise ConfigError(f"smoothing.model: expected one of {', '.join(SMOOTHING_MODELS)}; received {self.model!r}")
+        if self.kernel not in SMOOTHING_KERNELS:
+            raise ConfigError(f"smoothing.kernel: expected one of {', '.join(SMOOTHING_KERNELS)}; received {self.kernel!r}")
+        if not self.tolerance > 0:
+            raise ConfigError(f"smoothing.tolerance: expected > 0; received {self.tolerance}")
+        if self.lag == 0:
+            if self.model != "identify" or self.order:
+                what = f"model = {self.model!r}" if self.model != "identify" else f"order = {self.order}"
+                raise ConfigError(f"smoothing.{what} needs smoothing.lag >= 1 (lag 0 = no smoothing)")
+            return self
+        need = self.min_window()
+        if 0 < self.window < need:
+            raise ConfigError(f"smoothing.window: expected 0 or >= {need} epochs for model {self.model} "
+                              f"(lag {self.effective_lag}, kernel {self.structure}); received {self.window}")
+        order = self.full_order
+        if order is None and self.order:
+            raise ConfigError(f"smoothing.order: applies to model = 'identify' with kernel = 'full' only; "
+                              f"received order = {self.order} with model = {self.model!r}, kernel = {self.kernel!r}")
+        if order is not None:
+            self._check_full_order(order)
+        return self
+
+    def _check_full_order(self, order: int) -> None:
+        """A full ``3 x 3(l+1)`` kernel of order ``n`` has ``g = 3(l+1) - n`` rows, 1 <= g, and
+        ``g (N - l) <= 3 N`` over a window of ``N`` epochs (else ``G Sigma G^T`` is singular)."""
+        lag = self.effective_lag
+        if not 0 < order < 3 * (lag + 1):
+            raise ConfigError(f"smoothing.order: expected 1 <= order < 3 (lag + 1) = {3 * (lag + 1)} for lag {lag}; received {order}")
+        g = 3 * (lag + 1) - order
+        if g > 3 and (self.window == 0 or g * (self.window - lag) > 3 * self.window):
+            span = "whole segments (window = 0)" if self.window == 0 else f"windows of {self.window} epochs"
+            raise ConfigError(f"smoothing.order: order {order} with lag {lag} leaves {g} kernel rows, infeasible on {span}; "
+                              f"use order >= {3 * lag} or a shorter window")
 
 
 @dataclass(frozen=True)
@@ -65,14 +156,15 @@ class ProcessingConfig:
     """Second-frequency code priority per system, for ``iono = "iono-free"``."""
     orbit_sigma_m: float = 1.7
     wtls_column_scaling: str = "orbit"
+    smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
         from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of  # numpy: not needed for --help
 
-        bad = [m for m in self.methods if m not in METHOD_NAMES]
+        bad = [m for m in self.methods if m not in METHOD_KEYS]
         if bad or not self.methods:
-            raise ConfigError(f"methods: expected some of {', '.join(METHOD_NAMES)} or 'all'; received {list(self.methods)}")
+            raise ConfigError(f"methods: expected some of {', '.join(METHOD_KEYS)} or 'all'; received {list(self.methods)}")
         if self.iono not in IONO_OPTIONS:
             raise ConfigError(f"iono: expected one of {', '.join(IONO_OPTIONS)}; received {self.iono!r}")
         if self.tropo not in ("saastamoinen", "none"):
@@ -109,6 +201,7 @@ class ProcessingConfig:
             raise ConfigError(f"wtls.column_scaling: expected 'orbit' or 'none'; received {self.wtls_column_scaling!r}")
         if "wtls" in self.methods and self.wtls_column_scaling == "orbit" and not self.orbit_sigma_m > 0:
             raise ConfigError("wtls.column_scaling = 'orbit' needs stls.orbit_sigma_m > 0 (the geometry-column error it scales by)")
+        self.smoothing.validated()
         return self
 
 
@@ -119,9 +212,9 @@ def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     for item in (i.strip().lower() for i in items):
         if not item:
             continue
-        for m in METHOD_NAMES if item == "all" else (item,):
-            if m not in METHOD_NAMES:
-                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(METHOD_NAMES)} or all")
+        for m in METHOD_KEYS if item == "all" else (item,):
+            if m not in METHOD_KEYS:
+                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(METHOD_KEYS)} or all")
             if m not in out:
                 out.append(m)
     if not out:
@@ -153,13 +246,13 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 
 
 def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
-    known_sections = {"processing", "weights", "signals", "stls", "wtls"}
+    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing"}
     unknown = set(data) - known_sections
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
     proc = dict(data.get("processing", {}))
     names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "signals_second", "orbit_sigma_m",
-                                                          "wtls_column_scaling"}
+                                                          "wtls_column_scaling", "smoothing"}
     bad = set(proc) - names
     if bad:
         raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
@@ -200,6 +293,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             if tbad:
                 raise ConfigError(f"{source}: unknown [wtls] key(s) {sorted(tbad)}")
             cfg = replace(cfg, wtls_column_scaling=str(data["wtls"].get("column_scaling", cfg.wtls_column_scaling)))
+        if "smoothing" in data:
+            cfg = replace(cfg, smoothing=_apply_smoothing(cfg.smoothing, data["smoothing"], source))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -207,17 +302,51 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
     return cfg
 
 
-def packaged_defaults() -> dict[str, Any]:
-    """The packaged default configuration as TOML tables (no validation; cheap: for ``--help``)."""
-    return _read_toml(DEFAULT_CONFIG_PATH)
+def _apply_smoothing(base: SmoothingConfig, table: Mapping[str, Any], source: str) -> SmoothingConfig:
+    """``[smoothing]`` keys onto ``base`` (types converted; values checked by ``validated``)."""
+    names = {f.name: f for f in fields(SmoothingConfig)}
+    bad = set(table) - set(names)
+    if bad:
+        raise ConfigError(f"{source}: unknown [smoothing] key(s) {sorted(bad)}")
+    values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key in ("model", "kernel"):
+            values[key] = str(value)
+        elif key == "tolerance":
+            values[key] = float(value)
+        elif isinstance(value, float) and not value.is_integer():
+            raise ConfigError(f"{source}: smoothing.{key}: expected an integer; received {value!r}")
+        else:
+            values[key] = int(value)
+    return replace(base, **values)
+
+
+def _sections(overrides: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """Override keys -> TOML tables: ``"section.key"`` goes to ``[section]``, a plain key to ``[processing]``."""
+    tables: dict[str, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        if value is not None:
+            section, _, name = key.rpartition(".")
+            tables.setdefault(section or "processing", {})[name] = value
+    return tables
+
+
+def packaged_defaults(name: str = "default.toml") -> dict[str, Any]:
+    """A packaged configuration file (``default.toml`` or ``simulate.toml``) as TOML tables;
+    no validation, no numpy: cheap enough for ``--help``."""
+    return _read_toml(DEFAULT_CONFIG_PATH.parent / name)
 
 
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> ProcessingConfig:
-    """Packaged defaults, then ``path`` (TOML), then ``overrides`` (``[processing]`` keys), validated."""
+    """Packaged defaults, then ``path`` (TOML), then ``overrides``, validated.
+
+    ``overrides`` keys are ``[processing]`` keys, or ``"section.key"`` for another table
+    (``"smoothing.lag"``); None values are ignored.
+    """
     cfg = ProcessingConfig()
     cfg = _apply(cfg, _read_toml(DEFAULT_CONFIG_PATH), str(DEFAULT_CONFIG_PATH))
     if path is not None:
         cfg = _apply(cfg, _read_toml(Path(path)), str(path))
     if overrides:
-        cfg = _apply(cfg, {"processing": {k: v for k, v in overrides.items() if v is not None}}, "command line")
+        cfg = _apply(cfg, _sections(overrides), "command line")
     return cfg.validated()

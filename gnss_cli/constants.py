@@ -6,7 +6,6 @@ BeiDou ICD, GLONASS ICD (PZ-90).
 
 from __future__ import annotations
 
-import numpy as np
 
 C_M_S = 299_792_458.0
 """Speed of light in vacuum, m/s."""
@@ -35,10 +34,14 @@ WGS84_F = 1.0 / 298.257223563
 WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
 """WGS-84 first eccentricity squared."""
 
-GPS_EPOCH = np.datetime64("1980-01-06T00:00:00", "ns")
-"""Origin of GPS time (week 0, second 0)."""
+GPS_EPOCH_ISO = "1980-01-06T00:00:00"
+"""Origin of GPS time (week 0, second 0), ISO 8601 (``numpy.datetime64(GPS_EPOCH_ISO, "ns")``).
+A string, so that this module, read by the command line's start-up, needs no numpy."""
 
 SECONDS_PER_WEEK = 604_800.0
+
+BDT_MINUS_GPST_S = -14.0
+"""BDT - GPST, s (BDT started 2006-01-01 00:00:00 UTC, 14 s behind GPST; integer leap-second offset)."""
 
 FREQ_L1_HZ = 1_575.42e6
 FREQ_L2_HZ = 1_227.60e6
@@ -46,3 +49,6 @@ FREQ_L5_HZ = 1_176.45e6
 FREQ_E5B_HZ = 1_207.14e6
 FREQ_B1I_HZ = 1_561.098e6
 FREQ_B3I_HZ = 1_268.52e6
+
+METHOD_KEYS: tuple[str, ...] = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+"""Estimator keys, the user's words everywhere (CLI, configuration, solver registry, CSV ``method``)."""

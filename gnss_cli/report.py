@@ -20,6 +20,7 @@ extra columns are not written.
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Sequence
@@ -29,10 +30,11 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from gnss_cli.errors import ConfigError, InputFileNotFoundError
+from gnss_cli.config import SmoothingConfig
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_s2datetime, gps_s2week_tow
-from gnss_cli.pipeline import STATUS_OK, MethodSolution, RunResult
+from gnss_cli.pipeline.identification import Identification
+from gnss_cli.pipeline.results import EpochStatus, RunResult, WindowModel
 
 F64 = NDArray[np.float64]
 
@@ -108,7 +110,7 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
     """One row per method: error statistics (m, m^2) and DOP statistics over solved epochs."""
     rows = []
     for method, s in result.solutions.items():
-        ok = s.status == STATUS_OK
+        ok = s.status == EpochStatus.OK
         row: dict[str, object] = {"method": method, "epochs": int(s.status.size), "epochs_solved": int(ok.sum())}
         if reference_ecef_m is not None:
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
@@ -175,79 +177,6 @@ def write_atomic(path: str | Path, text: str) -> None:
         raise
 
 
-def parse_reference(text: str) -> F64:
-    """``"X,Y,Z"`` (ECEF m) -> ``(3,)``; raises :class:`ConfigError`."""
-    try:
-        vals = np.array([float(v) for v in text.replace(" ", "").split(",")])
-    except ValueError:
-        raise ConfigError(f"--reference: expected X,Y,Z in metres; received {text!r}") from None
-    if vals.size != 3 or not np.all(np.isfinite(vals)) or not 6.0e6 < np.linalg.norm(vals) < 7.0e6:
-        raise ConfigError(f"--reference: expected an ECEF position X,Y,Z near the Earth's surface (m); received {text!r}")
-    return vals
-
-
-def reference_from_sinex(path: str | Path, station: str) -> F64:
-    """Station ECEF position (m) from a SINEX ``SOLUTION/ESTIMATE`` block (STAX/STAY/STAZ).
-
-    ``station`` is matched on its first four characters, case-insensitively.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileNotFoundError(f"{p}: no such SINEX file")
-    code = station.strip()[:4].upper()
-    if len(code) < 4:
-        raise ConfigError(f"--reference-sinex: the observation file's marker name {station!r} is not a 4-character station code")
-    found: dict[str, float] = {}
-    inside = False
-    with open(p, errors="replace") as f:
-        for line in f:
-            if line.startswith("+SOLUTION/ESTIMATE"):
-                inside = True
-                continue
-            if line.startswith("-SOLUTION/ESTIMATE"):
-                break
-            if inside and not line.startswith("*"):
-                parts = line.split()
-                if len(parts) >= 9 and parts[1] in ("STAX", "STAY", "STAZ") and parts[2].upper() == code:
-                    found.setdefault(parts[1], float(parts[8]))
-    if len(found) != 3:
-        raise ConfigError(f"{p}: station {code} not found in SOLUTION/ESTIMATE")
-    return np.array([found["STAX"], found["STAY"], found["STAZ"]])
-
-
-def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
-    """Per-epoch reference positions ``(T, 3)`` (ECEF m) from a CSV with ``time, x_m, y_m, z_m``.
-
-    ``time`` is ISO-8601 in the GPS time scale (as ``truth.csv`` of ``gnss-simulate`` and the
-    positions CSV of ``gnss-solve``); epochs are matched to 1 ms. Epochs without a reference
-    row get NaN (their error cells stay empty).
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileNotFoundError(f"{p}: no such reference file")
-    try:
-        df = pd.read_csv(p)
-    except (ValueError, pd.errors.ParserError) as exc:
-        raise ConfigError(f"{p}: not a CSV file ({exc})") from None
-    missing = [c for c in ("time", "x_m", "y_m", "z_m") if c not in df.columns]
-    if missing:
-        raise ConfigError(f"{p}: reference CSV lacks column(s) {missing}; expected time, x_m, y_m, z_m")
-    from gnss_cli.gnss.time import datetime2gps_s
-
-    try:
-        t_ref = datetime2gps_s(pd.to_datetime(df["time"]).to_numpy(dtype="datetime64[ns]"))
-    except (ValueError, TypeError) as exc:
-        raise ConfigError(f"{p}: bad time column ({exc})") from None
-    xyz = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
-    order = np.argsort(t_ref)
-    t_ref, xyz = t_ref[order], xyz[order]
-    k = np.clip(np.searchsorted(t_ref, time_gps_s), 1, max(t_ref.size - 1, 1)) if t_ref.size > 1 else np.zeros(time_gps_s.size, dtype=int)
-    k = np.where(np.abs(t_ref[k - 1] - time_gps_s) < np.abs(t_ref[k] - time_gps_s), k - 1, k) if t_ref.size > 1 else k
-    out = xyz[k].copy()
-    out[np.abs(t_ref[k] - time_gps_s) > 1e-3] = np.nan
-    return out
-
-
 def errors_table(positions: pd.DataFrame) -> pd.DataFrame:
     return positions[["time", "gps_week", "tow_s", "method", *ERROR_COLUMNS, "status"]]
 
@@ -262,11 +191,39 @@ def dop_table(positions: pd.DataFrame) -> pd.DataFrame:
     return positions[[*cols, "status"]]
 
 
-def method_solution_ok(s: MethodSolution) -> NDArray[np.bool_]:
-    return s.status == STATUS_OK
+IDENTIFICATION_COLUMNS = ["time", "gps_week", "tow_s", "x_m", "y_m", "z_m", "e_m", "n_m", "u_m", "kind"]
+"""Columns of the ``gnss-identify`` CSV."""
+
+
+def identification_table(ident: Identification) -> pd.DataFrame:
+    """One row per fitted or predicted sample: time, ECEF and ENU positions (m), ``kind``.
+
+    With GPS time stamps ``time`` is ISO-8601 (GPS scale) with ``gps_week`` and ``tow_s``;
+    with numeric input ``time`` is the input's seconds and the week columns are empty.
+    """
+    xyz, enu, times = ident.xyz_m, ident.enu_m, ident.t_s
+    table = pd.DataFrame({"x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
+                          "e_m": enu[:, 0], "n_m": enu[:, 1], "u_m": enu[:, 2], "kind": ident.kinds})
+    if ident.is_gps_time:
+        week, tow = gps_s2week_tow(times)
+        table.insert(0, "tow_s", np.round(tow, 3))
+        table.insert(0, "gps_week", week)
+        table.insert(0, "time", _iso(times))
+    else:
+        table.insert(0, "tow_s", np.nan)
+        table.insert(0, "gps_week", pd.array([None] * len(times), dtype="Int64"))
+        table.insert(0, "time", times)
+    return table
+
+
+def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> str:
+    """The ``--model-out`` document: the smoothing options and one record per window (JSON text)."""
+    doc = {"lag": smoothing.lag, "model": smoothing.model, "kernel": smoothing.kernel,
+           "windows": [m.to_dict() for m in models]}
+    return json.dumps(doc, indent=1) + "\n"
 
 
 __all__: Sequence[str] = [
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text", "write_atomic",
-    "parse_reference", "reference_from_sinex", "enu_errors",
+    "enu_errors", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
 ]

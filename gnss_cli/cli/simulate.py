@@ -9,16 +9,27 @@ unless ``--quiet``.
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
+from gnss_cli.config import packaged_defaults
 from gnss_cli.errors import UsageError
-from gnss_cli.sim.error_sources import parse_error_list
-from gnss_cli.sim.scenario import ScenarioConfig, load_config, parse_systems, run_scenario, write_scenario
+
+_SIM = packaged_defaults("simulate.toml")
+
+
+def _default(table: str, key: str) -> str:
+    """A packaged ``simulate.toml`` default as shown by ``--help``."""
+    value = _SIM.get(table, {}).get(key)
+    if isinstance(value, list):
+        return ",".join(str(v) for v in value) or "none"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return str(value)
+
 
 app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
 
@@ -28,91 +39,76 @@ _RINEX_VERSIONS = {"3": "3.04", "3.04": "3.04", "3.05": "3.05", "2": "2.11", "2.
 @app.command()
 def simulate(
     out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
-    trajectory: Annotated[Optional[str], typer.Option(help="static | flight | semicircle | csv:FILE")] = None,
-    start: Annotated[Optional[str], typer.Option(help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
-    duration: Annotated[Optional[float], typer.Option(help="Duration, s.")] = None,
-    interval: Annotated[Optional[float], typer.Option(help="Epoch interval, s.")] = None,
-    systems: Annotated[Optional[str], typer.Option(help="Systems, comma list of G, E, C.")] = None,
-    seed: Annotated[Optional[int], typer.Option(help="Seed of the random generator.")] = None,
+    trajectory: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "trajectory"), help="static | flight | semicircle | csv:FILE")] = None,
+    start: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
+    duration: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
+    interval: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,
+    systems: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "systems"), help="Systems, comma list of G, E, C.")] = None,
+    seed: Annotated[Optional[int], typer.Option(show_default=_default("simulate", "seed"), help="Seed of the random generator.")] = None,
     errors: Annotated[
         Optional[str],
-        typer.Option(help="none | all | comma list of clock,noise,iono,tropo,orbit,multipath,outliers."),
+        typer.Option(show_default=_default("simulate", "errors"), help="none | all | comma list of clock,noise,iono,tropo,orbit,multipath,outliers."),
     ] = None,
-    noise_sigma: Annotated[Optional[float], typer.Option(help="Zenith std of the white pseudorange noise, m.")] = None,
+    noise_sigma: Annotated[Optional[float], typer.Option(show_default=_default("errors", "noise_sigma_m"), help="Zenith std of the white pseudorange noise, m.")] = None,
     noise_model: Annotated[
-        Optional[str], typer.Option(help="elevation (sigma grows as 1/sin el) | constant.")
+        Optional[str], typer.Option(show_default="elevation" if _SIM.get("errors", {}).get("noise_elevation_dependent", True) else "constant", help="elevation (sigma grows as 1/sin el) | constant.")
     ] = None,
-    orbit_rms: Annotated[Optional[float], typer.Option(help="3-D RMS of the broadcast orbit error, m.")] = None,
-    iono_factor: Annotated[Optional[float], typer.Option(help="True ionosphere / Klobuchar.")] = None,
-    outlier_sats: Annotated[Optional[str], typer.Option(help="Satellites with injected outliers, e.g. G05,G07.")] = None,
-    outlier_m: Annotated[Optional[float], typer.Option(help="Outlier size, m.")] = None,
-    elevation_mask: Annotated[Optional[float], typer.Option(help="Elevation mask of what is written, deg.")] = None,
+    orbit_rms: Annotated[Optional[float], typer.Option(show_default=_default("errors", "orbit_rms_m"), help="3-D RMS of the broadcast orbit error, m.")] = None,
+    iono_factor: Annotated[Optional[float], typer.Option(show_default=_default("errors", "iono_factor"), help="True ionosphere / Klobuchar.")] = None,
+    outlier_sats: Annotated[Optional[str], typer.Option(show_default=_default("errors", "outlier_sats"), help="Satellites with injected outliers, e.g. G05,G07.")] = None,
+    outlier_m: Annotated[Optional[float], typer.Option(show_default=_default("errors", "outlier_m"), help="Outlier size, m.")] = None,
+    elevation_mask: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "elevation_mask_deg"), help="Elevation mask of what is written, deg.")] = None,
     position: Annotated[
-        Optional[str], typer.Option(help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
+        Optional[str], typer.Option(show_default=",".join(_default("simulate", k) for k in ("latitude_deg", "longitude_deg", "height_m")), help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
     ] = None,
-    rinex_version: Annotated[Optional[str], typer.Option(help="3 (3.04), 3.05 or 2 (2.11).")] = None,
+    rinex_version: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "rinex_version"), help="3 (3.04), 3.05 or 2 (2.11).")] = None,
     dual_frequency: Annotated[
-        Optional[bool], typer.Option("--dual-frequency/--single-frequency", help="Also C2W / C7Q / C7I.")
+        Optional[bool], typer.Option("--dual-frequency/--single-frequency", help="Also C2W / C7Q / C7I.", show_default="dual" if _SIM.get("simulate", {}).get("dual_frequency") else "single")
     ] = None,
     truth_ranges: Annotated[
-        Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", help="Also write truth_ranges.csv.")
+        Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", help="Also write truth_ranges.csv.", show_default="truth-ranges" if _SIM.get("simulate", {}).get("truth_ranges") else "no-truth-ranges")
     ] = None,
-    config: Annotated[Optional[Path], typer.Option(help="TOML settings (see gnss_cli/configs/simulate.toml).")] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML settings (any key of the packaged simulate.toml; flags override it).", show_default="packaged defaults")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", help="No summary on stderr.")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="Tracebacks for internal errors.")] = False,
     version: Annotated[bool, typer.Option("--version", callback=version_callback("gnss-simulate"), is_eager=True,
                                           help="Print the version and exit.")] = False,
 ) -> None:
     """Write obs.rnx, nav.rnx and truth.csv for a simulated receiver."""
+    from gnss_cli.sim.error_sources import parse_error_list
+    from gnss_cli.sim.scenario import ScenarioConfig, config_from_mapping, load_config, parse_systems, run_scenario, write_scenario
+
     cfg = load_config(config) if config is not None else ScenarioConfig()
-    changes: dict[str, object] = {}
-    if trajectory is not None:
-        changes["trajectory"] = trajectory
-    if start is not None:
-        changes["start"] = start
-    if duration is not None:
-        changes["duration_s"] = duration
-    if interval is not None:
-        changes["interval_s"] = interval
     if systems is not None:
-        changes["systems"] = parse_systems(systems)
-    if seed is not None:
-        changes["seed"] = seed
-    if elevation_mask is not None:
-        changes["elevation_mask_deg"] = elevation_mask
+        parse_systems(systems)  # flag errors are usage errors (exit 2), not configuration errors
+    if errors is not None:
+        parse_error_list(errors)
+    if noise_model is not None and noise_model not in ("elevation", "constant"):
+        raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
+    if rinex_version is not None and rinex_version not in _RINEX_VERSIONS:
+        raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
+    site: dict[str, float] = {}
     if position is not None:
-        parts = position.split(",")
         try:
-            lat, lon, h = (float(v) for v in parts)
+            lat, lon, h = (float(v) for v in position.split(","))
         except ValueError as exc:
             raise UsageError(f"--position: expected LAT_DEG,LON_DEG,HEIGHT_M, got {position!r}") from exc
-        changes.update(latitude_deg=lat, longitude_deg=lon, height_m=h)
-    if rinex_version is not None:
-        if rinex_version not in _RINEX_VERSIONS:
-            raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
-        changes["rinex_version"] = _RINEX_VERSIONS[rinex_version]
-    if dual_frequency is not None:
-        changes["layout"] = replace(cfg.layout, dual_frequency=dual_frequency)
-    if truth_ranges is not None:
-        changes["truth_ranges"] = truth_ranges
-    err = cfg.errors
-    if errors is not None:
-        err = err.with_sources(parse_error_list(errors))
-    if noise_sigma is not None:
-        err = replace(err, noise_sigma_m=noise_sigma)
-    if noise_model is not None:
-        if noise_model not in ("elevation", "constant"):
-            raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
-        err = replace(err, noise_elevation_dependent=noise_model == "elevation")
-    if orbit_rms is not None:
-        err = replace(err, orbit_rms_m=orbit_rms)
-    if iono_factor is not None:
-        err = replace(err, iono_factor=iono_factor)
-    if outlier_sats is not None:
-        err = replace(err, outlier_sats=tuple(s.strip().upper() for s in outlier_sats.split(",") if s.strip()))
-    if outlier_m is not None:
-        err = replace(err, outlier_m=outlier_m)
-    cfg = replace(cfg, errors=err, **changes)  # type: ignore[arg-type]
+        site = {"latitude_deg": lat, "longitude_deg": lon, "height_m": h}
+    flags = {
+        "simulate": {
+            "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
+            "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
+            "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
+            "truth_ranges": truth_ranges, "errors": errors,
+        },
+        "errors": {
+            "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",
+            "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_m": outlier_m,
+            "outlier_sats": None if outlier_sats is None else [s.strip().upper() for s in outlier_sats.split(",") if s.strip()],
+        },
+    }
+    mapping = {table: {k: v for k, v in keys.items() if v is not None} for table, keys in flags.items()}
+    cfg = config_from_mapping(mapping, cfg, source="command line")
     scenario = run_scenario(cfg)
     from gnss_cli.cli.output import OutputSet
 

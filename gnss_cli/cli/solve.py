@@ -22,6 +22,7 @@ from gnss_cli.errors import ConfigError, UsageError
 
 _DEFAULTS = packaged_defaults()
 _PROC = _DEFAULTS.get("processing", {})
+_SMOOTH = _DEFAULTS.get("smoothing", {})
 
 
 def _shown(value: Any) -> str:
@@ -51,11 +52,11 @@ def solve(
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults"),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout).", show_default="stdout"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here.", show_default="none"),
-    lag: int = typer.Option(0, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods."),
-    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag).", show_default="identify"),
-    kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default="shared"),
-    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full).", show_default="3 L"),
-    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default="15"),
+    lag: Optional[int] = typer.Option(None, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=_shown(_SMOOTH.get("lag"))),
+    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag).", show_default=_shown(_SMOOTH.get("model"))),
+    kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
+    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
+    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
@@ -68,11 +69,6 @@ def solve(
         raise UsageError("give one of --reference, --reference-sinex, --reference-csv")
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
-    given = [flag for flag, v in zip(SMOOTHING_FLAGS, (model, kernel, order, window, model_out)) if v is not None]
-    if lag == 0 and given:
-        raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
-    if lag < 0:
-        raise ConfigError(f"--lag: expected an integer >= 0, received {lag}")
     from gnss_cli.cli.output import OutputSet
     from gnss_cli.cli.progress import Progress
 
@@ -85,16 +81,23 @@ def solve(
             "tropo": tropo,
             "elevation_mask_deg": elevation_mask,
             "systems": systems,
+            "smoothing.lag": lag,
+            "smoothing.model": model,
+            "smoothing.kernel": kernel,
+            "smoothing.order": order,
+            "smoothing.window": window,
         }
         from gnss_cli.config import load_config
 
         cfg = load_config(config, overrides)
-        if lag > 0 and "stls" not in cfg.methods:
+        given = [flag for flag, v in zip(SMOOTHING_FLAGS, (model, kernel, order, window, model_out)) if v is not None]
+        if cfg.smoothing.lag == 0 and given:
+            raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
+        if cfg.smoothing.lag > 0 and "stls" not in cfg.methods:
             raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
         progress = Progress("gnss-solve", enabled=not quiet)
         try:
-            smoothing = dict(lag=lag, model=model or "identify", kernel=kernel or "shared", order=order, window=window)
-            tables, models, warnings = _run(files, cfg, progress, smoothing, reference, reference_sinex, reference_csv)
+            tables, models, warnings = _run(files, cfg, progress, reference, reference_sinex, reference_csv)
         finally:
             progress.done()
         _write(outputs, targets, tables, models)
@@ -121,26 +124,15 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
     return targets
 
 
-def _run(files: list[Path], cfg: Any, progress: Any, smoothing: dict[str, Any], reference: Optional[str],
-         reference_sinex: Optional[Path], reference_csv: Optional[Path]) -> tuple[dict[str, Any], Any, list[str]]:
-    """Process the files and build the tables (heavy imports happen here)."""
-    from gnss_cli.pipeline import run
-    from gnss_cli.report import (
-        dop_table,
-        errors_table,
-        parse_reference,
-        positions_table,
-        reference_from_csv,
-        reference_from_sinex,
-        summary_table,
-    )
+def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], reference_sinex: Optional[Path],
+         reference_csv: Optional[Path]) -> tuple[dict[str, Any], str, list[str]]:
+    """Process the files (one library call) and build the tables; heavy imports happen here."""
+    from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_sinex
+    from gnss_cli.pipeline import process
+    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, summary_table
 
     ref = parse_reference(reference) if reference else None
-    models = None
-    if smoothing["lag"] > 0:
-        result, models = _smooth_stls(files, cfg, progress, **smoothing)
-    else:
-        result = run(files[0], files[1:], cfg, progress=progress)
+    result = process(files[0], files[1:], cfg, progress=progress)
     if reference_sinex is not None:
         if not result.epochs.marker_name:
             raise ConfigError(f"--reference-sinex: {files[0]} has no MARKER NAME to look up")
@@ -151,41 +143,20 @@ def _run(files: list[Path], cfg: Any, progress: Any, smoothing: dict[str, Any], 
     tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref)}
     if ref is not None:
         tables["errors"] = errors_table(positions)
-    return tables, models, list(result.warnings)
+    return tables, models_json(cfg.smoothing, result.models), list(result.warnings)
 
 
-def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], models: Any) -> None:
+def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], models_text: str) -> None:
     """Stage every output (committed together when the ``OutputSet`` closes), or print to stdout."""
-    import json
-
     from gnss_cli.report import to_csv_text
 
     for name, path in targets.items():
         if name == "models":
-            outputs.write_text(path, json.dumps(models, indent=1) + "\n")
+            outputs.write_text(path, models_text)
         elif name in tables:
             outputs.write_text(path, to_csv_text(tables[name]))
     if "positions" not in targets:
         write_stdout(to_csv_text(tables["positions"]))
-
-
-def _smooth_stls(files, cfg, progress, lag: int, model: str, kernel: str, order: Optional[int],  # type: ignore[no-untyped-def]
-                 window: Optional[int]):
-    """Run the other methods (and WLS), then make the stls rows the behavioral smoothing of the WLS fixes."""
-    import dataclasses
-
-    from gnss_cli.kinematic import DEFAULT_WINDOW, smooth
-    from gnss_cli.pipeline import run
-
-    others = tuple(m for m in cfg.methods if m != "stls")
-    result = run(files[0], files[1:], dataclasses.replace(cfg, methods=others + (() if "wls" in others else ("wls",))),
-                 progress=progress)
-    progress(f"stls: smoothing, lag {lag}", 0.0)
-    sol, models = smooth(result.epochs, result.solutions["wls"], cfg, lag, model=model, kernel=kernel, order=order,
-                         window=DEFAULT_WINDOW if window is None else window)
-    solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in cfg.methods}
-    record = {"lag": lag, "model": model, "kernel": kernel, "windows": models}
-    return dataclasses.replace(result, solutions=solutions), record
 
 
 def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]

@@ -7,16 +7,47 @@ geometric range including the rotation of the Earth during signal flight (Sagnac
 
 and the pseudorange design row is ``[-e, 1]`` with ``e = (s - x) / |s - x|`` (DESIGN.md
 section 2). Everything is vectorized over ``(T, n)`` epochs x satellites.
+
+:func:`linearize` builds the whole linearized system ``(A, q, W)`` of a block of epochs:
+ranges, corrections (Klobuchar, Saastamoinen), the elevation mask, the variances of
+:mod:`gnss_cli.gnss.weights`, and one clock column per system.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.constants import C_M_S, OMEGA_E_RAD_S
+from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
+from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
+from gnss_cli.gnss.weights import pseudorange_variance_m2
+
+if TYPE_CHECKING:
+    from gnss_cli.config import ProcessingConfig
 
 F64 = NDArray[np.float64]
+
+EARTH_SURFACE_BAND_M = (6.0e6, 7.0e6)
+"""Geocentric radii (m) between which a position counts as near the Earth's surface."""
+
+
+class EpochArrays(Protocol):
+    """What :func:`linearize` reads of the prepared epochs (:class:`gnss_cli.pipeline.EpochData`)."""
+
+    time_gps_s: F64
+    sv: NDArray[np.str_]
+    pr_corrected_m: F64
+    sat_ecef_m: F64
+    ura_m: F64
+    usable: NDArray[np.bool_]
+    klobuchar: tuple[F64, F64] | None
+    systems: tuple[str, ...]
+    system_index: NDArray[np.int64] | None
+    iono_scale: F64 | None
 
 
 def sagnac_range(sat_ecef_m: F64, rx_ecef_m: F64) -> tuple[F64, F64]:
@@ -41,3 +72,115 @@ def sagnac_range(sat_ecef_m: F64, rx_ecef_m: F64) -> tuple[F64, F64]:
         sat_ecef_m[..., 0] * rx_ecef_m[:, None, 1] - sat_ecef_m[..., 1] * rx_ecef_m[:, None, 0]
     )
     return rho + sagnac, unit
+
+
+@dataclass
+class Linearization:
+    """Linearized pseudoranges of a block of epochs (``t`` epochs, ``n`` satellites, ``k`` clocks).
+
+    Attributes
+    ----------
+    A : ``(t, n [+ k], 3 + k)`` design rows ``[-e, clock one-hot]``; with ``k > 1`` the last
+        ``k`` rows are the clock-fixing constraints of systems without satellites.
+    q : ``(t, n [+ k])`` observed minus computed, m.
+    mask : ``(t, n [+ k])`` rows used (above the mask, usable; set constraint rows).
+    var_m2 : ``(t, n [+ k])`` row variances, m^2 (:func:`~gnss_cli.gnss.weights.pseudorange_variance_m2`).
+    unit : ``(t, n [+ k], 3)`` line-of-sight unit vectors (0 for constraint rows).
+    range_m : ``(t, n [+ k])`` geometric ranges, m (1 for constraint rows).
+    rot : ``(t, 3, 3)`` ECEF -> local ENU rotation at each position.
+    """
+
+    A: F64
+    q: F64
+    mask: NDArray[np.bool_]
+    var_m2: F64
+    unit: F64
+    range_m: F64
+    rot: F64
+
+
+ISB_CONSTRAINT_VAR_M2 = 0.01
+"""Variance (m^2) of RTKLIB's pseudo-observation fixing the clock of a system without satellites."""
+
+
+def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig) -> Linearization:
+    """Linearized pseudoranges at ``x`` (ECEF m) and clocks ``b`` (``(t, k)``, m, one per system).
+
+    Columns: ``[-e (3), clock of system 0, ..., clock of system k-1]``. With several systems,
+    ``k`` constraint rows follow the ``n`` satellite rows: an epoch without satellites of a
+    system gets ``clock_j = 0`` as a pseudo-observation (variance 0.01 m^2), as in RTKLIB.
+
+    Parameters
+    ----------
+    data : EpochArrays
+        The prepared epochs (:class:`gnss_cli.pipeline.EpochData`).
+    rows : ``(t,)`` epoch indices of ``data`` to linearize.
+    x : ``(t, 3)`` receiver positions, ECEF m.
+    b : ``(t, k)`` receiver clocks, m (``(t,)``: one value for every system).
+    config : ProcessingConfig
+        Elevation mask, atmosphere models and the weight model. Corrections, the mask and
+        the weights apply to positions near the Earth's surface (:data:`EARTH_SURFACE_BAND_M`)
+        only: the first iterations from the Earth's centre use none of them, as RTKLIB.
+    """
+    k = len(data.systems)
+    b = np.asarray(b, dtype=np.float64)
+    if b.ndim == 1:  # one clock for all systems' columns given as (t,): broadcast
+        b = np.repeat(b[:, None], k, axis=1)
+    t_n, n = rows.size, data.sv.size
+    # every per-satellite term is evaluated on the usable observations only, then scattered
+    ti, si = np.nonzero(data.usable[rows])
+    tr = rows[ti]
+    rng_u, unit_u = sagnac_range(data.sat_ecef_m[tr, si][:, None, :], x[ti])
+    rng_u, unit_u = rng_u[:, 0], unit_u[:, 0]
+    radius = np.linalg.norm(x, axis=1)
+    near = (radius > EARTH_SURFACE_BAND_M[0]) & (radius < EARTH_SURFACE_BAND_M[1])
+    lat, lon, h = ecef2geodetic(x)
+    rot = ecef2enu_rotation(lat, lon)
+    az, el = azimuth_elevation(np.einsum("nij,nj->ni", rot[ti], unit_u))
+    near_u = near[ti]
+    mask_u = ~near_u | (el >= np.deg2rad(config.elevation_mask_deg))
+    corrected = near_u & mask_u
+    iono = np.zeros_like(rng_u)
+    if config.iono == "klobuchar" and data.klobuchar is not None and corrected.any():
+        alpha, beta = data.klobuchar
+        c = np.flatnonzero(corrected)
+        iono[c] = klobuchar_delay_m(alpha, beta, lat[ti[c]], lon[ti[c]], az[c], el[c], data.time_gps_s[tr[c]])
+        if data.iono_scale is not None:
+            iono[c] *= data.iono_scale[tr[c], si[c]]
+    tropo = np.zeros_like(rng_u)
+    if config.tropo == "saastamoinen" and corrected.any():
+        c = np.flatnonzero(corrected)
+        tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
+    sysidx = data.system_index if data.system_index is not None else np.zeros(n, dtype=np.int64)
+    onehot = (sysidx[:, None] == np.arange(k)[None, :]).astype(np.float64)  # (n, k)
+    efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
+    var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
+    q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
+    mask = np.zeros((t_n, n), dtype=bool)
+    mask[ti, si] = mask_u
+    q = np.zeros((t_n, n))
+    q[ti, si] = np.where(mask_u, q_u, 0.0)
+    var = np.ones((t_n, n))
+    var[ti, si] = np.where(mask_u, var_u, 1.0)
+    A = np.zeros((t_n, n, 3 + k))
+    A[ti, si, :3] = np.where(mask_u[:, None], -unit_u, 0.0)
+    A[ti, si, 3 + sysidx[si]] = np.where(mask_u, 1.0, 0.0)
+    unit = np.zeros((t_n, n, 3))
+    unit[ti, si] = unit_u
+    rng = np.ones((t_n, n))
+    rng[ti, si] = rng_u
+    unit_c = unit
+    rng_c = rng
+    if k > 1:
+        present = (mask[:, :, None] & (onehot[None, :, :] > 0)).any(axis=1)  # (t, k)
+        t_n = rows.size
+        a_c = np.zeros((t_n, k, 3 + k))
+        a_c[:, np.arange(k), 3 + np.arange(k)] = 1.0
+        q_c = -b
+        A = np.concatenate([A, np.where(~present[..., None], a_c, 0.0)], axis=1)
+        q = np.concatenate([q, np.where(~present, q_c, 0.0)], axis=1)
+        mask = np.concatenate([mask, ~present], axis=1)
+        var = np.concatenate([var, np.full((t_n, k), ISB_CONSTRAINT_VAR_M2)], axis=1)
+        unit_c = np.concatenate([unit, np.zeros((t_n, k, 3))], axis=1)
+        rng_c = np.concatenate([rng, np.full((t_n, k), 1.0)], axis=1)
+    return Linearization(A, q, mask, var, unit_c, rng_c, rot)

@@ -29,6 +29,7 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.constants import (
+    BDT_MINUS_GPST_S,
     GM_GAL_M3_S2,
     GM_GPS_M3_S2,
     OMEGA_E_BDS_RAD_S,
@@ -43,9 +44,6 @@ F64 = NDArray[np.float64]
 
 KEPLER_SYSTEMS = ("G", "E", "C", "J")
 """RINEX system letters whose broadcast orbits are Keplerian (handled here)."""
-
-BDT_MINUS_GPST_S = -14.0
-"""BDT - GPST, s (BDT started 2006-01-01 00:00:00 UTC, 14 s behind GPST)."""
 
 BDS_GEO_PRNS = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
 """BeiDou PRNs of geostationary satellites (RTKLIB convention, BDS-3 GEO from 59)."""

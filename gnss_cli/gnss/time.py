@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from gnss_cli.constants import GPS_EPOCH, SECONDS_PER_WEEK
+from gnss_cli.constants import GPS_EPOCH_ISO, SECONDS_PER_WEEK
+
+GPS_EPOCH = np.datetime64(GPS_EPOCH_ISO, "ns")
 
 
 def datetime2gps_s(t: ArrayLike) -> NDArray[np.float64]:

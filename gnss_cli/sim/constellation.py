@@ -40,9 +40,6 @@ from gnss_cli.gnss.orbits import solve_kepler
 
 F64 = NDArray[np.float64]
 
-BDT_MINUS_GPST_S = -14.0
-"""BeiDou time minus GPS time (integer leap-second offset), s."""
-
 BDT_WEEK0_GPS_S = 1356 * SECONDS_PER_WEEK + 14.0
 """Start of BDT week 0 (2006-01-01 00:00:00 BDT) in GPS seconds."""
 

@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.constants import SECONDS_PER_WEEK
+from gnss_cli.constants import BDT_MINUS_GPST_S, SECONDS_PER_WEEK
 from gnss_cli.errors import UsageError
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.time import gps_s2datetime
-from gnss_cli.sim.constellation import BDT_MINUS_GPST_S, SYSTEMS, file_omega0_rad, system_week_start_gps_s
+from gnss_cli.sim.constellation import SYSTEMS, file_omega0_rad, system_week_start_gps_s
 from gnss_cli.sim.observables import Observations
 
 F64 = NDArray[np.float64]

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from gnss_cli.constants import METHOD_KEYS
 from gnss_cli.errors import UsageError
 from gnss_cli.solvers.dls import solve_dls_batch
 from gnss_cli.solvers.ls import solve_ls_batch, solve_wls_batch
@@ -94,7 +95,8 @@ REGISTRY: dict[str, Method] = {
     "wtls": Method("wtls", solve_wtls_batch, weights=True, exact_columns=False, row_cov=False),
 }
 
-METHODS: tuple[str, ...] = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
+METHODS: tuple[str, ...] = METHOD_KEYS
+"""Registry keys in their documented order (:data:`gnss_cli.constants.METHOD_KEYS`)."""
 
 
 def _lookup(method: object) -> Method:

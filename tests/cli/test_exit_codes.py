@@ -31,11 +31,13 @@ CASES = [
     ("--lag not a number", "solve", ["{obs}", "{nav}", "--lag", "abc"], 2, r"Invalid value for '--lag'"),
     ("two references", "solve", ["{obs}", "{nav}", "--reference", "1,2,3", "--reference-csv", "{truth}"], 2, r"give one of --reference"),
     ("-o and --out-dir", "solve", ["{obs}", "{nav}", "-o", "a.csv", "--out-dir", "d"], 2, r"not both"),
-    ("--model without --lag", "solve", ["{obs}", "{nav}", "--model", "pva"], 2, r"--model: only with --lag"),
+    ("--window without --lag", "solve", ["{obs}", "{nav}", "--window", "30"], 2, r"--window: only with --lag"),
+    ("--model pva without --lag", "solve", ["{obs}", "{nav}", "--model", "pva"], 3, r"smoothing.model = 'pva' needs smoothing.lag >= 1"),
+    ("full kernel order too high", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "3", "--kernel", "full", "--order", "20"], 3, r"smoothing.order: expected 1 <= order < 3 \(lag \+ 1\) = 12"),
     ("--lag without stls", "solve", ["{obs}", "{nav}", "--lag", "3", "--method", "wls"], 2, r"needs --method stls"),
     ("unknown method", "solve", ["{obs}", "{nav}", "--method", "foo"], 3, r"unknown method 'foo'"),
     ("elevation mask out of range", "solve", ["{obs}", "{nav}", "--elevation-mask", "95"], 3, r"elevation_mask_deg: expected 0 <= value < 90"),
-    ("negative lag", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "-1"], 3, r"--lag: expected an integer >= 0"),
+    ("negative lag", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "-1"], 3, r"smoothing.lag: expected an integer >= 0"),
     ("bad reference", "solve", ["{obs}", "{nav}", "--reference", "1,2"], 3, r"--reference: expected"),
     ("bad TOML", "solve", ["{obs}", "{nav}", "--config", "{here}/bad.toml"], 3, r"bad.toml: invalid TOML"),
     ("-o names an input", "solve", ["{here}/obs.rnx", "{nav}", "-o", "{here}/obs.rnx"], 3, r"is one of the input files"),
@@ -151,3 +153,18 @@ def test_files_get_the_umask(tmp_path: Path) -> None:
         assert proc.returncode == 0, proc.stderr
         for f in out.iterdir():
             assert f.stat().st_mode & 0o777 == mode, (f, oct(f.stat().st_mode))
+
+
+def test_readme_table_lists_every_case_with_its_exit_code() -> None:
+    """The README's table and the cases run above are the same list."""
+    text = (REPO / "README.md").read_text()
+    section = text[text.index("### Exit codes"):text.index("### Output columns")]
+    rows = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[2].isdigit():
+            rows[cells[0]] = int(cells[2])
+    expected = {case[0]: case[3] for case in CASES}
+    expected.update({"Ctrl-C during a run": 130, "SIGTERM during a run": 143})
+    assert rows == expected
+    assert len(rows) >= 15

@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from gnss_cli.cli.identify import CSV_COLUMNS, app, main
+from gnss_cli.cli.identify import app, main
+from gnss_cli.report import IDENTIFICATION_COLUMNS as CSV_COLUMNS
 from gnss_cli.gnss.frames import ecef2enu, enu2ecef
 
 ORIGIN_ECEF_M = np.array([4.0e6, 1.0e6, 4.8e6])

@@ -15,7 +15,7 @@ import pytest
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
 from gnss_cli.config import load_config
-from gnss_cli.pipeline import STATUS_OK, RunResult, load_epochs, solve_method
+from gnss_cli.pipeline import EpochStatus, RunResult, load_epochs, solve_method
 from gnss_cli.report import dop_table, positions_table
 
 KMS3 = "kms3-2022159-rinex4"
@@ -55,7 +55,7 @@ def test_per_system_tdop_is_the_clock_diagonal_of_the_independent_covariance(kms
     assert len(data.systems) >= 4 and data.systems[0] == "G"
     assert sol.tdops is not None and sol.tdops.shape == (data.time_gps_s.size, len(data.systems))
     checked = 0
-    for t in np.flatnonzero(sol.status == STATUS_OK):
+    for t in np.flatnonzero(sol.status == EpochStatus.OK):
         cov, present, n_sat = _independent_cov(data, sol.x_ecef_m, t)
         assert sol.n_sat[t] == n_sat
         for j, system in enumerate(data.systems):

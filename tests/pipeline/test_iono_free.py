@@ -18,7 +18,7 @@ from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.io.compression import open_bytes
-from gnss_cli.pipeline import STATUS_OK, load_epochs, solve_method
+from gnss_cli.pipeline import EpochStatus, load_epochs, solve_method
 from gnss_cli.report import enu_errors
 
 REF_ESBC = np.array([3582104.922, 532590.196, 5232755.366])
@@ -63,7 +63,7 @@ def _distance_to_peer(data, sol, tow_peer: np.ndarray, xyz_peer: np.ndarray) -> 
 
 def test_esbc_gps_iono_free_equals_rnx2rtkp(rinex_dir, peer, esbc_plain, tmp_path):
     data, sol = _ours(rinex_dir, ["G"])
-    assert (sol.status == STATUS_OK).sum() == 2880
+    assert (sol.status == EpochStatus.OK).sum() == 2880
     tow, xyz = peer(esbc_plain[0], [esbc_plain[1]], tmp_path, pos1_ionoopt="dual-freq", pos1_navsys=NAVSYS["G"])
     assert tow.size == 2880
     dist = _distance_to_peer(data, sol, tow, xyz)
@@ -78,7 +78,7 @@ def test_esbc_all_systems_iono_free_with_rtklib_pairs_close_to_rnx2rtkp(rinex_di
     cfg = tmp_path / "b2i.toml"
     cfg.write_text('[signals.second]\nC = ["C7I"]\n')
     data, sol = _ours(rinex_dir, ["G", "E", "C", "R", "J"], cfg)
-    assert (sol.status == STATUS_OK).sum() == 2880
+    assert (sol.status == EpochStatus.OK).sum() == 2880
     tow, xyz = peer(esbc_plain[0], [esbc_plain[1]], tmp_path, pos1_ionoopt="dual-freq", pos1_navsys=NAVSYS["all"])
     dist = _distance_to_peer(data, sol, tow, xyz)
     assert np.median(dist) < 0.10, np.median(dist)  # measured 0.04 m (Galileo SISA and record choice differ)
@@ -88,7 +88,7 @@ def test_esbc_all_systems_iono_free_with_rtklib_pairs_close_to_rnx2rtkp(rinex_di
 def test_esbc_all_systems_iono_free_default_pairs(rinex_dir):
     data, sol = _ours(rinex_dir, None)
     assert data.systems == ("G", "E", "C", "J", "R")
-    assert (sol.status == STATUS_OK).sum() == 2880
+    assert (sol.status == EpochStatus.OK).sum() == 2880
     assert _rms(sol.x_ecef_m) <= 1.05 * 1.56  # RTKLIB dual-freq, all systems: 1.56 m; measured 1.54 m
     # satellites without a second frequency (BeiDou-3 without B3I, GLONASS without G2) are dropped
     assert any("without a usable second frequency" in w for w in data.warnings)

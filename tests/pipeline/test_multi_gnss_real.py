@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gnss_cli.config import load_config
-from gnss_cli.pipeline import STATUS_OK, load_epochs, solve_method
+from gnss_cli.pipeline import EpochStatus, load_epochs, solve_method
 from gnss_cli.report import enu_errors
 
 REF_ESBC = np.array([3582104.922, 532590.196, 5232755.366])
@@ -26,7 +26,7 @@ def test_esbc_each_system_and_all_within_5_percent_of_rtklib(rinex_dir, systems)
     cfg = load_config(overrides={"methods": "wls", "systems": systems.split(",")})
     data = load_epochs(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz", [d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"], cfg)
     s = solve_method(data, "wls", cfg)
-    assert (s.status == STATUS_OK).sum() == 2880
+    assert (s.status == EpochStatus.OK).sum() == 2880
     rms = _rms(s.x_ecef_m, REF_ESBC)
     assert rms <= 1.05 * RTKLIB_ESBC[systems], rms
     if systems == "G,E,C,R,J":
@@ -39,5 +39,5 @@ def test_kms3_rinex4_all_systems(rinex_dir):
     cfg = load_config(overrides={"methods": "wls", "systems": ["G", "E", "C", "R", "J"]})
     data = load_epochs(d / "KMS300DNK_R_20221591000_01H_30S_MO.crx", [d / "KMS300DNK_R_20221591000_01H_MN.rnx.gz"], cfg)
     s = solve_method(data, "wls", cfg)
-    assert (s.status == STATUS_OK).sum() == 19
+    assert (s.status == EpochStatus.OK).sum() == 19
     assert _rms(s.x_ecef_m, HEADER_KMS3) <= 2.2  # RTKLIB: 2.02 m

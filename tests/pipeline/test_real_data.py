@@ -7,7 +7,7 @@ import pytest
 
 from gnss_cli.config import load_config
 from gnss_cli.gnss.time import gps_s2week_tow
-from gnss_cli.pipeline import STATUS_OK, run
+from gnss_cli.pipeline import EpochStatus, run
 from gnss_cli.report import enu_errors
 
 REF_0759 = np.array([-3976219.1879, 3382371.6041, 3652511.1428])
@@ -29,7 +29,7 @@ def run_0759(rinex_dir):
 def test_0759_all_epochs_solved_and_rms_close_to_rtklib(run_0759):
     for method in ("ls", "wls"):
         s = run_0759.solutions[method]
-        assert (s.status == STATUS_OK).sum() == 120
+        assert (s.status == EpochStatus.OK).sum() == 120
         assert _rms3d(s.x_ecef_m, REF_0759) <= 1.93  # RTKLIB: 1.84 m with the same settings
 
 
@@ -50,7 +50,7 @@ def test_p433_rinex3_hatanaka_gps(rinex_dir):
     d = rinex_dir / "p433-2019"
     r = run(d / "P43300USA_R_20190012056_17M_15S_MO.crx", [d / "brdc0010.19n"], load_config(overrides={"methods": "wls"}))
     s = r.solutions["wls"]
-    assert (s.status == STATUS_OK).sum() == 70
+    assert (s.status == EpochStatus.OK).sum() == 70
     assert _rms3d(s.x_ecef_m, HEADER_P433) <= 3.0
 
 
@@ -62,7 +62,7 @@ def test_esbc_24h_gps(rinex_dir):
         load_config(overrides={"methods": "wls", "systems": ["G"]}),
     )
     s = r.solutions["wls"]
-    assert (s.status == STATUS_OK).sum() == 2880
+    assert (s.status == EpochStatus.OK).sum() == 2880
     assert _rms3d(s.x_ecef_m, REF_ESBC) <= 1.87  # RTKLIB, same settings: 1.78 m
 
 
@@ -73,7 +73,7 @@ def test_every_method_on_0759_gives_a_row_per_epoch(rinex_dir):
     for name, s in r.solutions.items():
         assert s.status.shape == (120,)
         # Every method solves every epoch, with finite positions and DOPs.
-        assert np.all(s.status == STATUS_OK), (name, np.unique(s.status))
+        assert np.all(s.status == EpochStatus.OK), (name, np.unique(s.status))
         assert np.all(np.isfinite(s.x_ecef_m)) and np.all(np.isfinite(s.gdop))
     # STLS with the realistic (tiny) geometry covariance reduces to WLS.
     dx = np.linalg.norm(r.solutions["stls"].x_ecef_m - r.solutions["wls"].x_ecef_m, axis=1)

@@ -11,7 +11,7 @@ import gnss_cli.io.rinex3_nav as rinex3_nav
 from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError
 from gnss_cli.io.compression import open_bytes
-from gnss_cli.pipeline import STATUS_OK, load_epochs, solve_method
+from gnss_cli.pipeline import EpochStatus, load_epochs, solve_method
 
 ESBC_OBS = "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz"
 ESBC_NAV = "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"
@@ -78,7 +78,7 @@ def test_per_system_nav_files_give_the_mixed_file_result_in_one_read(rinex_dir, 
     np.testing.assert_array_equal(split.pr_corrected_m, mixed.pr_corrected_m)
     np.testing.assert_array_equal(split.sat_ecef_m, mixed.sat_ecef_m)
     sol = solve_method(split, "wls", cfg)
-    assert (sol.status == STATUS_OK).sum() == 2880
+    assert (sol.status == EpochStatus.OK).sum() == 2880
 
 
 @pytest.mark.parametrize("value", ["X", "G,G", ","])

@@ -3,6 +3,7 @@ simulations, real static and kinematic data."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -13,13 +14,14 @@ import pytest
 from typer.testing import CliRunner
 
 from gnss_cli.behavior import KernelRepresentation
+from gnss_cli.behavior.multi_epoch import behavior_basis, epoch_information, multi_epoch_cov
+from gnss_cli.behavior.windows import segments, windows
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
-from gnss_cli.config import load_config
+from gnss_cli.config import ProcessingConfig, SmoothingConfig, load_config
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
-from gnss_cli.kinematic import behavior_basis, multi_epoch_cov, segments, smooth, windows
-from gnss_cli.pipeline import load_epochs, solve_method
-from gnss_cli.report import reference_from_csv
+from gnss_cli.io.reference import reference_from_csv
+from gnss_cli.pipeline import load_epochs, smooth, solve_method
 
 RTKLIB_0759_ECEF_M = np.array([-3976219.1879, 3382371.6041, 3652511.1428])
 
@@ -44,6 +46,10 @@ def static_set(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unt
 @pytest.fixture(scope="module")
 def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _simulate(tmp_path_factory.mktemp("flight"), "flight")
+
+
+def _smoothing(cfg: ProcessingConfig, **options: object) -> ProcessingConfig:
+    return dataclasses.replace(cfg, smoothing=dataclasses.replace(SmoothingConfig(), **options))
 
 
 def _rms_3d(x: np.ndarray, ref: np.ndarray) -> float:
@@ -71,9 +77,8 @@ def test_multi_epoch_cov_equals_dense_stacked_inverse() -> None:
     u = rng.normal(size=(n_t, n_sv, 3))
     p_m = -u / np.linalg.norm(u, axis=2, keepdims=True)
     wgt = rng.uniform(0.5, 2.0, size=(n_t, n_sv))
-    from gnss_cli.kinematic import _epoch_information
 
-    info, h, cv = _epoch_information(p_m, wgt)
+    info, h, cv = epoch_information(p_m, wgt)
     for ker in (KernelRepresentation.static(3), KernelRepresentation.pva(3),
                 KernelRepresentation.shared(np.poly([1.0, 0.9, 0.8])[::-1], 3)):
         basis = behavior_basis(ker, n_t)
@@ -106,9 +111,8 @@ def test_multi_epoch_cov_with_one_clock_per_system_equals_dense_stacked_inverse(
     wgt[1, 4:n_sv] = 0.0  # system 1 absent at epoch 1: its clock is fixed by a constraint row
     clock_cols[1, n_sv + 1, 1] = 1.0
     wgt[1, n_sv + 1] = 100.0
-    from gnss_cli.kinematic import _epoch_information
 
-    info, h, cv = _epoch_information(p_m, wgt, clock_cols)
+    info, h, cv = epoch_information(p_m, wgt, clock_cols)
     for ker in (KernelRepresentation.static(3), KernelRepresentation.pva(3)):
         basis = behavior_basis(ker, n_t)
         k = basis.shape[2]
@@ -154,11 +158,10 @@ def test_multi_epoch_cov_of_stacked_windows_equals_one_at_a_time() -> None:
     rng = np.random.default_rng(2)
     n_t, n_sv = 6, 7
     bases, infos, hs, cvs = [], [], [], []
-    from gnss_cli.kinematic import _epoch_information
 
     for ker in (KernelRepresentation.pva(3), KernelRepresentation.shared(np.poly([1.0, 0.95, 0.9])[::-1], 3)):
         u = rng.normal(size=(n_t, n_sv, 3))
-        info, h, cv = _epoch_information(-u / np.linalg.norm(u, axis=2, keepdims=True), rng.uniform(0.5, 2.0, (n_t, n_sv)))
+        info, h, cv = epoch_information(-u / np.linalg.norm(u, axis=2, keepdims=True), rng.uniform(0.5, 2.0, (n_t, n_sv)))
         bases.append(behavior_basis(ker, n_t))
         infos.append(info)
         hs.append(h)
@@ -173,9 +176,9 @@ def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: i
     cfg, data, ls, wls, ref = static_set
     mean_gdop, rms = [], []
     for window in (4, 16, 64, 0):
-        sol, models = smooth(data, wls, cfg, 1, model="static", window=window)
+        sol, models = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window=window))
         assert (sol.status == "ok").all()
-        assert all(m["status"] == "direct" for m in models)
+        assert all(m.status == "direct" for m in models)
         assert np.all(sol.gdop <= ls.gdop * (1 + 1e-9))
         assert np.all(sol.pdop <= ls.pdop * (1 + 1e-9))
         mean_gdop.append(float(np.mean(sol.gdop)))
@@ -249,7 +252,7 @@ def test_yamatogawa_kinematic_lag3(rinex_dir: Path) -> None:
     data = load_epochs(d / "yamatogawa_rover.obs", [d / "brdc0060.10n"], cfg)
     ls = solve_method(data, "ls", cfg)
     wls = solve_method(data, "wls", cfg)
-    sol, _ = smooth(data, wls, cfg, 3)
+    sol, _ = smooth(data, wls, _smoothing(cfg, lag=3))
     k = np.clip(np.searchsorted(t_ref, data.time_gps_s), 0, t_ref.size - 1)
     ref = np.where((np.abs(t_ref[k] - data.time_gps_s) < 0.5)[:, None], x_ref[k], np.nan)
     lat, lon, _ = ecef2geodetic(x_ref[0])

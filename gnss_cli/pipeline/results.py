@@ -1,0 +1,244 @@
+"""What a run produces: prepared epochs, per-method solutions, window models, epoch statuses.
+
+Epoch status
+------------
+Every epoch of every method carries one word of :class:`EpochStatus` (the CSV ``status``
+column). The solvers report a :class:`~gnss_cli.solvers.Status` per epoch and the behavioral
+identification a :class:`~gnss_cli.behavior.StlsStatus` per window; :func:`solver_epoch_status`
+and :func:`window_epoch_status` are the one place where they become epoch statuses:
+
+======================  ==========================================================================
+value                   meaning
+======================  ==========================================================================
+``ok``                  solved: Gauss-Newton converged (ls, wls), the one linear step succeeded
+                        (tls, dls, mtls, stls, wtls), or the epoch was smoothed (stls with lag)
+``iteration_limit``     ls/wls: no convergence within ``max_iterations`` (position left empty)
+``too_few_satellites``  fewer usable satellites than ``min_satellites`` or than 3 + clocks
+``rank_deficient``      solver: the (weighted) design matrix is rank deficient
+``nongeneric``          solver: nongeneric TLS problem (no unique solution)
+``non_finite``          solver: non-finite values in the computation
+``too_few_rows``        solver: fewer used rows than unknowns
+``degenerate_data``     solver: degenerate data (e.g. a zero augmented matrix)
+``fallback_wls``        stls with lag: the segment was too short or the window fit failed;
+                        the WLS fix, covariance and DOPs are kept
+======================  ==========================================================================
+
+Only ``ok`` and ``fallback_wls`` epochs have a position. A window model record
+(:class:`WindowModel`) has its own status: the identification outcome
+(:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.behavior import StlsStatus
+from gnss_cli.behavior.records import KernelRecord
+from gnss_cli.solvers import Status
+
+F64 = NDArray[np.float64]
+Progress = Callable[[str, float], None]
+"""Progress callback: ``(stage, fraction done in [0, 1])``."""
+
+
+class EpochStatus(str, Enum):
+    """Status of one epoch of one method (module docstring: the table of values)."""
+
+    OK = "ok"
+    ITERATION_LIMIT = "iteration_limit"
+    TOO_FEW_SATELLITES = "too_few_satellites"
+    RANK_DEFICIENT = "rank_deficient"
+    NONGENERIC = "nongeneric"
+    NON_FINITE = "non_finite"
+    TOO_FEW_ROWS = "too_few_rows"
+    DEGENERATE_DATA = "degenerate_data"
+    FALLBACK_WLS = "fallback_wls"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+_SOLVER_STATUS = {
+    Status.CONVERGED: EpochStatus.OK,
+    Status.ITERATION_LIMIT: EpochStatus.ITERATION_LIMIT,
+    Status.RANK_DEFICIENT: EpochStatus.RANK_DEFICIENT,
+    Status.NONGENERIC: EpochStatus.NONGENERIC,
+    Status.NON_FINITE: EpochStatus.NON_FINITE,
+    Status.TOO_FEW_ROWS: EpochStatus.TOO_FEW_ROWS,
+    Status.DEGENERATE_DATA: EpochStatus.DEGENERATE_DATA,
+}
+
+WINDOW_FAILED = "failed"
+"""Status of a window model record whose fit failed (no kernel, no misfit)."""
+
+
+def solver_epoch_status(code: int | Status) -> EpochStatus:
+    """The epoch status of a solver outcome (:class:`~gnss_cli.solvers.Status` code)."""
+    return _SOLVER_STATUS[Status(int(code))]
+
+
+def window_epoch_status(status: StlsStatus | None) -> EpochStatus:
+    """The status of the epochs a smoothing window supplies: ``ok`` when its fit has a
+    trajectory (``status >= 0``), ``fallback_wls`` when it failed (``None`` or negative)."""
+    return EpochStatus.OK if status is not None and status >= 0 else EpochStatus.FALLBACK_WLS
+
+
+def window_status_word(status: StlsStatus | None) -> str:
+    """The status word of a window model record: the identification outcome or ``failed``."""
+    return WINDOW_FAILED if status is None or status < 0 else StlsStatus(int(status)).name.lower()
+
+
+@dataclass(frozen=True, slots=True)
+class WindowModel:
+    """The behavioral model of one smoothing window (one record of ``--model-out``).
+
+    Attributes
+    ----------
+    segment, window : int
+        Segment index and window index within it.
+    start_time_gps_s, end_time_gps_s : float
+        First and last epoch of the window, s since the GPS epoch.
+    n_epochs : int
+        Epochs in the window.
+    model : str
+        ``identify``, ``pva`` or ``static``.
+    structure : str
+        ``shared`` or ``full`` (the fixed models are shared).
+    kernel : KernelRecord or None
+        The kernel, None when the fit failed.
+    misfit : float or None
+        Weighted misfit (dimensionless), None when the fit failed.
+    status : str
+        :func:`window_status_word`.
+    message : str
+        Explanation of the status.
+    """
+
+    segment: int
+    window: int
+    start_time_gps_s: float
+    end_time_gps_s: float
+    n_epochs: int
+    model: str
+    structure: str
+    kernel: KernelRecord | None
+    misfit: float | None
+    status: str
+    message: str
+
+    def to_dict(self) -> dict[str, object]:
+        """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""
+        out: dict[str, object] = {
+            "segment": self.segment, "window": self.window, "start_time_gps_s": self.start_time_gps_s,
+            "end_time_gps_s": self.end_time_gps_s, "n_epochs": self.n_epochs, "model": self.model,
+            "structure": self.structure,
+        }
+        if self.kernel is None:
+            out.update({"status": self.status, "message": self.message, "misfit": self.misfit})
+        else:
+            out.update(self.kernel.to_dict())
+            out.update({"misfit": self.misfit, "status": self.status, "message": self.message})
+        return out
+
+
+@dataclass(frozen=True)
+class EpochData:
+    """Everything the estimators need, prepared once per run.
+
+    Attributes
+    ----------
+    time_gps_s : ``(T,)`` epochs, s since the GPS epoch.
+    sv : ``(n,)`` satellite ids.
+    pr_corrected_m : ``(T, n)`` pseudorange + c (satellite clock - TGD), m (NaN = unusable).
+    sat_ecef_m : ``(T, n, 3)`` satellite positions at transmit time, m.
+    ura_m : ``(T, n)`` broadcast orbit-and-clock error sigma, m
+        (:func:`~gnss_cli.gnss.weights.ephemeris_sigma_m`).
+    usable : ``(T, n)`` observation with a usable ephemeris.
+    klobuchar : ``(alpha, beta)`` or None.
+    approx_ecef_m : ``(3,)`` header approximate position or None.
+    marker_name : from the observation header.
+    """
+
+    time_gps_s: F64
+    sv: NDArray[np.str_]
+    pr_corrected_m: F64
+    sat_ecef_m: F64
+    ura_m: F64
+    usable: NDArray[np.bool_]
+    klobuchar: tuple[F64, F64] | None
+    approx_ecef_m: F64 | None
+    marker_name: str = ""
+    obs_path: str = ""
+    nav_paths: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    systems: tuple[str, ...] = ("G",)
+    """Systems with usable data, in clock-column order (column 3 + j is system j's clock)."""
+    system_index: NDArray[np.int64] | None = None
+    """``(n,)`` index into ``systems`` of every satellite."""
+    iono_scale: F64 | None = None
+    """``(T, n)`` factor taking the L1 Klobuchar delay to the signal's frequency."""
+
+
+@dataclass(frozen=True)
+class MethodSolution:
+    """Per-epoch results of one method.
+
+    Attributes
+    ----------
+    method : registry key.
+    x_ecef_m : ``(T, 3)`` receiver positions (NaN where the epoch failed).
+    clock_m : ``(T,)`` receiver clock bias, m.
+    n_sat : ``(T,)`` satellites used.
+    gdop, pdop, hdop, vdop, tdop : ``(T,)`` DOPs from the method's noise gain ``J J^T``
+        at the solution, position rotated to local ENU (unitless). ``tdop`` is the TDOP of
+        the reference clock, the first of ``EpochData.systems`` (= ``tdops[:, 0]``); ``gdop``
+        includes every clock.
+    gdop_paper : ``(T,)`` for TLS: the paper's ``(A^T A - s^2 I)^-1 A^T A (...)^-1``; else None.
+    cov_m2 : ``(T, 3 + k, 3 + k)`` the estimator covariance ``J Sigma J^T`` for the
+        configured pseudorange variances (ECEF position, one clock per system), m^2.
+    status : ``(T,)`` status words, values of :class:`EpochStatus`.
+    iterations : ``(T,)`` Gauss-Newton iterations.
+    residuals_m : ``(T, n)`` post-fit residuals of the used rows (NaN elsewhere).
+    """
+
+    method: str
+    x_ecef_m: F64
+    clock_m: F64
+    n_sat: NDArray[np.int64]
+    gdop: F64
+    pdop: F64
+    hdop: F64
+    vdop: F64
+    tdop: F64
+    gdop_paper: F64 | None
+    cov_m2: F64
+    status: NDArray[np.str_]
+    iterations: NDArray[np.int64]
+    residuals_m: F64
+    clocks_m: F64 | None = None
+    """``(T, k)`` receiver clock of every system (column j: ``EpochData.systems[j]``), m."""
+    tdops: F64 | None = None
+    """``(T, k)`` TDOP of every system's clock, ``sqrt((J J^T)_{3+j,3+j})``; NaN where the
+    epoch failed or used no satellite of that system (its clock is then fixed by a constraint)."""
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """A whole run: the prepared epochs, one solution per method, and the smoothing models.
+
+    ``models`` holds one :class:`WindowModel` per smoothing window when the stls rows are
+    the behavioral smoothing (``[smoothing] lag > 0``), else it is empty.
+    """
+
+    epochs: EpochData
+    solutions: dict[str, MethodSolution] = field(default_factory=dict)
+    models: tuple[WindowModel, ...] = ()
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        return self.epochs.warnings

@@ -1,0 +1,265 @@
+"""Epochs -> solutions: the single-epoch (snapshot) run of every method (no terminal I/O).
+
+For every method the same Gauss-Newton iteration runs on all epochs at once (DESIGN.md
+section 2): linearize the pseudoranges at the current position
+(:func:`gnss_cli.gnss.geometry.linearize`), solve the linear step with the method, update,
+until the step is below ``convergence_m``. Corrections (Klobuchar, Saastamoinen), the
+elevation mask and the weights are evaluated at the current position once it is near the
+Earth's surface (the first iterations from the Earth's centre use none of them, as in
+RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.errors import NoSolutionError
+from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize
+from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
+from gnss_cli.pipeline.epochs import load_epochs
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
+from gnss_cli.solvers import solve_batch
+from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
+
+__all__ = ["solve_method", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
+
+F64 = NDArray[np.float64]
+
+WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
+"""Methods whose definition includes row weights: they get the configured pseudorange variances."""
+ITERATED_METHODS = frozenset({"ls", "wls"})
+"""Methods iterated to convergence; the others take one step at the converged WLS fix."""
+_ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
+
+
+def solver_options(method: str, lin: Linearization, config: ProcessingConfig) -> dict[str, object]:
+    """Keyword options of :func:`~gnss_cli.solvers.solve_batch` for ``method`` on ``lin``.
+
+    Weighted methods get the inverse pseudorange variances; MTLS and STLS take the clock
+    columns as exact; STLS gets the row covariance with the orbit error and WTLS the
+    orbit column scale (``[stls] orbit_sigma_m``, ``[wtls] column_scaling``).
+    """
+    kwargs: dict[str, object] = {}
+    if method in WEIGHTED_METHODS:
+        kwargs["weights"] = 1.0 / lin.var_m2
+    if method in ("mtls", "stls"):
+        kwargs["exact_columns"] = list(range(3, lin.A.shape[-1]))
+    if method == "stls":
+        kwargs.pop("weights", None)
+        kwargs["row_cov"] = stls_row_cov(lin, config.orbit_sigma_m)
+    if method == "wtls" and config.wtls_column_scaling == "orbit":
+        kwargs["column_scale"] = wtls_column_scale(lin, config.orbit_sigma_m)
+    return kwargs
+
+
+def solve_method(
+    data: EpochData,
+    method: str,
+    config: ProcessingConfig,
+    progress: Progress | None = None,
+    linearization: MethodSolution | None = None,
+) -> MethodSolution:
+    """Solve every epoch with one method of the solver family.
+
+    ``ls`` and ``wls`` iterate Gauss-Newton to convergence (DESIGN.md section 2). The other
+    methods solve the linear system once, linearized at the converged WLS fix
+    (``linearization``; computed when not given): iterating them with their own steps does
+    not work on pseudorange data. TLS, DLS, MTLS and unscaled WTLS treat the unit-vector columns of
+    ``A`` as being as noisy as the pseudoranges in metres, so ``sigma_min(A) < sigma_min([A q])``
+    and the iteration overshoots without converging (measured on rtklib-0759: no epoch
+    converged in 60 iterations); where the steps do vanish (TLS, MTLS, STLS) they vanish at
+    the (W)LS point. One solve at a common linearization point is what tells the estimators
+    apart, and it is the comparison the paper makes.
+
+    Returns
+    -------
+    MethodSolution
+        Failed epochs keep a row: NaN position and a status word.
+    """
+    if method not in ITERATED_METHODS:
+        base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
+        return _solve_once(data, method, config, base)
+    T = data.time_gps_s.size
+    n = data.sv.size
+    x = np.zeros((T, 3))
+    if data.approx_ecef_m is not None:
+        x[:] = data.approx_ecef_m
+    k = len(data.systems)
+    b = np.zeros((T, k))
+    status = np.full(T, EpochStatus.ITERATION_LIMIT.value, dtype="<U24")
+    iterations = np.zeros(T, dtype=np.int64)
+    active = np.ones(T, dtype=bool)
+    out = _Accumulator(T, n, k, method)
+    for it in range(config.max_iterations):
+        unconverged = np.flatnonzero(active)
+        if unconverged.size == 0:
+            break
+        # epochs are independent: blocks of _ITERATION_BLOCK bound the memory of the stacked arrays
+        for rows in np.array_split(unconverged, -(-unconverged.size // _ITERATION_BLOCK)):
+            lin = linearize(data, rows, x[rows], b[rows], config)
+            n_used, enough = _count_used(lin, n, k, config)
+            res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
+            ok = (res.status > 0) & enough
+            step = np.where(ok[:, None], res.x, 0.0)
+            x[rows] += step[:, :3]
+            b[rows] += step[:, 3:]
+            iterations[rows] = it + 1
+            radius = np.linalg.norm(x[rows], axis=1)
+            near = (radius > EARTH_SURFACE_BAND_M[0]) & (radius < EARTH_SURFACE_BAND_M[1])
+            converged = ok & near & (np.linalg.norm(step, axis=1) < config.convergence_m)
+            out.record(rows, lin, res, n_used)
+            _set_status(status, rows, converged, enough, ok, res.status)
+            active[rows[converged | ~ok]] = False
+        if progress is not None:
+            progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
+    return out.finish(x, b, status, iterations)
+
+
+def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDArray[np.bool_],
+                enough: NDArray[np.bool_], ok: NDArray[np.bool_], codes: NDArray[np.int8]) -> None:
+    status[rows[converged]] = EpochStatus.OK.value
+    status[rows[~enough]] = EpochStatus.TOO_FEW_SATELLITES.value
+    solver_failed = ~ok & enough
+    for r, code in zip(rows[solver_failed], codes[solver_failed]):
+        status[r] = solver_epoch_status(int(code)).value
+
+
+def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
+    T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
+    x = base.x_ecef_m.copy()
+    b = base.clocks_m.copy() if base.clocks_m is not None else base.clock_m[:, None].copy()
+    status = base.status.copy()
+    iterations = np.where(status == EpochStatus.OK, 1, 0).astype(np.int64)
+    out = _Accumulator(T, n, k, method)
+    rows = np.flatnonzero(status == EpochStatus.OK)
+    if rows.size:
+        lin = linearize(data, rows, x[rows], b[rows], config)
+        n_used, enough = _count_used(lin, n, k, config)
+        res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
+        ok = (res.status > 0) & enough
+        step = np.where(ok[:, None], res.x, 0.0)
+        x[rows] += step[:, :3]
+        b[rows] += step[:, 3:]
+        out.record(rows, lin, res, n_used)
+        _set_status(status, rows, ok, enough, ok, res.status)
+    return out.finish(x, b, status, iterations)
+
+
+def _count_used(lin: Linearization, n: int, k: int, config: ProcessingConfig) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Satellites used per epoch, and whether they determine position and every present clock."""
+    n_used = lin.mask[:, :n].sum(axis=1)
+    n_clocks = k - lin.mask[:, n:].sum(axis=1) if k > 1 else np.ones_like(n_used)
+    return n_used, n_used >= np.maximum(config.min_satellites, 3 + n_clocks)
+
+
+class _Accumulator:
+    """Keeps the last linear-step quantities of every epoch and builds the MethodSolution."""
+
+    def __init__(self, T: int, n: int, k: int, method: str) -> None:
+        self.method = method
+        self.n = n
+        m = 3 + k
+        self.cov = np.full((T, m, m), np.nan)
+        self.gain_q = np.full((T, m, m), np.nan)
+        self.paper_cov = np.full((T, m, m), np.nan) if method == "tls" else None
+        self.residuals = np.full((T, n), np.nan)
+        self.n_sat = np.zeros(T, dtype=np.int64)
+        self.rot = np.full((T, 3, 3), np.nan)
+        self.present = np.zeros((T, k), dtype=bool)
+
+    def record(self, rows: NDArray[np.intp], lin: Linearization, res, n_used: NDArray[np.int64]) -> None:  # type: ignore[no-untyped-def]
+        self.cov[rows] = res.cov
+        gain = res.gain[:, :, : self.n]  # satellites only: constraint rows are not geometry
+        self.gain_q[rows] = np.einsum("tmn,tkn->tmk", gain, gain)
+        if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
+            self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
+        self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
+        self.n_sat[rows] = n_used
+        self.rot[rows] = lin.rot
+        k = self.present.shape[1]
+        # with several systems, a set constraint row (after the n satellite rows) marks an absent system
+        self.present[rows] = ~lin.mask[:, self.n :] if k > 1 else True
+
+    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
+        bad = status != EpochStatus.OK
+        x = np.where(bad[:, None], np.nan, x)
+        b = np.where(bad[:, None], np.nan, b)
+        gain_q = np.where(bad[:, None, None], np.eye(self.gain_q.shape[-1]), self.gain_q)
+        rot = np.where(bad[:, None, None], np.eye(3), self.rot)
+        dop = dop_from_cov(gain_q, rot)
+        gdop_paper = None
+        if self.paper_cov is not None:
+            gdop_paper = np.sqrt(np.clip(np.trace(self.paper_cov, axis1=1, axis2=2), 0.0, None))
+            gdop_paper = np.where(bad, np.nan, gdop_paper)
+
+        def masked(v: F64) -> F64:
+            return np.where(bad, np.nan, v)
+
+        k = self.present.shape[1]
+        q_clk = self.gain_q[:, 3 + np.arange(k), 3 + np.arange(k)]
+        tdops = np.where(self.present & ~bad[:, None], np.sqrt(np.clip(q_clk, 0.0, None)), np.nan)
+
+        return MethodSolution(
+            method=self.method,
+            x_ecef_m=x,
+            clock_m=b[:, 0],
+            clocks_m=b,
+            n_sat=self.n_sat,
+            gdop=masked(dop.gdop),
+            pdop=masked(dop.pdop),
+            hdop=masked(dop.hdop),
+            vdop=masked(dop.vdop),
+            tdop=np.where(self.present[:, 0], masked(dop.tdop), np.nan),
+            tdops=tdops,
+            gdop_paper=gdop_paper,
+            cov_m2=np.where(bad[:, None, None], np.nan, self.cov),
+            status=status,
+            iterations=iterations,
+            residuals_m=np.where(bad[:, None], np.nan, self.residuals),
+        )
+
+
+def run(
+    obs_path: str | Path,
+    nav_paths: Sequence[str | Path],
+    config: ProcessingConfig,
+    progress: Progress | None = None,
+) -> RunResult:
+    """Read, validate and solve every epoch with every configured method.
+
+    Raises
+    ------
+    InputError
+        Bad input files.
+    NoSolutionError
+        No epoch could be solved by any method.
+    """
+    if progress:
+        progress("reading", 0.0)
+    data = load_epochs(obs_path, nav_paths, config)
+    solutions: dict[str, MethodSolution] = {}
+    base: MethodSolution | None = None
+    for m in config.methods:
+        if progress:
+            progress(f"solving {m}", 0.0)
+        if m not in ITERATED_METHODS and base is None:
+            base = solutions.get("wls") or solve_method(data, "wls", config, progress)
+        solutions[m] = solve_method(data, m, config, progress, linearization=base)
+        if m == "wls":
+            base = solutions[m]
+    if not any((s.status == EpochStatus.OK).any() for s in solutions.values()):
+        raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({_status_summary(solutions)})")
+    return RunResult(data, solutions)
+
+
+def _status_summary(solutions: dict[str, MethodSolution]) -> str:
+    parts = []
+    for m, s in solutions.items():
+        words, counts = np.unique(s.status, return_counts=True)
+        parts.append(f"{m}: " + ", ".join(f"{c} {w}" for w, c in zip(words, counts)))
+    return "; ".join(parts)
