@@ -148,17 +148,12 @@ def stls(w: ArrayLike, lag: int, order: int | None = None, cov: ArrayLike | None
 
     Examples
     --------
-    A level circle, 0.1 rad per sample, satisfies ``(z-1)(z^2 - 2 cos(0.1) z + 1) w = 0``, a
-    shared lag-3 kernel: the fit is exact and the poles lie at angles 0 and +-0.1.
-
     >>> import numpy as np
-    >>> t = np.arange(30.0)
+    >>> t = np.arange(30.0)  # a level circle: (z-1)(z^2 - 2 cos(0.1) z + 1) w = 0, shared lag 3
     >>> w = np.stack([np.cos(0.1 * t), np.sin(0.1 * t), np.full(30, 0.5)], axis=1)
     >>> res = stls(w, lag=3, structure="shared")
     >>> res.success, bool(res.misfit < 1e-20)
     (True, True)
-    >>> sorted({round(abs(float(np.angle(z))), 6) for z in res.kernel.poles()})
-    [0.0, 0.1]
     """
     arr, covariance, g, fixed = validate_problem(w, lag, order, cov, structure, fixed_roots)
     settings = _Settings.checked(int(lag), order, g, fixed, structure, fixed_roots, tol, max_iter,
