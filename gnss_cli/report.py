@@ -21,10 +21,7 @@ extra columns are not written.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -162,21 +159,6 @@ def to_csv_text(df: pd.DataFrame) -> str:
     return out.to_csv(index=False, lineterminator="\n")
 
 
-def write_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename (no half-written file)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def errors_table(positions: pd.DataFrame) -> pd.DataFrame:
     return positions[["time", "gps_week", "tow_s", "method", *ERROR_COLUMNS, "status"]]
 
@@ -224,6 +206,6 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 
 __all__: Sequence[str] = [
-    "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text", "write_atomic",
+    "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text",
     "enu_errors", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
 ]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.constants import C_M_S, F_REL_S_SQRT_M, GM_GPS_M3_S2, OMEGA_E_RAD_S, SECONDS_PER_WEEK
+from gnss_cli.constants import F_REL_S_SQRT_M, GM_GPS_M3_S2, OMEGA_E_RAD_S, SECONDS_PER_WEEK
 from gnss_cli.errors import UsageError
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 

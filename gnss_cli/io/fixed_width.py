@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.errors import RinexFormatError
+from gnss_cli.errors import RinexFormatError, UsageError
 
 __all__ = [
     "split_lines", "gather_columns", "parse_uint_columns", "parse_uint_fields", "civil_ranges_ok",
