@@ -114,7 +114,8 @@ def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> 
         code = rv if isinstance(rv, int) and not isinstance(rv, bool) else 0
     except Interrupted as exc:
         word = "interrupted" if exc.signum == signal.SIGINT else "terminated"
-        sys.stderr.write(f"\n{prog_name}: {word} ({signal.Signals(exc.signum).name}); no output written\n")
+        newline = "\n" if sys.stderr.isatty() else ""  # end a progress line redrawn in place
+        sys.stderr.write(f"{newline}{prog_name}: {word} ({signal.Signals(exc.signum).name}); no output written\n")
         code = 128 + exc.signum
     except PipeClosed:
         devnull = os.open(os.devnull, os.O_WRONLY)
