@@ -160,8 +160,8 @@ def open_text(path: str | os.PathLike[str]) -> str:
 
     Examples
     --------
-    >>> text = open_text("ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz")  # doctest: +SKIP
-    >>> text.splitlines()[0][60:]  # doctest: +SKIP
+    >>> text = open_text("sample_rinex/static/obs.rnx")  # from the repository's root
+    >>> text.splitlines()[0][60:]
     'RINEX VERSION / TYPE'
     """
     return open_bytes(path).decode("ascii", errors="replace")

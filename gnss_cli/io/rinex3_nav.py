@@ -271,10 +271,11 @@ def read_nav3(
 
     Examples
     --------
-    >>> nav = read_nav3(["BRDC00IGS_R_20201770000_01D_GN.rnx.gz",
-    ...                  "BRDC00IGS_R_20201770000_01D_EN.rnx.gz"])  # doctest: +SKIP
-    >>> nav["sqrtA"].sel(sv="G05").dropna("time").values[0]  # doctest: +SKIP
-    5153.692346573
+    The simulated sample of the repository (run from its root):
+
+    >>> nav = read_nav3(["sample_rinex/static/nav.rnx"])
+    >>> float(nav["sqrtA"].sel(sv="G05").dropna("time").values[0])
+    5153.472140846
     """
     paths = _validate_paths(path_or_paths)
     systems = validate_systems(systems)

@@ -185,11 +185,13 @@ def read_obs3(
 
     Examples
     --------
-    >>> obs = read_obs3("ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz", pseudorange_only=True)  # doctest: +SKIP
-    >>> obs.sizes  # doctest: +SKIP
-    Frozen({'time': 2880, 'sv': 113})
-    >>> obs["C1C"].sel(sv="G05").values[0]  # doctest: +SKIP
-    20947300.931
+    The simulated sample of the repository (run from its root):
+
+    >>> obs = read_obs3("sample_rinex/static/obs.rnx", pseudorange_only=True)
+    >>> dict(obs.sizes)
+    {'time': 121, 'sv': 24}
+    >>> float(obs["C1C"].sel(sv="G02").values[0])
+    21534747.83
     """
     systems, codes = _validate_selection(systems, codes)
     name, content, hdr_end, header = read_header(path)
