@@ -101,13 +101,7 @@ def solve_method(
             break
         # epochs are independent: blocks of _ITERATION_BLOCK bound the memory of the stacked arrays
         for rows in np.array_split(unconverged, -(-unconverged.size // _ITERATION_BLOCK)):
-            lin = linearize(data, rows, x[rows], b[rows], config)
-            n_used, enough = _count_used(lin, n, k, config)
-            res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
-            ok = (res.status > 0) & enough
-            step = np.where(ok[:, None], res.x, 0.0)
-            x[rows] += step[:, :3]
-            b[rows] += step[:, 3:]
+            lin, res, n_used, enough, ok, step = _linear_step(data, method, config, rows, x, b)
             iterations[rows] = it + 1
             radius = np.linalg.norm(x[rows], axis=1)
             near = (radius > EARTH_SURFACE_BAND_M[0]) & (radius < EARTH_SURFACE_BAND_M[1])
@@ -118,6 +112,22 @@ def solve_method(
         if progress is not None:
             progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
     return out.finish(x, b, status, iterations)
+
+
+def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64):  # type: ignore[no-untyped-def]
+    """Linearize ``rows`` at ``(x, b)``, solve the step with ``method`` and apply it in place.
+
+    Returns the linearization, the solver result, satellites used, the epochs with enough
+    satellites, the epochs solved and the step ``(len(rows), 3 + k)`` (m).
+    """
+    lin = linearize(data, rows, x[rows], b[rows], config)
+    n_used, enough = _count_used(lin, data.sv.size, len(data.systems), config)
+    res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
+    ok = (res.status > 0) & enough
+    step = np.where(ok[:, None], res.x, 0.0)
+    x[rows] += step[:, :3]
+    b[rows] += step[:, 3:]
+    return lin, res, n_used, enough, ok, step
 
 
 def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDArray[np.bool_],
@@ -138,13 +148,7 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
     out = _Accumulator(T, n, k, method)
     rows = np.flatnonzero(status == EpochStatus.OK)
     if rows.size:
-        lin = linearize(data, rows, x[rows], b[rows], config)
-        n_used, enough = _count_used(lin, n, k, config)
-        res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
-        ok = (res.status > 0) & enough
-        step = np.where(ok[:, None], res.x, 0.0)
-        x[rows] += step[:, :3]
-        b[rows] += step[:, 3:]
+        lin, res, n_used, enough, ok, _ = _linear_step(data, method, config, rows, x, b)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
     return out.finish(x, b, status, iterations)
