@@ -54,9 +54,13 @@ def figure_track(result: RunResult, reference_ecef_m: F64 | None) -> Figure:
         d = v[:, :2] - (center if center.shape[0] == v.shape[0] else center[:1])
         spreads[m] = spread_m(np.hypot(d[:, 0], d[:, 1]))
     near, wide = split_wide(spreads)
+    static = ref_en is not None and ref_en.shape[0] == 1  # a fixed station: the fixes are a cloud, not a path
     for m in near:
-        ax.plot(enu[m][:, 0], enu[m][:, 1], marker=".", markersize=3, linewidth=0.6, alpha=0.8, label=m,
-                **method_style(m))
+        style = method_style(m)
+        if static:
+            style["linestyle"] = "none"
+        ax.plot(enu[m][:, 0], enu[m][:, 1], marker=".", markersize=4 if static else 3, linewidth=0.6, alpha=0.8,
+                label=m, **style)
     if ref_en is not None:
         if ref_en.shape[0] == 1:
             ax.plot(ref_en[0, 0], ref_en[0, 1], marker="*", markersize=16, color="black", linestyle="none",
