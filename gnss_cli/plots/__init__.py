@@ -3,7 +3,7 @@ one-page HTML report.
 
 matplotlib is an optional dependency (the ``plot`` extra: ``pip install 'gnss-solve[plot]'``).
 This package's ``__init__`` imports nothing heavy: :func:`require_matplotlib` checks that
-matplotlib is installed (so a command can refuse ``--plots`` before it computes anything),
+matplotlib can be imported (so a command can refuse ``--plots`` before it computes anything),
 and the submodules import matplotlib when they are imported themselves:
 
 - :mod:`gnss_cli.plots.run`: :func:`~gnss_cli.plots.run.run_figures`, every figure of a
@@ -18,8 +18,6 @@ on a display, a global backend or global state.
 """
 
 from __future__ import annotations
-
-import importlib.util
 
 from gnss_cli.errors import ConfigError
 
@@ -48,6 +46,8 @@ PLOT_EXTRA_HINT = "pip install 'gnss-solve[plot]'"
 
 def require_matplotlib(option: str) -> None:
     """Raise :class:`~gnss_cli.errors.ConfigError` (exit 3) naming ``option`` when matplotlib
-    is not installed."""
-    if importlib.util.find_spec("matplotlib") is None:
-        raise ConfigError(f"{option}: needs matplotlib, which is not installed; install it with {PLOT_EXTRA_HINT}")
+    cannot be imported (not installed, or broken)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ConfigError(f"{option}: needs matplotlib, which is not installed; install it with {PLOT_EXTRA_HINT}") from None

@@ -3,7 +3,7 @@ the files, the one-line refusal without matplotlib, and no partial output on int
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 import io
 from html.parser import HTMLParser
 from pathlib import Path
@@ -68,8 +68,7 @@ def test_plots_and_report_written_with_the_csv(tmp_path, capsys):
 
 
 def test_without_matplotlib_one_line_and_nothing_written(tmp_path, capsys, monkeypatch):
-    real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     for option, target in (("--plots", tmp_path / "fig"), ("--report", tmp_path / "r.html")):
         code, out, err = invoke([*sample_args(tmp_path), option, target], capsys)
         assert code == 3
