@@ -93,7 +93,8 @@ def figure_identification(ident: Identification, data_t_s: F64, data_ecef_m: F64
         t_label = t_label.split(" since")[0] + " since the first sample" + t_label[t_label.rfind(" ("):]
     fig = new_figure(13, 8)
     grid = fig.add_gridspec(3, 2, width_ratios=(1.4, 1.0))
-    axes = [fig.add_subplot(grid[k, 0]) for k in range(3)]
+    axes = [fig.add_subplot(grid[0, 0])]
+    axes += [fig.add_subplot(grid[k, 0], sharex=axes[0]) for k in (1, 2)]
     for k, (ax, name) in enumerate(zip(axes, ("East", "North", "Up"))):
         ax.plot(t_data, data[:, k], linestyle="none", marker=".", markersize=4, color="0.5", label="data")
         ax.plot(t_rows[fit], ident.enu_m[fit, k], color="tab:blue", linewidth=1.4, label=f"identified ({ident.method})")
