@@ -125,25 +125,40 @@ def figure_gdop(result: RunResult) -> Figure:
     return fig
 
 
+SYSTEM_COLORS = {"G": "tab:blue", "E": "tab:orange", "C": "tab:red", "J": "tab:purple", "R": "tab:green"}
+SYSTEM_NAMES = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "R": "GLONASS"}
+MAX_SATELLITE_LEGEND = 32
+"""Above this many satellites the residual lines are coloured by system, one legend entry each."""
+
+
 def figure_residuals(result: RunResult) -> Figure:
-    """Post-fit pseudorange residuals of the geometry method, one line per satellite."""
+    """Post-fit pseudorange residuals of the geometry method, one line per satellite
+    (coloured per satellite, or per system when there are many satellites)."""
     method = geometry_method(result)
     res = result.solutions[method].residuals_m
     fig = new_figure(11, 5)
     ax = fig.add_subplot()
     t, t_label = elapsed_axis(result.epochs.time_gps_s)
-    drawn = 0
-    for j, sv in enumerate(result.epochs.sv):
-        if np.isfinite(res[:, j]).any():
-            ax.plot(t, res[:, j], linewidth=0.9, marker=".", markersize=2, label=str(sv),
-                    color=SATELLITE_COLORS[drawn % 10], linestyle=SATELLITE_STYLES[(drawn // 10) % 4])
-            drawn += 1
-    if not drawn:
+    shown = [j for j in range(res.shape[1]) if np.isfinite(res[:, j]).any()]
+    if not shown:
         return no_data(fig, f"{method}: no residuals")
+    by_system = len(shown) > MAX_SATELLITE_LEGEND
+    counts: dict[str, int] = {}
+    for drawn, j in enumerate(shown):
+        sv = str(result.epochs.sv[j])
+        if by_system:
+            counts[sv[0]] = counts.get(sv[0], 0) + 1
+            style = {"color": SYSTEM_COLORS.get(sv[0], "tab:gray"), "linestyle": "-", "alpha": 0.6, "label": "_" + sv}
+        else:
+            style = {"color": SATELLITE_COLORS[drawn % 10], "linestyle": SATELLITE_STYLES[(drawn // 10) % 4], "label": sv}
+        ax.plot(t, res[:, j], linewidth=0.9, marker=".", markersize=2, **style)
+    if by_system:
+        for system, n in counts.items():
+            ax.plot([], [], color=SYSTEM_COLORS.get(system, "tab:gray"), label=f"{SYSTEM_NAMES.get(system, system)} ({n} satellites)")
     ax.axhline(0.0, color="0.3", linewidth=0.6)
     ax.set_xlabel(t_label)
     ax.set_ylabel("post-fit residual (m)")
     ax.set_title(f"Pseudorange residuals per satellite ({method})")
     ax.grid(True, alpha=0.3)
-    legend_outside(ax, drawn, "satellite")
+    legend_outside(ax, len(counts) if by_system else len(shown), "system" if by_system else "satellite")
     return fig

@@ -84,3 +84,23 @@ def test_yamatogawa_lag3_track_follows_the_reference(rinex_dir):
     assert "multi-epoch" in figs["gdop"].axes[0].get_title()
     sky = figs["sky"].axes[0]
     assert sky.collections[0].get_label() == "used by stls" and len(sky.collections[0].get_offsets()) > 1000
+
+
+def test_many_satellites_residuals_coloured_by_system(rinex_dir, monkeypatch):
+    d = rinex_dir / "kms3-2022159-rinex4"
+    if not d.is_dir():
+        pytest.skip("kms3-2022159-rinex4 missing")
+    import gnss_cli.plots.satellites as satellites
+
+    monkeypatch.setattr(satellites, "MAX_SATELLITE_LEGEND", 20)  # kms3 has 30 satellites, five systems
+    MAX_SATELLITE_LEGEND, figure_residuals = 20, satellites.figure_residuals
+
+    cfg = load_config(None, {"methods": "wls"})
+    result = process(d / "KMS300DNK_R_20221591000_01H_30S_MO.crx", [d / "KMS300DNK_R_20221591000_01H_MN.rnx.gz"], cfg)
+    (ax,) = figure_residuals(result).axes
+    used = np.isfinite(result.solutions["wls"].residuals_m).any(axis=0)
+    assert used.sum() > MAX_SATELLITE_LEGEND
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    systems = sorted({str(sv)[0] for sv in result.epochs.sv[used]})
+    assert len(labels) == len(systems) and all("satellites)" in label for label in labels)
+    assert sum(int(label.split("(")[1].split()[0]) for label in labels) == used.sum()
