@@ -182,11 +182,12 @@ def figure_error_statistics(result: RunResult, offsets: Offsets) -> Figure:
         ax_mean.set_title(f"Mean positions relative to the {methods[0]} mean (no reference given)", fontsize=10)
     _grouped_bars(ax_var, methods, variances, ("var E", "var N", "var U"))
     finite = variances[np.isfinite(variances) & (variances > 0)]
+    what = "error variance" if offsets.against_reference else "position variance"
     if finite.size and finite.max() > 100 * finite.min():
         ax_var.set_yscale("log")
-        ax_var.set_ylabel("error variance (m², log scale)")
+        ax_var.set_ylabel(f"{what} (m², log scale)")
     else:
-        ax_var.set_ylabel("error variance (m²)")
+        ax_var.set_ylabel(f"{what} (m²)")
     ax_var.set_title("Error covariances: the E/N/U variances (the full covariance is in the summary table)", fontsize=10)
     fig.suptitle("Error statistics per method")
     return fig
