@@ -60,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         if name not in extras:
             raise SystemExit(f"lowest_constraints: no extra {name!r} in {args.pyproject}")
         requirements += extras[name]
-    pins = lower_bounds(requirements)
+    pins = list(dict.fromkeys(lower_bounds(requirements)))  # an extra may repeat another's pin
     if not pins:
         raise SystemExit(f"lowest_constraints: no '>=' bounds found in {args.pyproject}")
     print(f"# lowest versions allowed by {args.pyproject.name} (written by .ci/lowest_constraints.py)")

@@ -1,7 +1,9 @@
 """What the package declares is what it needs, and a built wheel works on its own.
 
 * Every third-party module imported anywhere in ``gnss_cli/`` (also inside functions) comes
-  from a distribution listed in ``[project.dependencies]`` of ``pyproject.toml``.
+  from a distribution listed in ``[project.dependencies]`` of ``pyproject.toml``, except
+  modules imported only by ``gnss_cli/plots/``, which may come from the optional ``plot``
+  extra (matplotlib); the ``test`` extra includes it so that the figure tests run.
 * A wheel built from the source tree, installed (without the editable checkout) into a new
   virtual environment, runs ``gnss-solve`` from an unrelated folder and uses the packaged
   default configuration.
@@ -49,6 +51,16 @@ def declared_dependencies() -> set[str]:
     return {requirement_name(r) for r in project["dependencies"]}
 
 
+def declared_extra(name: str) -> set[str]:
+    """Distributions of the optional extra ``name`` of ``pyproject.toml``."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    return {requirement_name(r) for r in project["optional-dependencies"][name]}
+
+
+OPTIONAL_FOLDERS = {"plots": "plot"}
+"""Sub-packages of gnss_cli whose imports may come from an optional extra (folder -> extra)."""
+
+
 def imported_top_level_modules(package_dir: Path) -> dict[str, list[str]]:
     """Top-level module name -> the files (relative to the repository) that import it.
 
@@ -69,15 +81,25 @@ def imported_top_level_modules(package_dir: Path) -> dict[str, list[str]]:
     return found
 
 
-def undeclared_imports(package_dir: Path, declared: set[str]) -> dict[str, str]:
-    """Third-party modules imported under ``package_dir`` that no declared distribution provides."""
+def undeclared_imports(package_dir: Path, declared: set[str],
+                       optional: dict[str, set[str]] | None = None) -> dict[str, str]:
+    """Third-party modules imported under ``package_dir`` that no declared distribution provides.
+
+    ``optional`` maps a sub-package folder (``plots``) to the distributions of its extra: a
+    module imported only from files in that folder may come from them.
+    """
     providers = packages_distributions()
     problems = {}
     for module, files in imported_top_level_modules(package_dir).items():
         if module in sys.stdlib_module_names or module == "gnss_cli" or module == "__future__":
             continue
         dists = {normalize(d) for d in providers.get(module, [module])}
-        if not dists & declared:
+        allowed = set(declared)
+        for folder, extra in (optional or {}).items():
+            prefix = f"{package_dir.name}/{folder}/"
+            if all(f.replace(os.sep, "/").startswith(prefix) for f in files):
+                allowed |= extra
+        if not dists & allowed:
             problems[module] = f"imported by {sorted(set(files))}, provided by {sorted(dists)}, not in [project.dependencies]"
     return problems
 
@@ -85,7 +107,20 @@ def undeclared_imports(package_dir: Path, declared: set[str]) -> dict[str, str]:
 def test_package_imports_are_declared_dependencies() -> None:
     modules = imported_top_level_modules(PACKAGE)
     assert {"numpy", "scipy", "typer", "georinex", "hatanaka"} <= set(modules)  # the scan sees nested imports
-    assert undeclared_imports(PACKAGE, declared_dependencies()) == {}
+    optional = {folder: declared_extra(extra) for folder, extra in OPTIONAL_FOLDERS.items()}
+    assert undeclared_imports(PACKAGE, declared_dependencies(), optional) == {}
+    assert "matplotlib" in modules and "matplotlib" in declared_extra("test")  # the figure tests can run
+
+
+def test_an_extra_import_outside_its_folder_is_found(tmp_path: Path) -> None:
+    """matplotlib is allowed in gnss_cli/plots/ (the plot extra), not in the always-installed code."""
+    pkg = tmp_path / "gnss_cli"
+    (pkg / "plots").mkdir(parents=True)
+    (pkg / "plots" / "fig.py").write_text("from matplotlib.figure import Figure\n")
+    optional = {"plots": declared_extra("plot")}
+    assert undeclared_imports(pkg, declared_dependencies(), optional) == {}
+    (pkg / "report.py").write_text("def f():\n    import matplotlib\n")
+    assert set(undeclared_imports(pkg, declared_dependencies(), optional)) == {"matplotlib"}
 
 
 def test_an_undeclared_import_is_found(tmp_path: Path) -> None:

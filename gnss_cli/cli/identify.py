@@ -39,6 +39,7 @@ def identify(
     source_method: Optional[str] = typer.Option(None, "--source-method", help="Method rows to use when the CSV holds several.", show_default="the only one"),
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the model as JSON.", show_default="none"),
     output: str = typer.Option("-", "-o", "--output", help="Output CSV ('-' = stdout)."),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Write identification.png (fit and prediction against the data, E/N/U and track) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
     debug: bool = typer.Option(False, "--debug", help="Tracebacks for internal errors."),
     version: bool = typer.Option(False, "--version", callback=version_callback("gnss-identify"), is_eager=True,
                                  help="Print the version and exit."),
@@ -60,7 +61,18 @@ def identify(
             outputs.add(model_out, "--model-out")
         if output != "-":
             outputs.add(Path(output), "-o/--output")
-        ident = identify_trajectory(read_trajectory(trajectory, source_method), lag, order, method, structure, train, predict)
+        from gnss_cli.cli.figures import register_figures
+        from gnss_cli.plots import IDENTIFY_FIGURES
+
+        figure_targets = register_figures(outputs, plots, None, list(IDENTIFY_FIGURES))
+        traj = read_trajectory(trajectory, source_method)
+        ident = identify_trajectory(traj, lag, order, method, structure, train, predict)
+        if figure_targets:
+            from gnss_cli.cli.figures import stage_figures
+            from gnss_cli.plots.track import figure_identification
+
+            figure = figure_identification(ident, traj.t_s, traj.xyz_m)
+            stage_figures(outputs, figure_targets, {"identification": figure}, IDENTIFY_FIGURES)
         res = ident.result
         text = identification_table(ident).to_csv(index=False, float_format="%.4f", lineterminator="\n")
         if model_out is not None:

@@ -58,6 +58,8 @@ def solve(
     order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
     window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
+    plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
+    report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
     version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, help="Print the version and exit."),
@@ -75,6 +77,10 @@ def solve(
     inputs = [*files, *(p for p in (config, reference_sinex, reference_csv) if p is not None)]
     with OutputSet(inputs) as outputs:
         targets = _register_outputs(outputs, output, out_dir, model_out)
+        from gnss_cli.cli.figures import register_figures
+        from gnss_cli.plots import RUN_FIGURES
+
+        figure_targets = register_figures(outputs, plots, report, list(RUN_FIGURES))
         overrides: dict[str, object] = {
             "methods": method,
             "iono": iono,
@@ -97,7 +103,11 @@ def solve(
             raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
         progress = Progress("gnss-solve", enabled=not quiet)
         try:
-            tables, models, warnings = _run(files, cfg, progress, reference, reference_sinex, reference_csv)
+            tables, models, warnings, (result, ref) = _run(files, cfg, progress, reference, reference_sinex, reference_csv)
+            if figure_targets:
+                progress("figures", 0.0)
+                _stage_figures(outputs, figure_targets, files, cfg, result, ref, tables["summary"],
+                               reference or reference_sinex or reference_csv)
         finally:
             progress.done()
         _write(outputs, targets, tables, models)
@@ -125,7 +135,7 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
 
 
 def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], reference_sinex: Optional[Path],
-         reference_csv: Optional[Path]) -> tuple[dict[str, Any], str, list[str]]:
+         reference_csv: Optional[Path]) -> tuple[dict[str, Any], str, list[str], tuple[Any, Any]]:
     """Process the files (one library call) and build the tables; heavy imports happen here."""
     from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_sinex
     from gnss_cli.pipeline import process
@@ -143,7 +153,21 @@ def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], r
     tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref)}
     if ref is not None:
         tables["errors"] = errors_table(positions)
-    return tables, models_json(cfg.smoothing, result.models), list(result.warnings)
+    return tables, models_json(cfg.smoothing, result.models), list(result.warnings), (result, ref)
+
+
+def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cfg: Any, result: Any, ref: Any,
+                   summary: Any, reference: Any) -> None:
+    """Draw the run's figures (``--plots``) and the HTML page (``--report``) and stage them."""
+    from gnss_cli.cli.figures import solve_settings, stage_figures
+    from gnss_cli.plots import RUN_FIGURES
+    from gnss_cli.plots.html import html_report
+    from gnss_cli.plots.run import run_figures
+
+    settings = solve_settings(files, cfg, result, str(reference) if reference is not None else "none")
+    title = f"gnss-solve: {Path(files[0]).name}"
+    stage_figures(outputs, targets, run_figures(result, ref, cfg.elevation_mask_deg), RUN_FIGURES,
+                  lambda figs: html_report(title, figs, summary, settings))
 
 
 def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], models_text: str) -> None:

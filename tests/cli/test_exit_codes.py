@@ -41,6 +41,7 @@ CASES = [
     ("bad reference", "solve", ["{obs}", "{nav}", "--reference", "1,2"], 3, r"--reference: expected"),
     ("bad TOML", "solve", ["{obs}", "{nav}", "--config", "{here}/bad.toml"], 3, r"bad.toml: invalid TOML"),
     ("-o names an input", "solve", ["{here}/obs.rnx", "{nav}", "-o", "{here}/obs.rnx"], 3, r"is one of the input files"),
+    ("--plots without matplotlib", "solve", ["{obs}", "{nav}", "--plots", "{here}/figs"], 3, r"--plots: needs matplotlib.*pip install 'gnss-solve\[plot\]'"),
     ("missing OBS", "solve", ["{here}/nothere.rnx", "{nav}"], 4, r"nothere.rnx: no such file"),
     ("folder as NAV", "solve", ["{obs}", "{here}/"], 4, r"not a regular file"),
     ("OBS and NAV swapped", "solve", ["{nav}", "{obs}"], 4, r"OBS and NAV swapped"),
@@ -64,8 +65,23 @@ def _prepare(here: Path) -> set[str]:
     return {"obs.rnx", "bad.toml"}
 
 
-def _run(command: str, args: list[str], cwd: Path, **kw: object) -> subprocess.CompletedProcess[str]:
+WITHOUT_MATPLOTLIB = {"--plots without matplotlib"}
+"""Cases run with a ``matplotlib`` package that cannot be imported ahead on the path."""
+
+
+@pytest.fixture(scope="session")
+def no_matplotlib_path(tmp_path_factory: pytest.TempPathFactory) -> str:
+    folder = tmp_path_factory.mktemp("no-matplotlib")
+    (folder / "matplotlib").mkdir()
+    (folder / "matplotlib" / "__init__.py").write_text("raise ImportError(\"No module named 'matplotlib'\")\n")
+    return str(folder)
+
+
+def _run(command: str, args: list[str], cwd: Path, pythonpath: str | None = None,
+         **kw: object) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    if pythonpath is not None:
+        env["PYTHONPATH"] = os.pathsep.join([pythonpath, *filter(None, [env.get("PYTHONPATH")])])
     return subprocess.run([sys.executable, "-m", MODULES[command], *args], cwd=cwd, capture_output=True, text=True,
                           timeout=120, env=env, **kw)  # type: ignore[call-overload]
 
@@ -79,9 +95,11 @@ def _all_files(folder: Path) -> set[str]:
 
 
 @pytest.mark.parametrize(("command", "args", "code", "pattern"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_exit_code_and_message(tmp_path: Path, command: str, args: list[str], code: int, pattern: str) -> None:
+def test_exit_code_and_message(request: pytest.FixtureRequest, tmp_path: Path, command: str, args: list[str], code: int,
+                               pattern: str) -> None:
     before = _prepare(tmp_path)
-    proc = _run(command, _fill(args, tmp_path), tmp_path)
+    hidden = request.getfixturevalue("no_matplotlib_path") if request.node.callspec.id in WITHOUT_MATPLOTLIB else None
+    proc = _run(command, _fill(args, tmp_path), tmp_path, pythonpath=hidden)
     assert proc.returncode == code, proc.stderr
     assert re.search(pattern, proc.stderr, re.S), proc.stderr
     assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr

@@ -1,0 +1,82 @@
+"""``--plots DIR`` and ``--report FILE.html`` of the commands: register the figure files with
+the :class:`~gnss_cli.cli.output.OutputSet` before anything is computed (refusing the option
+at once when matplotlib is missing), then draw them through :mod:`gnss_cli.plots` and stage
+them with the other outputs (all files appear together or none does)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from gnss_cli.errors import OutputError
+
+
+def register_figures(outputs: Any, plots_dir: Path | None, report: Path | None,
+                     names: Sequence[str]) -> dict[str, Path]:
+    """Register ``<plots_dir>/<name>.png`` for every name and the report; ``{}`` without either.
+
+    Raises :class:`~gnss_cli.errors.ConfigError` (exit 3) when matplotlib is not installed.
+    """
+    from gnss_cli.plots import require_matplotlib
+
+    targets: dict[str, Path] = {}
+    if plots_dir is not None:
+        require_matplotlib("--plots")
+        if plots_dir.exists() and not plots_dir.is_dir():
+            raise OutputError(f"{plots_dir}: cannot write output (not a folder)")
+        for name in names:
+            targets[name] = outputs.add(plots_dir / f"{name}.png", "--plots")
+    if report is not None:
+        require_matplotlib("--report")
+        targets[REPORT] = outputs.add(report, "--report")
+    return targets
+
+
+REPORT = "report.html"
+"""Key of the HTML report among the figure targets."""
+
+
+def stage_figures(outputs: Any, targets: Mapping[str, Path], figures: Mapping[str, Any],
+                  captions: Mapping[str, str], report_page: Any = None) -> None:
+    """Render every figure once (PNG bytes) and stage the PNG files and the HTML report.
+
+    ``report_page(figures)`` builds the HTML text from ``{name: (caption, png bytes)}``.
+    """
+    from gnss_cli.plots.common import png_bytes
+
+    pngs = {name: png_bytes(fig) for name, fig in figures.items()}
+    for name, path in targets.items():
+        if name in pngs:
+            outputs.write_with(path, lambda tmp, data=pngs[name]: Path(tmp).write_bytes(data))
+    if REPORT in targets and report_page is not None:
+        page = report_page({name: (captions.get(name, name), png) for name, png in pngs.items()})
+        outputs.write_text(targets[REPORT], page)
+
+
+def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str) -> dict[str, object]:
+    """The settings of a ``gnss-solve`` run, as shown in the HTML report."""
+    import numpy as np
+
+    from gnss_cli import __version__
+    from gnss_cli.gnss.time import gps_s2datetime
+
+    t = result.epochs.time_gps_s
+    span = np.datetime_as_string(gps_s2datetime(t[[0, -1]]), unit="s") if t.size else ["", ""]
+    settings: dict[str, object] = {
+        "observation file": str(files[0]),
+        "navigation files": ", ".join(str(f) for f in files[1:]),
+        "epochs": f"{t.size} ({span[0]} to {span[1]} GPST)",
+        "methods": ", ".join(cfg.methods),
+        "systems": ", ".join(result.epochs.systems),
+        "ionosphere": cfg.iono,
+        "troposphere": cfg.tropo,
+        "elevation mask": f"{cfg.elevation_mask_deg:g} deg",
+        "weights": cfg.weights.model,
+        "reference": reference,
+    }
+    s = cfg.smoothing
+    if s.lag > 0:
+        settings["smoothing"] = f"stls lag {s.lag}, model {s.model}, kernel {s.kernel}, window {s.window}"
+    settings["gnss-solve version"] = __version__
+    return settings

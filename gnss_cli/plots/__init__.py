@@ -1,0 +1,53 @@
+"""Figures of a run and of an identification (PNG through matplotlib's Agg renderer) and the
+one-page HTML report.
+
+matplotlib is an optional dependency (the ``plot`` extra: ``pip install 'gnss-solve[plot]'``).
+This package's ``__init__`` imports nothing heavy: :func:`require_matplotlib` checks that
+matplotlib can be imported (so a command can refuse ``--plots`` before it computes anything),
+and the submodules import matplotlib when they are imported themselves:
+
+- :mod:`gnss_cli.plots.run`: :func:`~gnss_cli.plots.run.run_figures`, every figure of a
+  ``gnss-solve`` run (ENU errors, horizontal scatter with 95 % ellipses, error statistics,
+  GDOP, track, sky plot, satellite count, residuals) as matplotlib ``Figure`` objects;
+- :mod:`gnss_cli.plots.identify`: the identified and predicted trajectory against the data;
+- :mod:`gnss_cli.plots.common`: :func:`~gnss_cli.plots.common.png_bytes`;
+- :mod:`gnss_cli.plots.html`: :func:`~gnss_cli.plots.html.html_report`.
+
+No figure goes through ``pyplot``: every ``Figure`` is created directly, so nothing depends
+on a display, a global backend or global state.
+"""
+
+from __future__ import annotations
+
+from gnss_cli.errors import ConfigError
+
+__all__ = ["PLOT_EXTRA_HINT", "RUN_FIGURES", "IDENTIFY_FIGURES", "require_matplotlib"]
+
+RUN_FIGURES = {
+    "enu_errors": "E, N and U errors over time per method (deviations from each method's mean without a reference)",
+    "horizontal_scatter": "Horizontal errors per method with the mean and the 95 % error ellipse",
+    "error_statistics": "Mean errors and error variances per method",
+    "gdop": "GDOP per method over time",
+    "track": "Horizontal track in local ENU with the reference",
+    "sky": "Sky plot of used and excluded satellites",
+    "satellites": "Satellites used per method over time",
+    "residuals": "Post-fit pseudorange residuals per satellite",
+}
+"""The figures of a ``gnss-solve`` run: file stem (``<name>.png`` under ``--plots``) -> caption."""
+
+IDENTIFY_FIGURES = {
+    "identification": "Identified and predicted trajectory against the data (E, N, U and horizontal track)",
+}
+"""The figures of ``gnss-identify --plots``: file stem -> caption."""
+
+PLOT_EXTRA_HINT = "pip install 'gnss-solve[plot]'"
+"""How to install the optional plotting dependency."""
+
+
+def require_matplotlib(option: str) -> None:
+    """Raise :class:`~gnss_cli.errors.ConfigError` (exit 3) naming ``option`` when matplotlib
+    cannot be imported (not installed, or broken)."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ConfigError(f"{option}: needs matplotlib, which is not installed; install it with {PLOT_EXTRA_HINT}") from None
