@@ -21,32 +21,20 @@ import os
 import signal
 import sys
 from collections.abc import Callable
-from types import FrameType, ModuleType
+from types import ModuleType
 from typing import NoReturn
 
 import typer
 
+from gnss_cli.cli.signals import Interrupted, on_signal
 from gnss_cli.errors import GnssError
 
 EXIT_INTERRUPTED = 128 + signal.SIGINT
 EXIT_TERMINATED = 128 + signal.SIGTERM
 
 
-class Interrupted(BaseException):
-    """Raised in the main thread by SIGINT or SIGTERM; not an ``Exception``, so nothing in
-    the libraries below swallows it, while their ``finally`` blocks still run."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
-
-
 class PipeClosed(BaseException):
     """stdout's reader went away (``gnss-solve ... | head``)."""
-
-
-def _on_signal(signum: int, frame: FrameType | None) -> None:
-    raise Interrupted(signum)
 
 
 HELP_OPTIONS = {"help_option_names": ["-h", "--help"]}
@@ -107,7 +95,7 @@ def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> 
     click_exc = _click_exceptions()
     exits = tuple({click_exc.Exit, typer.Exit} if hasattr(click_exc, "Exit") else {typer.Exit})
     aborts = tuple({click_exc.Abort, typer.Abort} if hasattr(click_exc, "Abort") else {typer.Abort})
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         command = typer.main.get_command(app)
         rv = command.main(args=args, prog_name=prog_name, standalone_mode=False)

@@ -5,7 +5,8 @@ folder), and only when all of them are written does it rename them into place. A
 on the way (disk full, read-only folder, a path that is not a folder, Ctrl-C, SIGTERM)
 removes every staged file and every folder the run created, so no partial file of any kind
 is left behind. Renames and the creation of temporary files run with SIGINT and SIGTERM
-blocked, so a signal cannot land between creating a temporary file and recording it.
+held back (:func:`gnss_cli.cli.signals.deferred`), so a signal cannot land between creating
+a temporary file and recording it, nor between two renames of one set.
 
 Files get the permissions of an ordinary ``open()``: ``0o666`` less the user's umask (an
 existing regular file keeps its own mode). A target that exists and is not a regular file
@@ -18,26 +19,13 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import signal
 import stat
 import tempfile
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from gnss_cli.cli.signals import deferred
 from gnss_cli.errors import ConfigError, OutputError
-
-_SIGNALS = {signal.SIGINT, signal.SIGTERM}
-
-
-@contextlib.contextmanager
-def signals_deferred() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM until the block ends (they are delivered right after it)."""
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
 
 def _same_file(a: Path, b: Path) -> bool:
     try:
@@ -110,13 +98,13 @@ class OutputSet:
             missing.append(p)
             p = p.parent
         for d in reversed(missing):
-            with signals_deferred():
+            with deferred():
                 d.mkdir()
                 self._created_dirs.append(d)
 
     def _temporary(self, target: Path) -> Path:
         self._make_dirs(target.parent)
-        with signals_deferred():
+        with deferred():
             fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
             self._staged.append((Path(tmp), target))
         try:
@@ -158,7 +146,7 @@ class OutputSet:
             raise OutputError(f"{final}: cannot write output (not a folder)")
         try:
             self._make_dirs(final)
-            with signals_deferred():
+            with deferred():
                 tmp = Path(tempfile.mkdtemp(prefix=".staging.", dir=final))
                 self._staging_dirs.append(tmp)
         except OSError as exc:
@@ -177,7 +165,7 @@ class OutputSet:
 
     def commit(self) -> None:
         """Rename every staged file into place (all of them, with signals held)."""
-        with signals_deferred():
+        with deferred():
             done: list[Path] = []
             try:
                 for tmp, target in self._staged:
@@ -197,7 +185,7 @@ class OutputSet:
 
     def discard(self) -> None:
         """Remove every staged file, staging folder and folder this set created."""
-        with signals_deferred():
+        with deferred():
             for tmp, _ in self._staged:
                 with contextlib.suppress(OSError):
                     tmp.unlink()

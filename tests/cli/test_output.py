@@ -11,6 +11,7 @@ import pytest
 
 from gnss_cli.cli import output as output_module
 from gnss_cli.cli.exits import Interrupted
+from gnss_cli.cli.signals import on_signal
 from gnss_cli.cli.output import OutputSet
 from gnss_cli.errors import ConfigError, OutputError
 
@@ -64,30 +65,36 @@ def test_signal_after_staging_leaves_nothing(tmp_path: Path, signum: int) -> Non
     assert _files(tmp_path) == set()
 
 
-def test_signal_is_held_while_renaming(tmp_path: Path) -> None:
-    """A SIGINT that arrives during the commit is delivered after it: the set is whole."""
-    received = []
-    old = signal.signal(signal.SIGINT, lambda s, f: received.append(s))
+def test_signal_is_held_while_renaming(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A SIGINT during the commit is raised after it, with the set whole, even while another
+    thread runs (the kernel may hand a process signal to any thread)."""
+    import threading
+
+    stop = threading.Event()
+    worker = threading.Thread(target=stop.wait, daemon=True)
+    worker.start()
+    old = signal.signal(signal.SIGINT, on_signal)
+    real_replace = os.replace
+    seen = []
+
+    def replace_and_signal(src: str, dst: str) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        seen.append(dst)
+        real_replace(src, dst)
+
     try:
-        with OutputSet() as out:
-            out.add(tmp_path / "a.csv", "-o")
-            out.write_text(tmp_path / "a.csv", "x\n")
-            real_replace = os.replace
-
-            def replace_and_signal(src: str, dst: str) -> None:
-                os.kill(os.getpid(), signal.SIGINT)
-                assert not received  # blocked while renaming
-                real_replace(src, dst)
-
-            output_module.os.replace = replace_and_signal  # type: ignore[assignment]
-            try:
-                out.commit()
-            finally:
-                output_module.os.replace = real_replace  # type: ignore[assignment]
+        out = OutputSet()
+        for name in ("a.csv", "b.csv"):
+            out.add(tmp_path / name, "--out-dir")
+            out.write_text(tmp_path / name, "x\n")
+        monkeypatch.setattr(output_module.os, "replace", replace_and_signal)
+        with pytest.raises(Interrupted):
+            out.commit()
     finally:
         signal.signal(signal.SIGINT, old)
-    assert received == [signal.SIGINT]
-    assert _files(tmp_path) == {"a.csv"}
+        stop.set()
+    assert len(seen) == 2  # both renames ran although the first raised the signal
+    assert _files(tmp_path) == {"a.csv", "b.csv"}
 
 
 def test_outputs_that_name_inputs_or_repeat_are_refused(tmp_path: Path) -> None:
