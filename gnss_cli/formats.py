@@ -245,9 +245,10 @@ def parquet_table(table: pd.DataFrame, time_system: str = "gpst") -> pd.DataFram
 
 
 def parquet_bytes(table: pd.DataFrame, time_system: str = "gpst") -> bytes:
-    """Parquet bytes of :func:`parquet_table` (pyarrow engine)."""
+    """Parquet bytes of :func:`parquet_table` (pyarrow engine; Parquet format 2.6, the first
+    with nanosecond timestamps: pyarrow before 13 writes 2.4 and would coerce them to us)."""
     buf = io.BytesIO()
-    parquet_table(table, time_system).to_parquet(buf, engine="pyarrow", index=False)
+    parquet_table(table, time_system).to_parquet(buf, engine="pyarrow", index=False, version="2.6")
     return buf.getvalue()
 
 
