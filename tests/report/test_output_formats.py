@@ -208,3 +208,20 @@ def test_sd_of_wls_matches_the_scatter_of_a_simulation(tmp_path: Path) -> None:
 def test_nmea_checksum_is_the_xor_between_dollar_and_star() -> None:
     # the checksum of this classic GGA example sentence is 47
     assert nmea_checksum("GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,") == "47"
+
+
+def test_smoothed_stls_rows_use_the_multi_epoch_covariance(rinex_dir) -> None:  # type: ignore[no-untyped-def]
+    """With --lag the stls sd columns come from the window's multi-epoch covariance: more
+    constraints than one epoch, so never larger than the WLS fix's."""
+    folder = rinex_dir / "rtklib-0759"
+    cfg = load_config(overrides={"methods": "wls,stls", "smoothing.lag": 3})
+    result = process(folder / "07590920.05o", [folder / "07590920.05n"], cfg)
+    table = positions_table(result)
+    wls = table[table["method"] == "wls"].reset_index(drop=True)
+    stls = table[table["method"] == "stls"].reset_index(drop=True)
+    ok = stls["status"] == "ok"
+    assert ok.sum() > 100
+    for col in ("sde_m", "sdn_m", "sdu_m"):
+        assert (stls.loc[ok, col] <= wls.loc[ok, col] * (1 + 1e-9)).all(), col
+    cov = result.solutions["stls"].cov_m2[ok.to_numpy(), 2, 2]
+    assert np.all(cov <= result.solutions["wls"].cov_m2[ok.to_numpy(), 2, 2] * (1 + 1e-9))
