@@ -225,3 +225,29 @@ def test_smoothed_stls_rows_use_the_multi_epoch_covariance(rinex_dir) -> None:  
         assert (stls.loc[ok, col] <= wls.loc[ok, col] * (1 + 1e-9)).all(), col
     cov = result.solutions["stls"].cov_m2[ok.to_numpy(), 2, 2]
     assert np.all(cov <= result.solutions["wls"].cov_m2[ok.to_numpy(), 2, 2] * (1 + 1e-9))
+
+
+def test_southern_and_western_coordinates_and_failed_epochs() -> None:
+    """A hand-made table: S/W hemispheres in NMEA, a failed epoch as GGA quality 0 / RMC V,
+    omitted from pos, null geometry in GeoJSON."""
+    lat, lon, h = np.array([-33.8568, -33.8569, np.nan]), np.array([-70.6483, -70.6482, np.nan]), np.array([520.1234, 520.5, np.nan])
+    xyz = _ecef(lat, lon, h)
+    table = pd.DataFrame({"time": ["2024-03-01T12:00:00.000", "2024-03-01T12:00:01.000", "2024-03-01T12:00:02.000"],
+                          "gps_week": 2303, "tow_s": [475200.0, 475201.0, 475202.0], "method": "wls",
+                          "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2], "lat_deg": lat, "lon_deg": lon, "height_m": h,
+                          "n_sat": [8, 8, 3], "hdop": [0.9, 0.9, np.nan], "status": ["ok", "ok", "too_few_satellites"]})
+    for c in ("sde_m", "sdn_m", "sdu_m"):
+        table[c] = [1.0, 1.0, np.nan]
+    for c in ("sden_m2", "sdnu_m2", "sdue_m2"):
+        table[c] = [0.0, 0.0, np.nan]
+    sentences = nmea_text(table).splitlines()
+    assert len(sentences) == 6
+    f = sentences[0].split(",")
+    assert f[3] == "S" and f[5] == "W" and f[2].startswith("3351.") and f[4].startswith("07038.")
+    assert abs(int(f[2][:2]) + float(f[2][2:]) / 60 - 33.8568) < 1e-9 and abs(int(f[4][:3]) + float(f[4][3:]) / 60 - 70.6483) < 1e-9
+    assert sentences[4].split(",")[6] == "0" and sentences[5].split(",")[2] == "V"
+    rows = [line for line in pos_text(table).splitlines() if not line.startswith("%")]
+    # sd E = N = U = 1 m, no correlation: the ECEF covariance is I as well
+    assert len(rows) == 2 and [abs(float(v)) for v in rows[0].split()[7:13]] == [1.0, 1.0, 1.0, 0.0, 0.0, 0.0]
+    doc = json.loads(geojson_text(table))
+    assert [f["geometry"] is None for f in doc["features"]] == [False, False, False, True]
