@@ -23,6 +23,8 @@ if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
+TIME_SYSTEMS = ("gpst", "utc")
+"""Time scale of the output time stamps (``--time-system``)."""
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
@@ -157,6 +159,8 @@ class ProcessingConfig:
     orbit_sigma_m: float = 1.7
     wtls_column_scaling: str = "orbit"
     smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
+    time_system: str = "gpst"
+    """Time scale of the output time stamps: ``gpst`` or ``utc`` (GPST - leap seconds)."""
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -201,6 +205,8 @@ class ProcessingConfig:
             raise ConfigError(f"wtls.column_scaling: expected 'orbit' or 'none'; received {self.wtls_column_scaling!r}")
         if "wtls" in self.methods and self.wtls_column_scaling == "orbit" and not self.orbit_sigma_m > 0:
             raise ConfigError("wtls.column_scaling = 'orbit' needs stls.orbit_sigma_m > 0 (the geometry-column error it scales by)")
+        if self.time_system not in TIME_SYSTEMS:
+            raise ConfigError(f"time_system: expected one of {', '.join(TIME_SYSTEMS)}; received {self.time_system!r}")
         self.smoothing.validated()
         return self
 
@@ -261,6 +267,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["methods"] = parse_methods(proc["methods"])
         if "systems" in proc:
             proc["systems"] = parse_systems(proc["systems"])
+        if "time_system" in proc:
+            proc["time_system"] = str(proc["time_system"]).lower()
         for key in ("elevation_mask_deg", "convergence_m"):
             if key in proc:
                 proc[key] = float(proc[key])

@@ -16,6 +16,17 @@ order); and one extra column ``tdop_<letter>`` per processed system (``tdop_G``,
 the noise gain ``Q = J J^T``, so ``tdop`` equals ``tdop_<first system>``. A system without
 satellites in an epoch has an empty ``tdop_<letter>`` cell there. With one system the
 extra columns are not written.
+
+Uncertainty columns (appended after every other column): ``sde_m``, ``sdn_m``, ``sdu_m``
+are the square roots of the diagonal of ``R C R^T``, with ``C`` the position block of the
+method's ``cov_m2`` (ECEF, m^2) and ``R`` the ECEF -> ENU rotation at the solution; ``sden_m2``,
+``sdnu_m2``, ``sdue_m2`` are its off-diagonal elements (E-N, N-U, U-E covariances, m^2). For
+the smoothed stls rows (``--lag``) ``cov_m2`` is the multi-epoch covariance of the window's
+behavior (:func:`gnss_cli.behavior.multi_epoch.window_covs`); ``fallback_wls`` epochs keep the
+WLS covariance.
+
+Time: ``time`` is GPS time, or UTC with ``time_system="utc"`` (GPST minus
+:func:`utc_offset_s`); ``gps_week`` and ``tow_s`` are GPS time in both.
 """
 
 from __future__ import annotations
@@ -29,7 +40,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import SmoothingConfig
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
-from gnss_cli.gnss.time import gps_s2datetime, gps_s2week_tow
+from gnss_cli.gnss.time import gps_minus_utc_s, gps_s2datetime, gps_s2week_tow
 from gnss_cli.pipeline.identification import Identification
 from gnss_cli.pipeline.results import EpochStatus, RunResult, WindowModel
 
@@ -40,10 +51,12 @@ POSITION_COLUMNS = [
     "clock_m", "n_sat", "gdop", "pdop", "hdop", "vdop", "tdop", "status",
 ]
 ERROR_COLUMNS = ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"]
+SD_COLUMNS = ["sde_m", "sdn_m", "sdu_m", "sden_m2", "sdnu_m2", "sdue_m2"]
 DOP_NAMES = ["gdop", "pdop", "hdop", "vdop", "tdop"]
 FLOAT_FORMATS = {
     "tow_s": "{:.3f}", "x_m": "{:.4f}", "y_m": "{:.4f}", "z_m": "{:.4f}", "lat_deg": "{:.9f}",
-    "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}",
+    "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}", "mean_lat_deg": "{:.9f}", "mean_lon_deg": "{:.9f}",
+    "sden_m2": "{:.6f}", "sdnu_m2": "{:.6f}", "sdue_m2": "{:.6f}",
 }
 
 
@@ -62,20 +75,46 @@ def _iso(t_gps_s: F64) -> NDArray[np.str_]:
     return np.datetime_as_string(gps_s2datetime(t_gps_s), unit="ms")
 
 
+def utc_offset_s(result: RunResult) -> F64:
+    """GPS - UTC (s) at every epoch: the navigation header's ``LEAP SECONDS`` when it had one,
+    else the built-in table (:data:`gnss_cli.gnss.time.GPS_UTC_STEPS`)."""
+    t = result.epochs.time_gps_s
+    leap = result.epochs.leap_seconds
+    return np.full(t.shape, float(leap)) if leap is not None else gps_minus_utc_s(t)
+
+
+def output_time_s(result: RunResult, time_system: str = "gpst") -> F64:
+    """Epochs in the output time scale, s since 1980-01-06 00:00:00 of that scale."""
+    t = result.epochs.time_gps_s
+    return t - utc_offset_s(result) if time_system == "utc" else t
+
+
+def enu_covariances(x_ecef_m: F64, cov_m2: F64) -> F64:
+    """``(T, 3, 3)`` position covariances rotated to local ENU at each solution (m^2):
+    ``R C R^T`` with ``C = cov_m2[:, :3, :3]`` (ECEF); NaN where the position is missing."""
+    lat, lon, _ = ecef2geodetic(np.where(np.isfinite(x_ecef_m), x_ecef_m, 1.0))
+    rot = ecef2enu_rotation(lat, lon)
+    cov = np.einsum("tij,tjk,tlk->til", rot, cov_m2[:, :3, :3], rot)
+    cov[~np.isfinite(x_ecef_m).all(axis=1)] = np.nan
+    return cov
+
+
 def tdop_columns(result: RunResult) -> list[str]:
     """``tdop_<letter>`` of every processed system when there are several, else ``[]``."""
     systems = result.epochs.systems
     return [f"tdop_{s}" for s in systems] if len(systems) > 1 else []
 
 
-def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
+def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time_system: str = "gpst") -> pd.DataFrame:
     """One row per epoch and method (see the README for every column and unit).
 
-    With several systems, ``tdop_<letter>`` columns follow ``tdop`` (module docstring).
+    With several systems, ``tdop_<letter>`` columns follow ``tdop`` (module docstring); the
+    uncertainty columns :data:`SD_COLUMNS` come last. ``time_system``: ``gpst`` or ``utc``
+    for the ``time`` column.
     """
     t = result.epochs.time_gps_s
     week, tow = gps_s2week_tow(t)
-    iso = _iso(t)
+    iso = _iso(output_time_s(result, time_system))
     frames = []
     with_paper = "tls" in result.solutions
     for method, s in result.solutions.items():
@@ -99,6 +138,10 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> p
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
             df["e_err_m"], df["n_err_m"], df["u_err_m"] = enu[:, 0], enu[:, 1], enu[:, 2]
             df["err_3d_m"] = np.linalg.norm(enu, axis=1)
+        cov = enu_covariances(s.x_ecef_m, s.cov_m2)
+        with np.errstate(invalid="ignore"):
+            df["sde_m"], df["sdn_m"], df["sdu_m"] = (np.sqrt(cov[:, k, k]) for k in range(3))
+        df["sden_m2"], df["sdnu_m2"], df["sdue_m2"] = cov[:, 0, 1], cov[:, 1, 2], cov[:, 2, 0]
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
 
@@ -138,8 +181,30 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
             row[f"mean_{d}"] = _stat(np.mean, v)
             row[f"median_{d}"] = _stat(np.median, v)
             row[f"max_{d}"] = _stat(np.max, v)
+        row.update(_mean_position(s.x_ecef_m))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _mean_position(x_ecef_m: F64) -> dict[str, float]:
+    """Mean ECEF and geodetic position of the epochs with a position (``ok``, ``fallback_wls``), and the std of their E/N/U
+    offsets from that mean (population std, ddof 0), in the local frame at the mean."""
+    x = x_ecef_m[np.isfinite(x_ecef_m).all(axis=1)]
+    if not x.size:
+        return {k: float("nan") for k in MEAN_POSITION_COLUMNS}
+    mean = x.mean(axis=0)
+    lat, lon, h = ecef2geodetic(mean)
+    enu = enu_errors(x, mean)
+    out = {"mean_x_m": mean[0], "mean_y_m": mean[1], "mean_z_m": mean[2], "mean_lat_deg": float(np.rad2deg(lat)),
+           "mean_lon_deg": float(np.rad2deg(lon)), "mean_height_m": float(h)}
+    out.update({f"scatter_{c}_m": float(np.std(enu[:, k])) for k, c in enumerate("enu")})
+    return {k: float(v) for k, v in out.items()}
+
+
+MEAN_POSITION_COLUMNS = ["mean_x_m", "mean_y_m", "mean_z_m", "mean_lat_deg", "mean_lon_deg", "mean_height_m",
+                         "scatter_e_m", "scatter_n_m", "scatter_u_m"]
+"""``summary.csv`` columns of the mean position of a method's solved epochs (m, deg) and the
+std of the E/N/U offsets about it (m)."""
 
 
 def _stat(fn, v: F64) -> float:  # type: ignore[no-untyped-def]
@@ -207,5 +272,5 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 __all__: Sequence[str] = [
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text",
-    "enu_errors", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
+    "enu_errors", "enu_covariances", "utc_offset_s", "output_time_s", "SD_COLUMNS", "MEAN_POSITION_COLUMNS", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
 ]

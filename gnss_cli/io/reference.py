@@ -1,4 +1,5 @@
-"""Reference positions for the error columns: ``X,Y,Z`` text, SINEX station, or a CSV trajectory.
+"""Reference positions for the error columns: ``X,Y,Z`` text, SINEX station, a CSV trajectory,
+or an RTKLIB ``.pos`` solution file.
 
 Every function returns ECEF positions in metres: ``(3,)`` for a fixed reference, ``(T, 3)``
 matched to the epochs for a moving one. Errors name the file and the option.
@@ -15,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from gnss_cli.constants import GPS_EPOCH_ISO
 from gnss_cli.errors import ConfigError, InputFileNotFoundError
 
-__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "timestamps_gps_s"]
+__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "reference_from_pos", "read_pos", "timestamps_gps_s"]
 
 F64 = NDArray[np.float64]
 
@@ -91,6 +92,11 @@ def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{p}: bad time column ({exc})") from None
     xyz = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
+    return _match(t_ref, xyz, time_gps_s)
+
+
+def _match(t_ref: F64, xyz: F64, time_gps_s: F64) -> F64:
+    """Reference rows nearest to each epoch, NaN where none is within 1 ms."""
     order = np.argsort(t_ref)
     t_ref, xyz = t_ref[order], xyz[order]
     k = np.clip(np.searchsorted(t_ref, time_gps_s), 1, max(t_ref.size - 1, 1)) if t_ref.size > 1 else np.zeros(time_gps_s.size, dtype=int)
@@ -98,3 +104,72 @@ def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
     out = xyz[k].copy()
     out[np.abs(t_ref[k] - time_gps_s) > 1e-3] = np.nan
     return out
+
+
+_A_WGS84 = 6378137.0
+_E2_WGS84 = 6.69437999014e-3
+
+
+def _llh_to_ecef(lat_deg: F64, lon_deg: F64, h_m: F64) -> F64:
+    lat, lon = np.deg2rad(lat_deg), np.deg2rad(lon_deg)
+    n = _A_WGS84 / np.sqrt(1.0 - _E2_WGS84 * np.sin(lat) ** 2)
+    return np.stack([(n + h_m) * np.cos(lat) * np.cos(lon), (n + h_m) * np.cos(lat) * np.sin(lon),
+                     (n * (1.0 - _E2_WGS84) + h_m) * np.sin(lat)], axis=-1)
+
+
+def read_pos(path: str | Path) -> tuple[F64, F64, str]:
+    """An RTKLIB solution file: ``(t_s (n,), ECEF (n, 3) m, time system)``.
+
+    Time is ``yyyy/mm/dd hh:mm:ss.sss`` or ``week tow``, in seconds since 1980-01-06 00:00:00
+    of the file's time scale (``"GPST"`` or ``"UTC"``, from the ``%`` column header; GPST when
+    it does not say); positions are ``x/y/z-ecef`` or ``latitude(deg) longitude(deg) height(m)``
+    (WGS-84 ellipsoidal height), or latitude/longitude in ``d m s``. Raises :class:`ConfigError`.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileNotFoundError(f"{p}: no such reference file")
+    scale, layout, times, coords = "GPST", "xyz", [], []
+    with open(p, errors="replace") as f:
+        for lineno, line in enumerate(f, 1):
+            if line.startswith(("%", "#", ";")):
+                if "x-ecef" in line or "latitude" in line:
+                    scale = "UTC" if "UTC" in line.split()[1:3] else "GPST"
+                    layout = "xyz" if "x-ecef" in line else ("dms" if "latitude(d'" in line else "llh")
+                continue
+            parts = line.split()
+            if not parts:
+                continue
+            try:
+                if "/" in parts[0]:
+                    times.append(np.datetime64(parts[0].replace("/", "-") + "T" + parts[1], "ns"))
+                else:
+                    times.append(np.datetime64("1980-01-06", "ns") + np.timedelta64(
+                        int(round((int(parts[0]) * 604800 + float(parts[1])) * 1e9)), "ns"))
+                if layout == "dms":
+                    v = [float(x) for x in parts[2:9]]
+                    sign = [-1.0 if parts[k].startswith("-") else 1.0 for k in (2, 5)]
+                    coords.append([sign[0] * (abs(v[0]) + v[1] / 60 + v[2] / 3600), sign[1] * (abs(v[3]) + v[4] / 60 + v[5] / 3600), v[6]])
+                else:
+                    coords.append([float(x) for x in parts[2:5]])
+            except (ValueError, IndexError):
+                raise ConfigError(f"{p}:{lineno}: not an RTKLIB solution line: {line.strip()[:60]!r}") from None
+    if not times:
+        raise ConfigError(f"{p}: no solution lines (expected an RTKLIB .pos file)")
+    xyz = np.asarray(coords, dtype=np.float64)
+    if layout != "xyz":
+        xyz = _llh_to_ecef(xyz[:, 0], xyz[:, 1], xyz[:, 2])
+    return timestamps_gps_s(np.array(times, dtype="datetime64[ns]")), xyz, scale
+
+
+def reference_from_pos(path: str | Path, time_gps_s: F64, gps_minus_utc_s: F64 | float = 0.0) -> F64:
+    """Per-epoch reference positions ``(T, 3)`` (ECEF m) from an RTKLIB ``.pos`` file
+    (:func:`read_pos`), matched to the epochs within 1 ms as :func:`reference_from_csv`.
+
+    A UTC file is compared with ``time_gps_s - gps_minus_utc_s`` (the leap seconds of each
+    epoch, s). Epochs without a solution line get NaN.
+    """
+    t_ref, xyz, scale = read_pos(path)
+    t = np.asarray(time_gps_s, dtype=np.float64)
+    if scale == "UTC":
+        t = t - np.broadcast_to(np.asarray(gps_minus_utc_s, dtype=np.float64), t.shape)
+    return _match(t_ref, xyz, t)

@@ -344,6 +344,19 @@ def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | 
     return merged
 
 
+def nav_leap_seconds(paths: str | Path | Sequence[str | Path]) -> float | None:
+    """GPS - UTC (s) from the ``LEAP SECONDS`` header line of the first navigation file that
+    has one (RINEX 2 and 3: the current leap seconds, columns 1-6), else None."""
+    items = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    for item in items:
+        text = _header_value(Path(item), "LEAP SECONDS")
+        try:
+            return float(int(text[:6]))
+        except ValueError:
+            continue
+    return None
+
+
 def klobuchar_coefficients(nav: xr.Dataset) -> tuple[np.ndarray, np.ndarray] | None:
     """Klobuchar ``(alpha (4,), beta (4,))`` from a navigation dataset's header, or None."""
     raw = nav.attrs.get("ionospheric_corr_GPS")

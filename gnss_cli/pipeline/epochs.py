@@ -35,7 +35,7 @@ from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.signals import iono_free_pseudorange_m
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.gnss.weights import ephemeris_sigma_m
-from gnss_cli.io.rinex import klobuchar_coefficients, read_nav, read_obs
+from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
 from gnss_cli.pipeline.results import EpochData
 
 __all__ = ["load_epochs"]
@@ -306,4 +306,5 @@ def load_epochs(
         systems=used_systems,
         system_index=system_index,
         iono_scale=arrays.iono_scale,
+        leap_seconds=nav_leap_seconds(nav_paths),
     )

@@ -182,6 +182,8 @@ class EpochData:
     """``(n,)`` index into ``systems`` of every satellite."""
     iono_scale: F64 | None = None
     """``(T, n)`` factor taking the L1 Klobuchar delay to the signal's frequency."""
+    leap_seconds: float | None = None
+    """GPS - UTC (s) from the navigation header's ``LEAP SECONDS``, None when absent."""
 
 
 @dataclass(frozen=True)

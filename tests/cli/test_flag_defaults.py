@@ -15,7 +15,7 @@ SOLVE_KEYS = {
     "--method": ("processing", "methods"), "--systems": ("processing", "systems"), "--iono": ("processing", "iono"),
     "--tropo": ("processing", "tropo"), "--elevation-mask": ("processing", "elevation_mask_deg"),
     "--lag": ("smoothing", "lag"), "--model": ("smoothing", "model"), "--kernel": ("smoothing", "kernel"),
-    "--order": ("smoothing", "order"), "--window": ("smoothing", "window"),
+    "--order": ("smoothing", "order"), "--window": ("smoothing", "window"), "--time-system": ("processing", "time_system"),
 }
 SIMULATE_KEYS = {
     "--trajectory": ("simulate", "trajectory"), "--duration": ("simulate", "duration_s"),

@@ -4,7 +4,6 @@ the files, the one-line refusal without matplotlib, and no partial output on int
 from __future__ import annotations
 
 import sys
-import io
 from html.parser import HTMLParser
 from pathlib import Path
 
