@@ -244,6 +244,9 @@ def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | 
     for ds in datasets:
         for key, value in ds.attrs.items():
             attrs.setdefault(key, value)
+    valid = [ds.attrs["ionospheric_corr_GPS"] for ds in datasets if klobuchar_coefficients(ds) is not None]
+    if valid:  # Klobuchar coefficients from any file of the run that has them
+        attrs["ionospheric_corr_GPS"] = valid[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         merged = xr.merge(datasets, compat="override", join="outer", combine_attrs="drop")

@@ -94,3 +94,24 @@ def test_unscaled_wtls_on_0759_reports_nongeneric_instead_of_a_number(rinex_dir,
     # Row weights 1/sigma^2 alone make sigma_min(A) < sigma_min([A q]) at these epochs.
     assert np.all(s.status == "nongeneric")
     assert np.all(np.isnan(s.x_ecef_m))
+
+
+def test_nav_without_klobuchar_falls_back_to_rtklib_defaults(tmp_path):
+    """Klobuchar from another nav file of the run, else RTKLIB's default coefficients, one warning."""
+    from pathlib import Path
+
+    from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
+    from gnss_cli.pipeline.epochs import load_epochs
+
+    sample = Path(__file__).resolve().parents[2] / "sample_rinex" / "static"
+    text = (sample / "nav.rnx").read_text()
+    bare = tmp_path / "bare.rnx"
+    bare.write_text("".join(ln for ln in text.splitlines(keepends=True) if "IONOSPHERIC CORR" not in ln))
+    cfg = load_config(overrides={"methods": "wls", "systems": ["G"]})
+    alone = load_epochs(sample / "obs.rnx", [bare], cfg)
+    np.testing.assert_array_equal(alone.klobuchar[0], KLOBUCHAR_DEFAULT_ALPHA)
+    np.testing.assert_array_equal(alone.klobuchar[1], KLOBUCHAR_DEFAULT_BETA)
+    assert sum("default coefficients" in w for w in alone.warnings) == 1
+    both = load_epochs(sample / "obs.rnx", [bare, sample / "nav.rnx"], cfg)
+    np.testing.assert_allclose(both.klobuchar[0], [1.1176e-08, 7.4506e-09, -5.9605e-08, -5.9605e-08])
+    assert not any("Klobuchar" in w for w in both.warnings)
