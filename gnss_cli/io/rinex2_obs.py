@@ -21,6 +21,7 @@ RINEX 2.11 format description (IGS/RTCM-SC104, 2012), section 7 and tables A1-A2
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -30,7 +31,7 @@ import xarray
 from numpy.typing import NDArray
 
 from gnss_cli.errors import RinexFormatError
-from gnss_cli.io.fixed_width import gather_columns, parse_f14_3, parse_float_fields, split_lines, sv_codes2str
+from gnss_cli.io.fixed_width import DIGIT0, SPACE, gather_columns, parse_f14_3, parse_float_fields, split_lines, sv_codes2str
 from gnss_cli.io.rinex3_header import read_header
 
 __all__ = ["read_obs2", "parse_seconds_ns"]
@@ -46,6 +47,9 @@ def parse_seconds_ns(text: str) -> int | None:
     """Decimal seconds text (``' 29.9990000'``) as integer nanoseconds; None if not a number.
 
     Digits beyond the ninth decimal are dropped (RINEX 2 writes seven).
+
+    >>> parse_seconds_ns(" 29.9990000")  # a binary float would give 29.998999...
+    29999000000
     """
     s = text.strip()
     whole, dot, frac = s.partition(".")
@@ -102,23 +106,38 @@ def _obs_header(header: str, name: str) -> tuple[dict[str, Any], list[str], str]
     return attrs, types, system
 
 
-def _sv_code(text: str, file_system: str) -> int | None:
-    """Integer code ``(system << 16) | (tens << 8) | units`` of a satellite id ``'G 7'``, ``' 12'``."""
-    sys_char = text[0] if text[0] != " " else ("G" if file_system == "M" else file_system)
-    digits = text[1:3].replace(" ", "0")
-    if sys_char not in "GRESJCI" or not digits.isdigit():
-        return None
-    return (ord(sys_char) << 16) | (ord(digits[0]) << 8) | ord(digits[1])
+def _sv_codes(ids: bytes, file_system: str) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Satellite ids ``'G 7'``, ``' 12'`` (3 characters each) as codes ``(system << 16) | (tens << 8) | units``.
+
+    A blank system letter is GPS (the file's system in single-system files).
+    """
+    chars = np.frombuffer(ids, dtype=np.uint8).reshape(-1, 3)
+    blank_sys = ord("G") if file_system == "M" else ord(file_system)
+    c0 = np.where(chars[:, 0] == SPACE, blank_sys, chars[:, 0]).astype(np.int64)
+    c1 = np.where(chars[:, 1] == SPACE, DIGIT0, chars[:, 1]).astype(np.int64)
+    c2 = chars[:, 2].astype(np.int64)
+    known = np.isin(c0, np.frombuffer(b"GRESJCI", dtype=np.uint8))
+    ok = known & (c1 >= DIGIT0) & (c1 <= DIGIT0 + 9) & (c2 >= DIGIT0) & (c2 <= DIGIT0 + 9)
+    return (c0 << 16) | (c1 << 8) | c2, ok
 
 
 class _Walk:
-    """The records found by :func:`_walk`: per satellite record its first line, sv code and epoch."""
+    """The epochs with observations found by :func:`_walk`."""
 
     def __init__(self) -> None:
+        self.epoch_line: list[int] = []
         self.first_line: list[int] = []
-        self.sv: list[int] = []
-        self.epoch: list[int] = []
+        self.nsat: list[int] = []
+        self.ids: list[str] = []
         self.times_ns: list[int] = []
+
+
+@functools.lru_cache(maxsize=4096)
+def _days_since_1970(year: int, month: int, day: int) -> int | None:
+    try:
+        return int(np.datetime64(f"{year:04d}-{month:02d}-{day:02d}", "D").astype(np.int64))
+    except ValueError:
+        return None
 
 
 def _epoch_time_ns(line: str) -> int | None:
@@ -130,12 +149,13 @@ def _epoch_time_ns(line: str) -> int | None:
     ns = parse_seconds_ns(line[15:26])
     if ns is None or not (1 <= mo <= 12 and 1 <= dd <= 31 and hh < 24 and mi < 60 and ns <= 60_999_999_999):
         return None
-    year = yy + (2000 if yy < 80 else 1900)
-    day = np.datetime64(f"{year:04d}-{mo:02d}-{dd:02d}", "D").astype(np.int64)
-    return ((int(day) * 24 + hh) * 60 + mi) * 60 * 1_000_000_000 + ns
+    day = _days_since_1970(yy + (2000 if yy < 80 else 1900), mo, dd)
+    if day is None:
+        return None
+    return ((day * 24 + hh) * 60 + mi) * 60 * 1_000_000_000 + ns
 
 
-def _walk(text_lines: list[str], n_types: int, file_system: str, name: str, offset: int) -> _Walk:
+def _walk(text_lines: list[str], n_types: int, name: str, offset: int) -> _Walk:
     """Find the epoch records; ``offset`` is the file line number of ``text_lines[0]`` minus one."""
     lines_per_sat = (n_types + _PER_LINE - 1) // _PER_LINE
     out = _Walk()
@@ -165,22 +185,31 @@ def _walk(text_lines: list[str], n_types: int, file_system: str, name: str, offs
                 f"{name}: line {lineno}: record cut short (announces {nsat} satellites of "
                 f"{lines_per_sat} line(s) each, the file ends at line {offset + n})"
             )
-        if flag <= 1 and nsat:
-            epoch = len(out.times_ns)
+        if flag <= 1 and nsat:  # flag 6 (cycle slips) has the same layout and is skipped
+            out.epoch_line.append(i)
+            out.first_line.append(i + n_id_lines)
+            out.nsat.append(nsat)
+            out.ids.append("".join(text_lines[i + k][32:68].ljust(36) for k in range(n_id_lines))[: 3 * nsat])
             out.times_ns.append(t_ns)
-            ids = "".join(text_lines[i + k][32:68].ljust(36) for k in range(n_id_lines))
-            first = i + n_id_lines
-            for k in range(nsat):
-                code = _sv_code(ids[3 * k:3 * k + 3], file_system)
-                if code is None:
-                    raise RinexFormatError(
-                        f"{name}: bad satellite id {ids[3 * k:3 * k + 3]!r} on line {lineno + k // _SATS_PER_LINE}"
-                    )
-                out.first_line.append(first + k * lines_per_sat)
-                out.sv.append(code)
-                out.epoch.append(epoch)
         i = end
     return out
+
+
+def _records(walk: _Walk, n_types: int, file_system: str, name: str, offset: int
+             ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """Per satellite record: its first line, satellite code and epoch."""
+    nsat = np.asarray(walk.nsat, dtype=np.int64)
+    epoch = np.repeat(np.arange(nsat.size), nsat)
+    k = np.arange(epoch.size) - np.repeat(np.cumsum(nsat) - nsat, nsat)  # position in the epoch's list
+    lines_per_sat = (n_types + _PER_LINE - 1) // _PER_LINE
+    first = np.repeat(np.asarray(walk.first_line, dtype=np.int64), nsat) + k * lines_per_sat
+    sv, ok = _sv_codes("".join(walk.ids).encode("ascii", "replace"), file_system)
+    if not np.all(ok):
+        r = int(np.flatnonzero(~ok)[0])
+        text = "".join(walk.ids)[3 * r:3 * r + 3]
+        line = offset + walk.epoch_line[epoch[r]] + 1 + int(k[r]) // _SATS_PER_LINE
+        raise RinexFormatError(f"{name}: bad satellite id {text!r} on line {line}")
+    return first, sv, epoch
 
 
 def _check_record_lines(buf: NDArray[np.uint8], starts: NDArray[np.int64], lengths: NDArray[np.int64],
@@ -238,10 +267,6 @@ def read_obs2(
         Bad header, bad epoch line, a record cut short by the end of the file, a record
         with more fields than the header's observation types, a bad satellite id or
         value, no records; the message names the file and the line.
-
-    Examples
-    --------
-    >>> obs = read_obs2("sample_rinex/static/obs.rnx")  # doctest: +SKIP
     """
     name, content, hdr_end, header = read_header(path)
     attrs, types, file_system = _obs_header(header, name)
@@ -250,10 +275,8 @@ def read_obs2(
     text_lines = content[hdr_end:].decode("ascii", errors="replace").replace("\r", "").split("\n")
     if text_lines and text_lines[-1] == "":
         text_lines.pop()
-    walk = _walk(text_lines, len(types), file_system, name, offset)
-    first = np.asarray(walk.first_line, dtype=np.int64)
-    sv = np.asarray(walk.sv, dtype=np.int64)
-    epoch = np.asarray(walk.epoch, dtype=np.int64)
+    walk = _walk(text_lines, len(types), name, offset)
+    first, sv, epoch = _records(walk, len(types), file_system, name, offset)
     if first.size:
         _check_record_lines(buf, starts, lengths, first, len(types), name, offset)
     if systems is not None:

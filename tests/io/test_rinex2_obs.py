@@ -195,3 +195,15 @@ def test_shared_malformed_rinex2_files_name_file_and_problem() -> None:
         read_obs2(_need(mal / "badtime.10o"))
     with pytest.raises(RinexFormatError, match=r"wrong_obs2_count\.10o: header declares 6 observation types but lists 7"):
         read_obs2(_need(mal / "wrong_obs2_count.10o"))
+
+
+def test_impossible_date_bad_satellite_id_and_no_records_are_one_line_errors(tmp_path: Path) -> None:
+    bad_date = _epoch("30.0000000", ["G01"]).replace(" 10  3  5", " 10  2 31") + _record(1.0, 2.0)
+    with pytest.raises(RinexFormatError, match=r"t\.10o: bad epoch line 4"):
+        read_obs2(_write(tmp_path, bad_date))
+    sats = [f"G{k:02d}" for k in range(1, 13)] + ["X01"]
+    bad_id = _epoch("30.0000000", sats) + _record(1.0, 2.0) * 13
+    with pytest.raises(RinexFormatError, match=r"t\.10o: bad satellite id 'X01' on line 5"):
+        read_obs2(_write(tmp_path, bad_id))
+    with pytest.raises(RinexFormatError, match=r"t\.10o: no observation records"):
+        read_obs2(_write(tmp_path, _epoch("30.0000000", []) + _epoch("31.0000000", [])))
