@@ -43,21 +43,23 @@ _PER_LINE = 5
 _SATS_PER_LINE = 12
 
 
-def parse_seconds_ns(text: str) -> int | None:
-    """Decimal seconds text (``' 29.9990000'``) as integer nanoseconds; None if not a number.
+def parse_seconds_ns(text: str) -> int:
+    """Decimal seconds text (``' 29.9990000'``) as integer nanoseconds.
 
     Digits beyond the ninth decimal are dropped (RINEX 2 writes seven).
+
+    Raises
+    ------
+    ValueError
+        ``text`` is not an unsigned decimal number.
 
     >>> parse_seconds_ns(" 29.9990000")  # a binary float would give 29.998999...
     29999000000
     """
-    s = text.strip()
-    whole, dot, frac = s.partition(".")
-    if not whole:
-        whole = "0"
-    if not whole.isdigit() or (frac and not frac.isdigit()) or (not dot and not s):
-        return None
-    return int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
+    whole, _, frac = text.strip().partition(".")
+    if not (whole or frac) or not (whole or "0").isdigit() or (frac and not frac.isdigit()):
+        raise ValueError(f"seconds: expected a decimal number such as '29.9990000', got {text!r}")
+    return int(whole or "0") * 1_000_000_000 + int((frac + "000000000")[:9])
 
 
 def _obs_header(header: str, name: str) -> tuple[dict[str, Any], list[str], str]:
@@ -146,8 +148,11 @@ def _epoch_time_ns(line: str) -> int | None:
     if not all(f.strip().isdigit() for f in fields):
         return None
     yy, mo, dd, hh, mi = (int(f) for f in fields)
-    ns = parse_seconds_ns(line[15:26])
-    if ns is None or not (1 <= mo <= 12 and 1 <= dd <= 31 and hh < 24 and mi < 60 and ns <= 60_999_999_999):
+    try:
+        ns = parse_seconds_ns(line[15:26])
+    except ValueError:
+        return None
+    if not (1 <= mo <= 12 and 1 <= dd <= 31 and hh < 24 and mi < 60 and ns <= 60_999_999_999):
         return None
     day = _days_since_1970(yy + (2000 if yy < 80 else 1900), mo, dd)
     if day is None:

@@ -108,7 +108,9 @@ def test_seconds_text_to_nanoseconds() -> None:
     assert parse_seconds_ns(" 29.9990000") == 29_999_000_000
     assert parse_seconds_ns("  0.0000001") == 100
     assert parse_seconds_ns(" 41.7") == 41_700_000_000
-    assert parse_seconds_ns(" 4x.7000000") is None
+    for bad in (" 4x.7000000", "  ", " -1.0000000", " 1.2.3"):
+        with pytest.raises(ValueError, match="seconds"):
+            parse_seconds_ns(bad)
 
 
 def test_sub_millisecond_tag_is_exact(tmp_path: Path) -> None:
