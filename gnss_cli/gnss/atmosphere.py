@@ -17,6 +17,11 @@ from gnss_cli.constants import C_M_S
 
 F64 = NDArray[np.float64]
 
+KLOBUCHAR_DEFAULT_ALPHA = np.array([0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06])
+"""Klobuchar alpha used when no navigation file carries coefficients (RTKLIB's ``ion_default``)."""
+KLOBUCHAR_DEFAULT_BETA = np.array([0.1167e06, -0.2294e06, -0.1311e06, 0.1049e07])
+"""Klobuchar beta used when no navigation file carries coefficients (RTKLIB's ``ion_default``)."""
+
 
 def klobuchar_delay_m(
     alpha: ArrayLike,

@@ -4,9 +4,10 @@ A :class:`KeplerEphemeris` holds one row per broadcast record (GPS LNAV; later G
 BeiDou and QZSS records share the layout). Times are absolute GPS seconds
 (:mod:`gnss_cli.gnss.time`), so week roll-overs need no special care.
 
-Selection (IS-GPS-200 practice, as in RTKLIB): for each satellite and epoch, the healthy
-record whose ``toe`` is nearest to the epoch, provided the epoch lies within half the
-curve-fit interval of ``toe`` (fit interval 4 h when the record does not say).
+Selection (IS-GPS-200 practice, as in RTKLIB): for each satellite and epoch, the record
+whose ``toe`` is nearest to the epoch, provided the epoch lies within half the curve-fit
+interval of ``toe`` (fit interval 4 h when the record does not say); the later toe at an
+exact tie. When that record is unhealthy the satellite is not used at that epoch.
 """
 
 from __future__ import annotations
@@ -218,19 +219,31 @@ def select_nearest_record(
         Satellite ids, shape ``(n,)``.
     t_gps_s
         Epochs, shape ``(T,)``, s since the GPS epoch.
+    healthy_only
+        When the nearest record is unhealthy the satellite is not used at that epoch (an
+        older healthy record does not replace it).
 
     Returns
     -------
     ndarray of intp, shape ``(T, n)``
+
+    Notes
+    -----
+    As RTKLIB's ``seleph`` and ``satexclude``: the record is chosen by time alone, its
+    health is checked afterwards; at an exact tie the record with the later toe wins (and
+    among records with the same toe, the later one in the table).
     """
     t = np.asarray(t_gps_s, dtype=np.float64)
     out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
     limit = np.broadcast_to(np.asarray(max_dt_s, dtype=np.float64), toe_gps_s.shape)
-    for j, rows in records_by_satellite(record_sv, health, sv, healthy_only=healthy_only):
+    for j, rows in records_by_satellite(record_sv, health, sv, healthy_only=False):
+        rows = rows[np.argsort(toe_gps_s[rows], kind="stable")][::-1]  # latest first: argmin keeps it on ties
         dt = np.abs(t[:, None] - toe_gps_s[rows][None, :])  # (T, r)
         dt = np.where(dt <= limit[rows][None, :] + 1e-6, dt, np.inf)
         best = np.argmin(dt, axis=1)
         ok = np.isfinite(dt[np.arange(t.shape[0]), best])
+        if healthy_only:
+            ok &= health[rows[best]] == 0
         out[:, j] = np.where(ok, rows[best], -1)
     return out
 
@@ -253,7 +266,7 @@ def select_ephemeris(
     t_gps_s
         Epochs, shape ``(T,)``, s since the GPS epoch.
     healthy_only
-        Skip records with non-zero health.
+        -1 where the nearest record has non-zero health.
 
     Returns
     -------

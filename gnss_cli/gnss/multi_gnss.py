@@ -15,9 +15,12 @@ IS-GPS-200 evaluation of :func:`~gnss_cli.gnss.orbits.broadcast_states`; they di
   position in the inertial-like frame is rotated by -5 deg about x, then by ``wE tk``
   about z (BDS-SIS-ICD-B1I Table 5-11);
 * record selection: GPS/QZSS nearest toe within half the fit interval
-  (:func:`~gnss_cli.gnss.ephemeris.select_ephemeris`); Galileo and BeiDou records are
-  fitted forward from toe, so the latest record with ``toe <= t`` and ``t - toe`` at most
-  3 h (Galileo, :data:`GAL_MAX_AGE_S`) or 4 h (BeiDou) (:func:`select_forward_ephemeris`).
+  (:func:`~gnss_cli.gnss.ephemeris.select_ephemeris`), the later toe at a tie; BeiDou
+  nearest toe within 4 h on either side (as RTKLIB); Galileo records are fitted forward
+  from toe, so the latest record with ``toe <= t`` and ``t - toe`` at most 3 h
+  (:data:`GAL_MAX_AGE_S`, :func:`select_forward_ephemeris`);
+* health: the selected record's health decides, an older healthy record never replaces
+  an unhealthy one (RTKLIB); QZSS health is masked with :data:`QZSS_L1_HEALTH_MASK`.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from gnss_cli.constants import (
     SECONDS_PER_WEEK,
 )
 from gnss_cli.errors import RinexFormatError, UsageError
-from gnss_cli.gnss.ephemeris import KeplerEphemeris, records_by_satellite, select_ephemeris
+from gnss_cli.gnss.ephemeris import KeplerEphemeris, records_by_satellite, select_ephemeris, select_nearest_record
 from gnss_cli.gnss.orbits import SatelliteStates, broadcast_states
 
 F64 = NDArray[np.float64]
@@ -59,7 +62,7 @@ The records are valid for 4 h, but they are refreshed every 10 min: a record old
 (max 1.34 m up to 3 h)."""
 
 BDS_MAX_AGE_S = 4.0 * 3600.0
-"""Longest time after toe a BeiDou record is used by default, s (records are hourly)."""
+"""Longest ``|t - toe|`` a BeiDou record is used, s (records are hourly; RTKLIB allows 6 h)."""
 
 _SIN_M5 = np.sin(np.deg2rad(-5.0))
 _COS_M5 = np.cos(np.deg2rad(-5.0))
@@ -204,7 +207,7 @@ def select_forward_ephemeris(
     """
     t = np.asarray(t_gps_s, dtype=np.float64)
     out = np.full((t.shape[0], len(sv)), -1, dtype=np.intp)
-    for j, rows in records_by_satellite(eph.sv, eph.health, sv, healthy_only=healthy_only):
+    for j, rows in records_by_satellite(eph.sv, eph.health, sv, healthy_only=False):
         # latest toe; among equal toe the latest toc (last transmitted)
         order = np.lexsort((eph.toc_gps_s[rows], eph.toe_gps_s[rows]))
         rows = rows[order]
@@ -213,8 +216,15 @@ def select_forward_ephemeris(
         ok = pos >= 0
         pos_c = np.where(ok, pos, 0)
         ok &= t - toe[pos_c] <= max_age_s + 1e-6
+        if healthy_only:  # the record in force is unhealthy: no older record replaces it
+            ok &= eph.health[rows[pos_c]] == 0
         out[:, j] = np.where(ok, rows[pos_c], -1)
     return out
+
+
+QZSS_L1_HEALTH_MASK = 0xFE
+"""Bits of the QZSS health word that concern L1 C/A positioning (RTKLIB's mask: bit 0,
+the L1C health flag of IS-QZSS, is ignored)."""
 
 
 def select_system_ephemeris(
@@ -227,9 +237,14 @@ def select_system_ephemeris(
     ndarray of intp, shape ``(T, n)``; -1 where no record is usable.
     """
     system_constants(system)
-    if system in ("E", "C"):
-        age = GAL_MAX_AGE_S if system == "E" else BDS_MAX_AGE_S
-        return select_forward_ephemeris(eph, sv, t_gps_s, max_age_s=age, healthy_only=healthy_only)
+    if system == "E":
+        return select_forward_ephemeris(eph, sv, t_gps_s, max_age_s=GAL_MAX_AGE_S, healthy_only=healthy_only)
+    if system == "C":  # nearest toe on either side, as RTKLIB
+        return select_nearest_record(eph.sv, eph.toe_gps_s, eph.health, BDS_MAX_AGE_S, sv, t_gps_s,
+                                     healthy_only=healthy_only)
+    if system == "J":
+        health = np.nan_to_num(eph.health, nan=1.0).astype(np.int64) & QZSS_L1_HEALTH_MASK
+        eph = replace(eph, health=health.astype(np.float64))
     return select_ephemeris(eph, sv, t_gps_s, healthy_only=healthy_only)
 
 

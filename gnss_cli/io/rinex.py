@@ -1,6 +1,7 @@
 """RINEX observation and navigation input, validated before any computation.
 
-This is the only module that imports :mod:`georinex`. RINEX 2 files are read with
+This is the only module that imports :mod:`georinex`. RINEX 2 observation files are
+read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files with
 georinex; RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
 :mod:`gnss_cli.io.rinex3_nav` when it is available, else with georinex (which rejects
 RINEX 4). Every reader is filtered to the systems and signals needed: unfiltered,
@@ -14,7 +15,6 @@ that do not parse, a header that contradicts its records, no records at all.
 from __future__ import annotations
 
 import logging
-import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,25 +24,6 @@ import numpy as np
 import xarray as xr
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
-
-_RINEX2_EPOCH = re.compile(
-    r"^ (?P<yy>[ \d]\d) (?P<mo>[ \d]\d) (?P<dd>[ \d]\d) (?P<hh>[ \d]\d) (?P<mi>[ \d]\d)"
-    r"(?P<ss>[ \d]{3}\.\d{7})  (?P<flag>\d)(?P<nsat>[ \d]{1,3})"
-)
-
-
-def _seconds(match: re.Match[str], path: Path, lineno: int, line: str) -> float:
-    try:
-        return float(match["ss"])
-    except ValueError:
-        raise RinexFormatError(f"{path}: line {lineno}: bad epoch seconds {line.rstrip()[:40]!r}") from None
-
-
-_RINEX3_EPOCH = re.compile(
-    r"^> (?P<yyyy>\d{4}) (?P<mo>[ \d]\d) (?P<dd>[ \d]\d) (?P<hh>[ \d]\d) (?P<mi>[ \d]\d)"
-    r"(?P<ss>[ \d]{3}\.\d{7})  (?P<flag>\d)(?P<nsat>[ \d]{1,3})"
-)
-
 
 @dataclass(frozen=True)
 class RinexInfo:
@@ -122,82 +103,6 @@ def rinex_info(path: str | Path) -> RinexInfo:
     return RinexInfo(p, version, kind, system)
 
 
-def _check_obs_records(info: RinexInfo) -> None:
-    """Scan the observation records and reject malformed epochs (cheap text pass)."""
-    lines = _open_lines(info.path)
-    try:
-        end = next(i for i, line in enumerate(lines) if "END OF HEADER" in line)
-    except StopIteration:
-        raise RinexFormatError(f"{info.path}: no 'END OF HEADER' line") from None
-    header, body = lines[: end + 1], lines[end + 1 :]
-    if info.version < 3:
-        _check_rinex2_obs(info.path, header, body, end + 1)
-    else:
-        _check_rinex3_obs(info.path, body, end + 1)
-
-
-def _check_rinex2_obs(path: Path, header: list[str], body: list[str], offset: int) -> None:
-    n_types = None
-    listed: list[str] = []
-    for line in header:
-        if "# / TYPES OF OBSERV" in line:
-            if line[:6].strip():
-                try:
-                    n_types = int(line[:6])
-                except ValueError:
-                    raise RinexFormatError(f"{path}: bad '# / TYPES OF OBSERV' count {line[:6]!r}") from None
-            listed += line[6:60].split()
-    if n_types is None:
-        raise RinexFormatError(f"{path}: header has no '# / TYPES OF OBSERV' line")
-    if n_types != len(listed):
-        raise RinexFormatError(
-            f"{path}: header declares {n_types} observation types but lists {len(listed)} ({' '.join(listed)})"
-        )
-    lines_per_sat = (n_types + 4) // 5
-    i, n_epochs = 0, 0
-    while i < len(body):
-        line = body[i]
-        if not line.strip():
-            i += 1
-            continue
-        flag_field = line[26:29].strip() if len(line) > 28 else ""
-        if flag_field.isdigit() and int(flag_field) > 1 and not line[:26].strip():
-            # Event record without a time (e.g. flag 4: header lines follow).
-            nsat_field = line[29:32].strip()
-            i += 1 + (int(nsat_field) if nsat_field.isdigit() else 0)
-            continue
-        m = _RINEX2_EPOCH.match(line)
-        if m is None:
-            raise RinexFormatError(f"{path}: line {offset + i + 1}: bad epoch line {line.rstrip()[:40]!r}")
-        flag, nsat = int(m["flag"]), int(m["nsat"])
-        sec = _seconds(m, path, offset + i + 1, line)
-        if not (1 <= int(m["mo"]) <= 12 and 1 <= int(m["dd"]) <= 31 and int(m["hh"]) < 24 and int(m["mi"]) < 60 and 0 <= sec < 60.0):
-            raise RinexFormatError(f"{path}: line {offset + i + 1}: epoch time out of range {line[:26].strip()!r}")
-        sat_lines = (nsat + 11) // 12
-        if flag > 1:  # event records: nsat header lines follow
-            i += 1 + nsat
-            continue
-        i += sat_lines + nsat * lines_per_sat
-        n_epochs += 1
-    if n_epochs == 0:
-        raise RinexFormatError(f"{path}: no observation records")
-
-
-def _check_rinex3_obs(path: Path, body: list[str], offset: int) -> None:
-    n_epochs = 0
-    for i, line in enumerate(body):
-        if line.startswith(">"):
-            m = _RINEX3_EPOCH.match(line)
-            if m is None:
-                raise RinexFormatError(f"{path}: line {offset + i + 1}: bad epoch line {line.rstrip()[:40]!r}")
-            sec = _seconds(m, path, offset + i + 1, line)
-            if not (1 <= int(m["mo"]) <= 12 and 1 <= int(m["dd"]) <= 31 and int(m["hh"]) < 24 and int(m["mi"]) < 60 and 0 <= sec < 60.0):
-                raise RinexFormatError(f"{path}: line {offset + i + 1}: epoch time out of range {line[:29].strip()!r}")
-            n_epochs += int(m["flag"]) <= 1
-    if n_epochs == 0:
-        raise RinexFormatError(f"{path}: no observation records")
-
-
 def _georinex_load(path: Path, **kwargs: object) -> xr.Dataset:
     import georinex
 
@@ -248,14 +153,17 @@ def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequ
     info = rinex_info(path)
     if info.kind != "obs":
         raise RinexFormatError(f"{info.path}: is a RINEX navigation file, expected an observation file (OBS and NAV swapped?)")
-    if info.version >= 3 and _fast_reader_available():
+    if info.version < 3:
+        from gnss_cli.io.rinex2_obs import read_obs2
+
+        ds = read_obs2(info.path, systems=list(systems) if systems else None, codes=list(codes) if codes else None)
+    elif _fast_reader_available():
         from gnss_cli.io.rinex3_obs import read_obs3
 
         ds = read_obs3(info.path, systems=list(systems) if systems else None, codes=list(codes) if codes else None)
     else:
         if info.version >= 4:
             raise RinexFormatError(f"{info.path}: RINEX {info.version} observation files need the built-in RINEX 3/4 reader")
-        _check_obs_records(info)
         kwargs: dict[str, object] = {}
         if systems:
             kwargs["use"] = set(systems)
@@ -336,6 +244,9 @@ def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | 
     for ds in datasets:
         for key, value in ds.attrs.items():
             attrs.setdefault(key, value)
+    valid = [ds.attrs["ionospheric_corr_GPS"] for ds in datasets if klobuchar_coefficients(ds) is not None]
+    if valid:  # Klobuchar coefficients from any file of the run that has them
+        attrs["ionospheric_corr_GPS"] = valid[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         merged = xr.merge(datasets, compat="override", join="outer", combine_attrs="drop")

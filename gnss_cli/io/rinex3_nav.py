@@ -367,8 +367,8 @@ def _dataset(
 def _merged_attrs(file_attrs: list[dict[str, Any]], svtype: list[str]) -> dict[str, Any]:
     """Header attributes of several files: the first file that has one gives each; names joined."""
     attrs: dict[str, Any] = {}
-    for a in reversed(file_attrs):
-        attrs.update(a)
+    for a in reversed(file_attrs):  # the first file wins, but all-zero ionosphere coefficients never mask real ones
+        attrs.update({k: v for k, v in a.items() if not (k.startswith("ionospheric_corr_") and not np.any(np.asarray(v)))})
     attrs["version"] = file_attrs[0]["version"]
     attrs["rinextype"] = "nav"
     attrs["svtype"] = svtype

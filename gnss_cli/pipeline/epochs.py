@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S, FREQ_B1I_HZ, FREQ_L1_HZ
 from gnss_cli.errors import RinexFormatError
+from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
 from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_states, select_glonass_ephemeris
@@ -287,7 +288,8 @@ def load_epochs(
         pr_corr = np.where(usable, prs.pr_m + C_M_S * (arrays.clk - arrays.tgd), np.nan)
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
-        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; continuing without ionospheric correction")
+        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
+        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; using the default coefficients (as RTKLIB)")
     if timings is not None:
         timings["orbits"] = time.perf_counter() - clock
     return EpochData(

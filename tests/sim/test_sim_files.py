@@ -369,3 +369,16 @@ def test_semicircle_is_annihilated_by_its_lag3_kernel() -> None:
     res = enu[3:] - (2 * c + 1) * enu[2:-1] + (2 * c + 1) * enu[1:-2] - enu[:-3]
     assert np.abs(res).max() < 1e-6 * np.abs(enu).max()
     assert np.allclose(np.linalg.norm(traj.vel_ecef_m_s, axis=1), 50.0, rtol=1e-12)
+
+
+def test_rinex2_tenth_second_epochs_read_exactly(tmp_path: Path) -> None:
+    """0.1 s epochs written as RINEX 2 (F11.7 seconds) come back to the nanosecond."""
+    from gnss_cli.io.rinex2_obs import read_obs2
+
+    data = simulate(tmp_path / "v2", systems=("G",), duration_s=3.0, interval_s=0.1, errors="none", rinex_version="2.11")
+    obs = read_obs2(data / "obs.rnx")
+    steps = np.diff(obs.time.values).astype(np.int64)
+    assert obs.sizes["time"] >= 30 and np.all(steps == 100_000_000)
+    ref = _georinex_load(data / "obs.rnx")
+    lag = (obs.time.values - ref.time.values.astype("datetime64[ns]")).astype(np.int64)
+    assert np.all((lag >= 0) & (lag <= 1_000_000))  # georinex: whole milliseconds, truncated
