@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
+INTEGRITY_OPTIONS = ("fde", "check", "off")
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
@@ -157,6 +158,14 @@ class ProcessingConfig:
     orbit_sigma_m: float = 1.7
     wtls_column_scaling: str = "orbit"
     smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
+    integrity: str = "fde"
+    """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
+    integrity_pfa: float = 1e-3
+    integrity_pmd: float = 1e-3
+    max_gdop: float = 30.0
+    exclude: tuple[str, ...] = ()
+    """Satellite ids never used (``G07``)."""
+    snr_mask_dbhz: float = 0.0
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -202,7 +211,22 @@ class ProcessingConfig:
         if "wtls" in self.methods and self.wtls_column_scaling == "orbit" and not self.orbit_sigma_m > 0:
             raise ConfigError("wtls.column_scaling = 'orbit' needs stls.orbit_sigma_m > 0 (the geometry-column error it scales by)")
         self.smoothing.validated()
+        self._validate_integrity()
         return self
+
+    def _validate_integrity(self) -> None:
+        if self.integrity not in INTEGRITY_OPTIONS:
+            raise ConfigError(f"integrity: expected one of {', '.join(INTEGRITY_OPTIONS)}; received {self.integrity!r}")
+        for name in ("integrity_pfa", "integrity_pmd"):
+            if not 0.0 < getattr(self, name) < 0.5:
+                raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
+        if not self.max_gdop > 0:
+            raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
+        bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
+        if bad:
+            raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
+        if not 0.0 <= self.snr_mask_dbhz < 100.0:
+            raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
 
 
 def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
@@ -233,6 +257,16 @@ def parse_systems(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     return letters
 
 
+def parse_satellites(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """``"G07,C28"`` / ``["G7"]`` -> ``("G07", "C28")`` (upper case, two-digit numbers)."""
+    items = value.split(",") if isinstance(value, str) else [str(v) for v in value]
+    out = []
+    for item in (i.strip().upper() for i in items):
+        if item:
+            out.append(f"{item[0]}{int(item[1:]):02d}" if item[1:].isdigit() else item)
+    return tuple(out)
+
+
 def _read_toml(path: Path | Traversable) -> dict[str, Any]:
     try:
         with path.open("rb") as f:
@@ -261,7 +295,9 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["methods"] = parse_methods(proc["methods"])
         if "systems" in proc:
             proc["systems"] = parse_systems(proc["systems"])
-        for key in ("elevation_mask_deg", "convergence_m"):
+        if "exclude" in proc:
+            proc["exclude"] = parse_satellites(proc["exclude"])
+        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz"):
             if key in proc:
                 proc[key] = float(proc[key])
         for key in ("max_iterations", "min_satellites"):

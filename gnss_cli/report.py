@@ -99,8 +99,26 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None) -> p
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
             df["e_err_m"], df["n_err_m"], df["u_err_m"] = enu[:, 0], enu[:, 1], enu[:, 2]
             df["err_3d_m"] = np.linalg.norm(enu, axis=1)
+        _add_integrity_columns(df, s, result.epochs.sv)
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
+
+
+INTEGRITY_COLUMNS = ["n_excluded", "excluded", "test_stat", "hpl_m", "vpl_m"]
+"""Appended after every other column: FDE exclusions (the WLS set, for every method), the
+chi-square statistic and the protection levels (ls/wls rows; README "Integrity")."""
+
+
+def _add_integrity_columns(df: pd.DataFrame, s, sv: NDArray[np.str_]) -> None:  # type: ignore[no-untyped-def]
+    T = len(df)
+    excluded = s.excluded if s.excluded is not None else np.zeros((T, sv.size), dtype=bool)
+    names = np.full(T, "", dtype=object)
+    for t in np.flatnonzero(excluded.any(axis=1)):  # only the epochs with exclusions
+        names[t] = " ".join(sv[excluded[t]])
+    df["n_excluded"] = excluded.sum(axis=1)
+    df["excluded"] = names
+    for col, values in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m)):
+        df[col] = values if values is not None else np.nan
 
 
 def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
@@ -207,5 +225,5 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 __all__: Sequence[str] = [
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text",
-    "enu_errors", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
+    "enu_errors", "models_json", "INTEGRITY_COLUMNS", "identification_table", "IDENTIFICATION_COLUMNS",
 ]

@@ -51,12 +51,15 @@ def solve(
     reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv).", show_default="none"),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults"),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions CSV here ('-' = stdout).", show_default="stdout"),
-    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv here.", show_default="none"),
+    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions.csv, errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
     lag: Optional[int] = typer.Option(None, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=_shown(_SMOOTH.get("lag"))),
     model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag).", show_default=_shown(_SMOOTH.get("model"))),
     kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
     order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
     window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
+    integrity: Optional[str] = typer.Option(None, "--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=_shown(_PROC.get("integrity"))),
+    exclude: Optional[str] = typer.Option(None, "--exclude", help="Satellites never used, comma list (G07,C28).", show_default=_shown(_PROC.get("exclude")) or "none"),
+    snr_mask: Optional[float] = typer.Option(None, "--snr-mask", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=_shown(_PROC.get("snr_mask_dbhz"))),
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
@@ -81,6 +84,9 @@ def solve(
             "tropo": tropo,
             "elevation_mask_deg": elevation_mask,
             "systems": systems,
+            "integrity": integrity,
+            "exclude": exclude,
+            "snr_mask_dbhz": snr_mask,
             "smoothing.lag": lag,
             "smoothing.model": model,
             "smoothing.kernel": kernel,
@@ -115,7 +121,7 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
             from gnss_cli.errors import OutputError
 
             raise OutputError(f"{out_dir}: cannot write output (not a folder)")
-        for name in ("positions", "errors", "dop", "summary"):
+        for name in ("positions", "errors", "dop", "summary", "satellites"):
             targets[name] = outputs.add(out_dir / f"{name}.csv", "--out-dir")
     elif output not in (None, "-"):
         targets["positions"] = outputs.add(Path(output), "-o/--output")
@@ -129,7 +135,7 @@ def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], r
     """Process the files (one library call) and build the tables; heavy imports happen here."""
     from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_sinex
     from gnss_cli.pipeline import process
-    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, summary_table
+    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, satellites_table, summary_table
 
     ref = parse_reference(reference) if reference else None
     result = process(files[0], files[1:], cfg, progress=progress)
@@ -141,6 +147,7 @@ def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], r
         ref = reference_from_csv(reference_csv, result.epochs.time_gps_s)
     positions = positions_table(result, ref)
     tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref)}
+    tables["satellites"] = lambda: satellites_table(result, cfg)  # built only when written
     if ref is not None:
         tables["errors"] = errors_table(positions)
     return tables, models_json(cfg.smoothing, result.models), list(result.warnings)
@@ -154,7 +161,8 @@ def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], model
         if name == "models":
             outputs.write_text(path, models_text)
         elif name in tables:
-            outputs.write_text(path, to_csv_text(tables[name]))
+            table = tables[name]() if callable(tables[name]) else tables[name]
+            outputs.write_text(path, to_csv_text(table))
     if "positions" not in targets:
         write_stdout(to_csv_text(tables["positions"]))
 

@@ -12,6 +12,7 @@ RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ from gnss_cli.errors import NoSolutionError
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
 from gnss_cli.pipeline.epochs import load_epochs
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
+from gnss_cli.pipeline.integrity import monitor
+from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
 
@@ -34,6 +36,7 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 """Methods whose definition includes row weights: they get the configured pseudorange variances."""
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
+_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
@@ -84,13 +87,27 @@ def solve_method(
     if method not in ITERATED_METHODS:
         base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
         return _solve_once(data, method, config, base)
+    sol = _gauss_newton(data, method, config, progress)
+
+    def again(sub: EpochData, x0: F64, b0: F64) -> MethodSolution:
+        return _gauss_newton(sub, method, config, None, x0, b0)
+
+    return monitor(data, sol, config, again)
+
+
+def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progress: Progress | None,
+                  x0: F64 | None = None, b0: F64 | None = None) -> MethodSolution:
+    """Iterate ``method`` (ls, wls) to convergence on every epoch, from ``x0, b0`` when given
+    (else the header position, or the Earth's centre, and zero clocks)."""
     T = data.time_gps_s.size
     n = data.sv.size
     x = np.zeros((T, 3))
-    if data.approx_ecef_m is not None:
+    if x0 is not None:
+        x[:] = x0
+    elif data.approx_ecef_m is not None:
         x[:] = data.approx_ecef_m
     k = len(data.systems)
-    b = np.zeros((T, k))
+    b = np.zeros((T, k)) if b0 is None else np.array(b0, dtype=np.float64)
     status = np.full(T, EpochStatus.ITERATION_LIMIT.value, dtype="<U24")
     iterations = np.zeros(T, dtype=np.int64)
     active = np.ones(T, dtype=bool)
@@ -140,18 +157,23 @@ def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDA
 
 
 def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
+    """One step at the WLS fix, with the WLS epoch's satellites (its FDE exclusions apply)."""
+    if base.excluded is not None:
+        data = replace(data, usable=data.usable & ~base.excluded)
     T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
     x = base.x_ecef_m.copy()
     b = base.clocks_m.copy() if base.clocks_m is not None else base.clock_m[:, None].copy()
     status = base.status.copy()
-    iterations = np.where(status == EpochStatus.OK, 1, 0).astype(np.int64)
+    flagged = np.isin(status, _FLAGGED)  # integrity_fail, gdop_limit: solved, and keep the WLS word
+    iterations = np.where((status == EpochStatus.OK) | flagged, 1, 0).astype(np.int64)
     out = _Accumulator(T, n, k, method)
-    rows = np.flatnonzero(status == EpochStatus.OK)
+    rows = np.flatnonzero((status == EpochStatus.OK) | flagged)
     if rows.size:
         lin, res, n_used, enough, ok, _ = _linear_step(data, method, config, rows, x, b)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
-    return out.finish(x, b, status, iterations)
+        status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
+    return replace(out.finish(x, b, status, iterations), excluded=base.excluded)
 
 
 def _count_used(lin: Linearization, n: int, k: int, config: ProcessingConfig) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -190,7 +212,7 @@ class _Accumulator:
         self.present[rows] = ~lin.mask[:, self.n :] if k > 1 else True
 
     def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
-        bad = status != EpochStatus.OK
+        bad = ~np.isin(status, KEEPS_POSITION)
         x = np.where(bad[:, None], np.nan, x)
         b = np.where(bad[:, None], np.nan, b)
         gain_q = np.where(bad[:, None, None], np.eye(self.gain_q.shape[-1]), self.gain_q)
