@@ -249,6 +249,8 @@ class MethodSolution:
     excluded: NDArray[np.bool_] | None = None
     """``(T, n)`` satellites excluded by the integrity monitoring (fault detection and
     exclusion) of the WLS fix; the other methods use the WLS set, so they carry the same."""
+    sigma_m: F64 | None = None
+    """``(T, n)`` pseudorange sigma of the used rows (the weights' model), m (NaN elsewhere)."""
     test_stat: F64 | None = None
     """``(T,)`` chi-square statistic ``sum r_i^2 / sigma_i^2`` of the final residuals (ls/wls)."""
     hpl_m: F64 | None = None

@@ -194,6 +194,7 @@ class _Accumulator:
         self.gain_q = np.full((T, m, m), np.nan)
         self.paper_cov = np.full((T, m, m), np.nan) if method == "tls" else None
         self.residuals = np.full((T, n), np.nan)
+        self.sigma = np.full((T, n), np.nan)
         self.n_sat = np.zeros(T, dtype=np.int64)
         self.rot = np.full((T, 3, 3), np.nan)
         self.present = np.zeros((T, k), dtype=bool)
@@ -205,6 +206,7 @@ class _Accumulator:
         if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
             self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
         self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
+        self.sigma[rows] = np.where(lin.mask[:, : self.n], np.sqrt(lin.var_m2[:, : self.n]), np.nan)
         self.n_sat[rows] = n_used
         self.rot[rows] = lin.rot
         k = self.present.shape[1]
@@ -247,6 +249,7 @@ class _Accumulator:
             status=status,
             iterations=iterations,
             residuals_m=np.where(bad[:, None], np.nan, self.residuals),
+            sigma_m=np.where(bad[:, None], np.nan, self.sigma),
         )
 
 

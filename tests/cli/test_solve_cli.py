@@ -44,7 +44,7 @@ def test_out_dir_writes_four_tables(d0759, tmp_path, capsys):
     code, out, _ = invoke([d0759 / "07590920.05o", d0759 / "07590920.05n", "--reference", REF_0759, "--out-dir", tmp_path / "o", "-q"], capsys)
     assert code == 0 and out == ""
     names = sorted(p.name for p in (tmp_path / "o").iterdir())
-    assert names == ["dop.csv", "errors.csv", "positions.csv", "summary.csv"]
+    assert names == ["dop.csv", "errors.csv", "positions.csv", "satellites.csv", "summary.csv"]
     summary = pd.read_csv(tmp_path / "o" / "summary.csv")
     assert summary.loc[0, "epochs_solved"] == 120 and summary.loc[0, "rms_3d_m"] < 1.93
 
