@@ -87,18 +87,21 @@ def solve_method(
     if method not in ITERATED_METHODS:
         base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
         return _solve_once(data, method, config, base)
-    sol = _gauss_newton(data, method, config, progress)
+    unconverged = config.integrity == "fde"  # FDE also tries the epochs a fault keeps from converging
+    sol = _gauss_newton(data, method, config, progress, keep_unconverged=unconverged)
 
     def again(sub: EpochData, x0: F64, b0: F64) -> MethodSolution:
-        return _gauss_newton(sub, method, config, None, x0, b0)
+        return _gauss_newton(sub, method, config, None, x0, b0, keep_unconverged=unconverged)
 
     return monitor(data, sol, config, again)
 
 
 def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progress: Progress | None,
-                  x0: F64 | None = None, b0: F64 | None = None) -> MethodSolution:
+                  x0: F64 | None = None, b0: F64 | None = None, keep_unconverged: bool = False) -> MethodSolution:
     """Iterate ``method`` (ls, wls) to convergence on every epoch, from ``x0, b0`` when given
-    (else the header position, or the Earth's centre, and zero clocks)."""
+    (else the header position, or the Earth's centre, and zero clocks). With ``keep_unconverged``
+    the ``iteration_limit`` epochs keep their last iterate (for the integrity monitoring, which
+    blanks them in the end)."""
     T = data.time_gps_s.size
     n = data.sv.size
     x = np.zeros((T, 3))
@@ -128,7 +131,8 @@ def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progre
             active[rows[converged | ~ok]] = False
         if progress is not None:
             progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
-    return out.finish(x, b, status, iterations)
+    keep = KEEPS_POSITION + ((EpochStatus.ITERATION_LIMIT.value,) if keep_unconverged else ())
+    return out.finish(x, b, status, iterations, keep)
 
 
 def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64):  # type: ignore[no-untyped-def]
@@ -213,8 +217,9 @@ class _Accumulator:
         # with several systems, a set constraint row (after the n satellite rows) marks an absent system
         self.present[rows] = ~lin.mask[:, self.n :] if k > 1 else True
 
-    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
-        bad = ~np.isin(status, KEEPS_POSITION)
+    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64],
+               keep: tuple[str, ...] = KEEPS_POSITION) -> MethodSolution:
+        bad = ~np.isin(status, keep)
         x = np.where(bad[:, None], np.nan, x)
         b = np.where(bad[:, None], np.nan, b)
         gain_q = np.where(bad[:, None, None], np.eye(self.gain_q.shape[-1]), self.gain_q)
