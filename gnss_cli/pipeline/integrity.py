@@ -86,18 +86,21 @@ class IntegrityCheck:
     vpl_m: F64
 
 
-def check_epochs(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], config: ProcessingConfig,
-                 weighted: bool) -> IntegrityCheck:
-    """The chi-square test, w-test and protection levels of ``rows`` at the solution's fixes."""
+def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
+    """The chi-square test, w-test and protection levels of every epoch of ``data`` at the
+    fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m)."""
     n, k = data.sv.size, len(data.systems)
-    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
-    lin = linearize(data, rows, sol.x_ecef_m[rows], clocks[rows], config)
+    rows = np.arange(data.time_gps_s.size)
+    lin = linearize(data, rows, x, clocks, config)
     A, mask = lin.A, lin.mask
     var = np.where(mask, lin.var_m2, 1.0)
     w = np.where(mask, 1.0 / var, 0.0)
     we = w if weighted else mask.astype(np.float64)
     AtWe = np.swapaxes(A * we[..., None], 1, 2)  # (t, m, N)
-    G = np.linalg.inv(AtWe @ A)
+    try:
+        G = np.linalg.inv(AtWe @ A)
+    except np.linalg.LinAlgError:  # a singular epoch (not converged): its test is NaN and fails
+        G = np.linalg.pinv(AtWe @ A)
     K = G @ AtWe  # (t, m, N)
     q = np.where(mask, lin.q, 0.0)
     r = np.where(mask, q - np.einsum("tnm,tm->tn", A, np.einsum("tmn,tn->tm", K, q)), 0.0)
@@ -141,6 +144,18 @@ def _merge(sol: MethodSolution, rows: NDArray[np.intp], sub: MethodSolution) -> 
     return replace(sol, **parts)
 
 
+_BLOCK = 1024  # epochs per stacked test (bounds the memory of the (t, n, 3 + k) arrays)
+
+
+def _check_blocks(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], excluded: NDArray[np.bool_],
+                  config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
+    """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), in blocks."""
+    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    parts = [check_epochs(take_epochs(data, r, excluded), sol.x_ecef_m[r], clocks[r], config, weighted)
+             for r in np.array_split(rows, -(-rows.size // _BLOCK))]
+    return IntegrityCheck(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(IntegrityCheck)))
+
+
 def _blank(sol: MethodSolution, rows: NDArray[np.bool_]) -> MethodSolution:
     """``sol`` with the float numbers of ``rows`` (epochs that did not converge) set to NaN."""
     if not rows.any():
@@ -166,7 +181,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     tried = (EpochStatus.OK.value, EpochStatus.ITERATION_LIMIT.value)  # (iteration_limit: kept by "fde" only)
     rows = np.flatnonzero(np.isin(sol.status, tried)) if config.integrity != "off" else np.zeros(0, dtype=np.intp)
     while rows.size:
-        chk = check_epochs(data if not excluded.any() else take_epochs(data, np.arange(T), excluded), sol, rows, config, weighted)
+        chk = _check_blocks(data, sol, rows, excluded, config, weighted)
         stat[rows], hpl[rows], vpl[rows] = chk.stat, chk.hpl_m, chk.vpl_m
         failed[rows] = ~chk.passed
         if config.integrity != "fde":
