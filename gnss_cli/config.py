@@ -163,6 +163,7 @@ class ProcessingConfig:
     integrity_pfa: float = 1e-3
     integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
+    max_exclusions: int = 4
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
     snr_mask_dbhz: float = 0.0
@@ -220,6 +221,8 @@ class ProcessingConfig:
         for name in ("integrity_pfa", "integrity_pmd"):
             if not 0.0 < getattr(self, name) < 0.5:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
+        if self.max_exclusions < 0:
+            raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
@@ -300,7 +303,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
         for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz"):
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites"):
+        for key in ("max_iterations", "min_satellites", "max_exclusions"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)

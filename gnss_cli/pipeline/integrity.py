@@ -13,8 +13,9 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   protection levels);
 - w-test: ``w_i = |r_i| / sqrt(Qr_ii)``, ``Qr = (I - A K) Sigma (I - A K)^T`` the residual
   covariance. FDE excludes the satellite with the largest ``w_i`` and solves the epoch again
-  (Gauss-Newton from the previous fix) while the test fails and ``dof >= 2`` (one degree of
-  freedom remains after the exclusion); several satellites per epoch may go, one per round.
+  (Gauss-Newton from the previous fix) while the test fails, ``dof >= 2`` (one degree of
+  freedom remains after the exclusion) and fewer than ``max_exclusions`` satellites are out;
+  several satellites per epoch may go, one per round.
   Each round works on the still-failing epochs only, stacked.
 - protection levels, classic slope-based RAIM (Brown 1992; the weighted form of Walter and
   Enge 1995): a bias ``b`` on satellite ``i`` moves the position by ``K_i b`` (ENU) and the test
@@ -186,7 +187,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
         failed[rows] = ~chk.passed
         if config.integrity != "fde":
             break
-        retry = ~chk.passed & (chk.dof >= 2)
+        retry = ~chk.passed & (chk.dof >= 2) & (excluded[rows].sum(axis=1) < config.max_exclusions)
         rows, worst = rows[retry], chk.worst[retry]
         if not rows.size:
             break

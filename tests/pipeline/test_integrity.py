@@ -125,6 +125,6 @@ def test_urban_static_tst_most_epochs_ok_and_close(rinex_dir):
         assert window.sum() == 157
         ok = window & (sol.status == "ok")
         out[name] = (ok.sum() / window.sum(), _rms(np.linalg.norm(sol.x_ecef_m[ok] - TST_TRUTH, axis=1)))
-    # measured: fde 100 % ok at 15.7 m (off: 63.5 m); with a 30 dB-Hz mask 4.1 m
-    assert out["fde"][0] >= 0.9 and out["fde"][1] < 0.3 * out["off"][1] and out["fde"][1] < 17.0
+    # measured: fde 96.8 % ok at 6.8 m (off: 63.5 m, rnx2rtkp: 9 epochs at 7.2 m)
+    assert out["fde"][0] >= 0.9 and out["fde"][1] <= 15.0
     assert out["snr30"][0] >= 0.9 and out["snr30"][1] < 6.0
