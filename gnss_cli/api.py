@@ -50,6 +50,9 @@ _UNITS = {
     "gdop_paper": ("1", "TLS GDOP of the paper's covariance"), "status": ("", "epoch status (README: Epoch status)"),
     "e_err_m": ("m", "east error against the reference"), "n_err_m": ("m", "north error against the reference"),
     "u_err_m": ("m", "up error against the reference"), "err_3d_m": ("m", "3D error against the reference"),
+    "n_excluded": ("1", "satellites excluded by the integrity monitoring (FDE) of the WLS fix"),
+    "test_stat": ("1", "chi-square statistic of the residuals (ls, wls)"),
+    "hpl_m": ("m", "horizontal protection level (ls, wls)"), "vpl_m": ("m", "vertical protection level (ls, wls)"),
 }
 
 
@@ -156,6 +159,9 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> xr.Dat
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
             values.update({"e_err_m": enu[:, 0], "n_err_m": enu[:, 1], "u_err_m": enu[:, 2],
                            "err_3d_m": np.linalg.norm(enu, axis=1)})
+        nan = np.full(s.n_sat.shape, np.nan)
+        values["n_excluded"] = s.excluded.sum(axis=1) if s.excluded is not None else np.zeros_like(s.n_sat)
+        values.update({k: (v if v is not None else nan) for k, v in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m))})
         for name, v in values.items():
             columns.setdefault(name, []).append(np.asarray(v))
     data_vars = {}

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 TIME_SYSTEMS = ("gpst", "utc")
 """Time scale of the output time stamps (``--time-system``)."""
+INTEGRITY_OPTIONS = ("fde", "check", "off")
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
@@ -161,6 +162,15 @@ class ProcessingConfig:
     smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
     time_system: str = "gpst"
     """Time scale of the output time stamps: ``gpst`` or ``utc`` (GPST - leap seconds)."""
+    integrity: str = "fde"
+    """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
+    integrity_pfa: float = 1e-3
+    integrity_pmd: float = 1e-3
+    max_gdop: float = 30.0
+    max_exclusions: int = 4
+    exclude: tuple[str, ...] = ()
+    """Satellite ids never used (``G07``)."""
+    snr_mask_dbhz: float = 0.0
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -208,7 +218,24 @@ class ProcessingConfig:
         if self.time_system not in TIME_SYSTEMS:
             raise ConfigError(f"time_system: expected one of {', '.join(TIME_SYSTEMS)}; received {self.time_system!r}")
         self.smoothing.validated()
+        self._validate_integrity()
         return self
+
+    def _validate_integrity(self) -> None:
+        if self.integrity not in INTEGRITY_OPTIONS:
+            raise ConfigError(f"integrity: expected one of {', '.join(INTEGRITY_OPTIONS)}; received {self.integrity!r}")
+        for name in ("integrity_pfa", "integrity_pmd"):
+            if not 0.0 < getattr(self, name) < 0.5:
+                raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
+        if self.max_exclusions < 0:
+            raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
+        if not self.max_gdop > 0:
+            raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
+        bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
+        if bad:
+            raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
+        if not 0.0 <= self.snr_mask_dbhz < 100.0:
+            raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
 
 
 def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
@@ -237,6 +264,16 @@ def parse_systems(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
     if not letters:
         raise ConfigError(f"systems: expected 'all' or letters of {', '.join(SYSTEM_LETTERS)}; received {value!r}")
     return letters
+
+
+def parse_satellites(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """``"G07,C28"`` / ``["G7"]`` -> ``("G07", "C28")`` (upper case, two-digit numbers)."""
+    items = value.split(",") if isinstance(value, str) else [str(v) for v in value]
+    out = []
+    for item in (i.strip().upper() for i in items):
+        if item:
+            out.append(f"{item[0]}{int(item[1:]):02d}" if item[1:].isdigit() else item)
+    return tuple(out)
 
 
 def _read_toml(path: Path | Traversable) -> dict[str, Any]:
@@ -269,10 +306,12 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["systems"] = parse_systems(proc["systems"])
         if "time_system" in proc:
             proc["time_system"] = str(proc["time_system"]).lower()
-        for key in ("elevation_mask_deg", "convergence_m"):
+        if "exclude" in proc:
+            proc["exclude"] = parse_satellites(proc["exclude"])
+        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz"):
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites"):
+        for key in ("max_iterations", "min_satellites", "max_exclusions"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)

@@ -57,6 +57,7 @@ FLOAT_FORMATS = {
     "tow_s": "{:.3f}", "x_m": "{:.4f}", "y_m": "{:.4f}", "z_m": "{:.4f}", "lat_deg": "{:.9f}",
     "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}", "mean_lat_deg": "{:.9f}", "mean_lon_deg": "{:.9f}",
     "sden_m2": "{:.6f}", "sdnu_m2": "{:.6f}", "sdue_m2": "{:.6f}",
+    "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}",
 }
 
 
@@ -142,8 +143,26 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
         with np.errstate(invalid="ignore"):
             df["sde_m"], df["sdn_m"], df["sdu_m"] = (np.sqrt(cov[:, k, k]) for k in range(3))
         df["sden_m2"], df["sdnu_m2"], df["sdue_m2"] = cov[:, 0, 1], cov[:, 1, 2], cov[:, 2, 0]
+        _add_integrity_columns(df, s, result.epochs.sv)
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
+
+
+INTEGRITY_COLUMNS = ["n_excluded", "excluded", "test_stat", "hpl_m", "vpl_m"]
+"""Appended after every other column: FDE exclusions (the WLS set, for every method), the
+chi-square statistic and the protection levels (ls/wls rows; README "Integrity")."""
+
+
+def _add_integrity_columns(df: pd.DataFrame, s, sv: NDArray[np.str_]) -> None:  # type: ignore[no-untyped-def]
+    T = len(df)
+    excluded = s.excluded if s.excluded is not None else np.zeros((T, sv.size), dtype=bool)
+    names = np.full(T, "", dtype=object)
+    for t in np.flatnonzero(excluded.any(axis=1)):  # only the epochs with exclusions
+        names[t] = " ".join(sv[excluded[t]])
+    df["n_excluded"] = excluded.sum(axis=1)
+    df["excluded"] = names
+    for col, values in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m)):
+        df[col] = values if values is not None else np.nan
 
 
 def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
@@ -270,7 +289,52 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
     return json.dumps(doc, indent=1) + "\n"
 
 
+SATELLITE_COLUMNS = ["time", "method", "satellite", "elevation_deg", "azimuth_deg", "snr_dbhz", "residual_m",
+                     "sigma_m", "used", "reason"]
+"""Columns of ``satellites.csv`` (one row per observed satellite and epoch, README)."""
+
+
+def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore[no-untyped-def]
+    """Per-satellite rows of the wls solution (else the first method's): geometry at the fix,
+    C/N0, post-fit residual, sigma, and why a satellite was not used.
+
+    ``reason``: ``no_ephemeris``, ``excluded_by_user``, ``snr_mask``, ``excluded_fde``,
+    ``below_mask`` (elevation mask), ``no_second_frequency`` (iono-free), or, for a satellite of
+    an epoch that was not solved, the epoch's status; empty when used.
+    """
+    from gnss_cli.gnss.frames import azimuth_elevation
+    from gnss_cli.pipeline.results import UNUSED_REASONS
+
+    data = result.epochs
+    method = "wls" if "wls" in result.solutions else next(iter(result.solutions))
+    s = result.solutions[method]
+    T, n = data.sat_ecef_m.shape[:2]
+    los = data.sat_ecef_m - s.x_ecef_m[:, None, :]
+    lat, lon, _ = ecef2geodetic(np.where(np.isfinite(s.x_ecef_m), s.x_ecef_m, np.array([6.4e6, 0.0, 0.0])))
+    rot = ecef2enu_rotation(lat, lon)
+    enu = np.einsum("tij,tnj->tni", rot, los / np.linalg.norm(los, axis=-1, keepdims=True))
+    az, el = azimuth_elevation(enu.reshape(-1, 3))
+    el, az = np.rad2deg(el).reshape(T, n), np.mod(np.rad2deg(az), 360.0).reshape(T, n)
+    unused = data.unused if data.unused is not None else np.where(data.usable, 0, 1).astype(np.int8)
+    used = np.isfinite(s.residuals_m)
+    excluded = s.excluded if s.excluded is not None else np.zeros((T, n), dtype=bool)
+    reason = np.select(
+        [used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
+        ["", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
+         "no_second_frequency"],
+        default=np.broadcast_to(s.status[:, None], (T, n)).astype(object))
+    ti, si = np.nonzero(unused >= 0)
+    snr = data.snr_dbhz[ti, si] if data.snr_dbhz is not None else np.full(ti.size, np.nan)
+    sigma = s.sigma_m[ti, si] if s.sigma_m is not None else np.full(ti.size, np.nan)
+    return pd.DataFrame({
+        "time": _iso(data.time_gps_s)[ti], "method": method, "satellite": data.sv[si], "elevation_deg": el[ti, si],
+        "azimuth_deg": az[ti, si], "snr_dbhz": snr, "residual_m": s.residuals_m[ti, si], "sigma_m": sigma,
+        "used": used[ti, si].astype(np.int64), "reason": reason[ti, si],
+    })
+
+
 __all__: Sequence[str] = [
+    "satellites_table", "SATELLITE_COLUMNS",
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text",
-    "enu_errors", "enu_covariances", "utc_offset_s", "output_time_s", "SD_COLUMNS", "MEAN_POSITION_COLUMNS", "models_json", "identification_table", "IDENTIFICATION_COLUMNS",
+    "enu_errors", "enu_covariances", "utc_offset_s", "output_time_s", "SD_COLUMNS", "MEAN_POSITION_COLUMNS", "models_json", "identification_table", "IDENTIFICATION_COLUMNS", "INTEGRITY_COLUMNS",
 ]

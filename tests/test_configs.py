@@ -69,6 +69,8 @@ def test_rtklib_peer_matches_the_peer_options() -> None:
     assert float(opts["pos1-elmask"]) == cfg.elevation_mask_deg
     assert {"brdc": "klobuchar", "off": "none"}[opts["pos1-ionoopt"]] == cfg.iono
     assert {"saas": "saastamoinen", "off": "none"}[opts["pos1-tropopt"]] == cfg.tropo
+    assert float(opts["pos2-rejgdop"]) == cfg.max_gdop
+    assert {"off": "check", "on": "fde"}[opts["pos1-posopt5"]] == cfg.integrity
 
 
 def test_flags_override_config_file() -> None:

@@ -56,7 +56,8 @@ def simulate(
     orbit_rms: Annotated[Optional[float], typer.Option(show_default=_default("errors", "orbit_rms_m"), help="3-D RMS of the broadcast orbit error, m.")] = None,
     iono_factor: Annotated[Optional[float], typer.Option(show_default=_default("errors", "iono_factor"), help="True ionosphere / Klobuchar.")] = None,
     outlier_sats: Annotated[Optional[str], typer.Option(show_default=_default("errors", "outlier_sats"), help="Satellites with injected outliers, e.g. G05,G07.")] = None,
-    outlier_m: Annotated[Optional[float], typer.Option(show_default=_default("errors", "outlier_m"), help="Outlier size, m.")] = None,
+    outlier_m: Annotated[Optional[str], typer.Option(show_default=_default("errors", "outlier_m"), help="Outlier size, m (with --outlier-sats); LOW,HIGH: the range of the random outliers' sizes (with --outlier-rate).")] = None,
+    outlier_rate: Annotated[Optional[float], typer.Option(show_default=_default("errors", "outlier_rate"), help="Share of epochs with a random outlier on one random satellite (writes faults.csv).")] = None,
     elevation_mask: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "elevation_mask_deg"), help="Elevation mask of what is written, deg.")] = None,
     position: Annotated[
         Optional[str], typer.Option(show_default=",".join(_default("simulate", k) for k in ("latitude_deg", "longitude_deg", "height_m")), help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
@@ -103,7 +104,7 @@ def simulate(
         },
         "errors": {
             "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",
-            "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_m": outlier_m,
+            "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_rate": outlier_rate, **_outlier_sizes(outlier_m),
             "outlier_sats": None if outlier_sats is None else [s.strip().upper() for s in outlier_sats.split(",") if s.strip()],
         },
     }
@@ -122,6 +123,21 @@ def simulate(
             f"gnss-simulate: {scenario.observations.t_gps_s.size} epochs, {n_obs} satellite observations, "
             f"errors: {','.join(sorted(cfg.errors.enabled)) or 'none'}; wrote {', '.join(str(p) for p in written)}\n"
         )
+
+
+def _outlier_sizes(text: Optional[str]) -> dict[str, object]:
+    """``--outlier-m``: ``M`` -> ``outlier_m``; ``LOW,HIGH`` -> ``outlier_range_m``."""
+    if text is None:
+        return {}
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise UsageError(f"--outlier-m: expected M or LOW,HIGH (m), got {text!r}") from exc
+    if len(values) == 1:
+        return {"outlier_m": values[0]}
+    if len(values) != 2:
+        raise UsageError(f"--outlier-m: expected M or LOW,HIGH (m), got {text!r}")
+    return {"outlier_range_m": values}
 
 
 def main() -> None:

@@ -52,7 +52,7 @@ def solve(
     reference_pos: Optional[Path] = typer.Option(None, "--reference-pos", help="Moving reference: an RTKLIB .pos solution file (ECEF or lat/lon/height; GPST or UTC).", show_default="none"),
     config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults"),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: FILE.<method>.pos / .nmea.", show_default="stdout"),
-    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions (in --format), errors.csv, dop.csv, summary.csv here.", show_default="none"),
+    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions (in --format), errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
     fmt: Optional[str] = typer.Option(None, "--format", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
     time_system: Optional[str] = typer.Option(None, "--time-system", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=_shown(_PROC.get("time_system"))),
     lag: Optional[int] = typer.Option(None, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=_shown(_SMOOTH.get("lag"))),
@@ -60,6 +60,9 @@ def solve(
     kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
     order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
     window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
+    integrity: Optional[str] = typer.Option(None, "--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=_shown(_PROC.get("integrity"))),
+    exclude: Optional[str] = typer.Option(None, "--exclude", help="Satellites never used, comma list (G07,C28).", show_default=_shown(_PROC.get("exclude")) or "none"),
+    snr_mask: Optional[float] = typer.Option(None, "--snr-mask", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=_shown(_PROC.get("snr_mask_dbhz"))),
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
     report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
@@ -85,6 +88,9 @@ def solve(
             "tropo": tropo,
             "elevation_mask_deg": elevation_mask,
             "systems": systems,
+            "integrity": integrity,
+            "exclude": exclude,
+            "snr_mask_dbhz": snr_mask,
             "smoothing.lag": lag,
             "smoothing.model": model,
             "smoothing.kernel": kernel,
@@ -164,7 +170,7 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
             raise OutputError(f"{out_dir}: cannot write output (not a folder)")
         positions = _positions_paths(out_dir / f"positions.{fmt}", fmt, methods)
         targets.update({k: outputs.add(p, "--out-dir") for k, p in positions.items()})
-        for name in ("errors", "dop", "summary"):
+        for name in ("errors", "dop", "summary", "satellites"):
             targets[name] = outputs.add(out_dir / f"{name}.csv", "--out-dir")
     elif output not in (None, "-"):
         positions = _positions_paths(Path(output), fmt, methods)
@@ -181,7 +187,7 @@ def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], r
     from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_pos, reference_from_sinex
     from gnss_cli.pipeline import process
     from gnss_cli.formats import pos_options
-    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, summary_table, utc_offset_s
+    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, satellites_table, summary_table, utc_offset_s
 
     ref = parse_reference(reference) if reference else None
     result = process(files[0], files[1:], cfg, progress=progress)
@@ -196,6 +202,7 @@ def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], r
     positions = positions_table(result, ref, cfg.time_system)
     tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref),
               "pos_options": pos_options(cfg.elevation_mask_deg, cfg.iono, cfg.tropo, result.epochs.systems)}
+    tables["satellites"] = lambda: satellites_table(result, cfg)  # built only when written
     if ref is not None:
         tables["errors"] = errors_table(positions)
     return tables, models_json(cfg.smoothing, result.models), list(result.warnings), (result, ref)
@@ -237,7 +244,8 @@ def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], model
             else:
                 outputs.write_text(path, data)
         elif name in tables:
-            outputs.write_text(path, to_csv_text(tables[name]))
+            table = tables[name]() if callable(tables[name]) else tables[name]
+            outputs.write_text(path, to_csv_text(table))
     if not any(name.startswith("positions") for name in targets):
         text = render(fmt, positions, time_system, inputs or (), tables.get("pos_options", ()))
         write_stdout(text if isinstance(text, str) else text.decode())

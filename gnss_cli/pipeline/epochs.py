@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -203,11 +203,61 @@ def _iono_free_usable(arrays: _SatelliteArrays, prs: Pseudoranges, systems: list
     return dual
 
 
+def snr_code(code: str) -> str:
+    """The C/N0 observation of a pseudorange code: ``C1C`` -> ``S1C``, ``C1``/``P1`` -> ``S1``."""
+    return "S" + code[1:]
+
+
+def _snr(obs: xr.Dataset, prs: Pseudoranges) -> F64 | None:
+    """``(T, n)`` C/N0 (dB-Hz) of each chosen code's signal; None when the file has no S observation."""
+    have = [c for c in np.unique(prs.code) if c and snr_code(c) in obs]
+    if not have:
+        return None
+    col = {sv: i for i, sv in enumerate(np.asarray(obs["sv"].values).astype(str))}
+    idx = np.array([col[sv] for sv in prs.sv])
+    out = np.full(prs.pr_m.shape, np.nan)
+    for c in have:
+        vals = np.asarray(obs[snr_code(c)].values, dtype=np.float64)[:, idx]
+        use = (prs.code == c) & (vals > 0)
+        out[use] = vals[use]
+    return out
+
+
+def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, config: ProcessingConfig) -> NDArray[np.int8]:
+    """Why each observation is not usable (:data:`~gnss_cli.pipeline.results.UNUSED_REASONS` index;
+    -1 not observed, 0 usable): no ephemeris, ``exclude``, ``snr_mask_dbhz`` (an observation without
+    an S value passes the mask)."""
+    code = np.zeros(prs.pr_m.shape, dtype=np.int8)
+    code[~usable] = 1
+    code[(code == 0) & np.isin(prs.sv, list(config.exclude))[None, :]] = 2
+    if snr is not None and config.snr_mask_dbhz > 0:
+        code[(code == 0) & (snr < config.snr_mask_dbhz)] = 3
+    code[~np.isfinite(prs.pr_m)] = -1
+    return code
+
+
+def _selection(obs: xr.Dataset, prs: Pseudoranges, usable: NDArray[np.bool_],
+               config: ProcessingConfig) -> tuple[NDArray[np.bool_], F64 | None, NDArray[np.int8]]:
+    """Usable observations after ``exclude`` and ``snr_mask_dbhz``, the C/N0, the unused codes."""
+    snr = _snr(obs, prs)
+    unused = _unused(prs, usable, snr, config)
+    return usable & (unused == 0), snr, unused
+
+
 def _approx_position(obs: xr.Dataset) -> F64 | None:
     """The header's approximate position when it is near the Earth's surface, else None."""
     approx = np.asarray(obs.attrs.get("position", []) or [], dtype=np.float64).ravel()
     near = approx.size == 3 and EARTH_SURFACE_BAND_M[0] < np.linalg.norm(approx) < EARTH_SURFACE_BAND_M[1]
     return approx if near else None
+
+
+def _klobuchar(nav, config: ProcessingConfig, nav_name: str, warnings: list[str]):  # type: ignore[no-untyped-def]
+    """The navigation files' Klobuchar coefficients, else RTKLIB's defaults (with a warning)."""
+    klob = klobuchar_coefficients(nav)
+    if klob is None and config.iono == "klobuchar":
+        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
+        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; using the default coefficients (as RTKLIB)")
+    return klob
 
 
 def load_epochs(
@@ -243,6 +293,7 @@ def load_epochs(
     priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
+    codes += [snr_code(c) for c in codes if snr_code(c) not in codes]  # C/N0 of the first frequency
     if iono_free:
         codes += [c for c in codes_for(systems, priority2) if c not in codes]
     obs = read_obs(obs_path, systems=systems, codes=codes)
@@ -277,19 +328,16 @@ def load_epochs(
         _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
 
     _check_coverage(arrays, prs, have_obs, (toe_lo, toe_hi), systems, obs_path, nav_name, warnings)
-    usable = arrays.usable
+    usable, snr, unused = _selection(obs, prs, arrays.usable, config)
     if iono_free:
-        usable = _iono_free_usable(arrays, prs, systems, priority2, obs_path, warnings)
+        usable = _iono_free_usable(replace(arrays, usable=usable), prs, systems, priority2, obs_path, warnings)
     used_systems = tuple(sy for sy in systems if usable[:, sys_of == sy].any())
     system_index = np.array([used_systems.index(x) if x in used_systems else 0 for x in sys_of], dtype=np.int64)
     if iono_free:
         pr_corr = np.where(usable, arrays.p_if + C_M_S * arrays.clk, np.nan)
     else:
         pr_corr = np.where(usable, prs.pr_m + C_M_S * (arrays.clk - arrays.tgd), np.nan)
-    klob = klobuchar_coefficients(nav)
-    if klob is None and config.iono == "klobuchar":
-        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
-        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; using the default coefficients (as RTKLIB)")
+    klob = _klobuchar(nav, config, nav_name, warnings)
     if timings is not None:
         timings["orbits"] = time.perf_counter() - clock
     return EpochData(
@@ -307,6 +355,6 @@ def load_epochs(
         warnings=tuple(warnings),
         systems=used_systems,
         system_index=system_index,
-        iono_scale=arrays.iono_scale,
+        iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused,
         leap_seconds=nav_leap_seconds(nav_paths),
     )

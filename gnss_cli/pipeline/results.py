@@ -21,9 +21,13 @@ value                   meaning
 ``degenerate_data``     solver: degenerate data (e.g. a zero augmented matrix)
 ``fallback_wls``        stls with lag: the segment was too short or the window fit failed;
                         the WLS fix, covariance and DOPs are kept
+``integrity_fail``      ls/wls: the chi-square test of the residuals fails and no satellite can
+                        be excluded any more (``integrity = "check"``: it fails); position kept
+``gdop_limit``          ls/wls: GDOP above ``max_gdop`` (position kept)
 ======================  ==========================================================================
 
-Only ``ok`` and ``fallback_wls`` epochs have a position. A window model record
+Only ``ok``, ``fallback_wls``, ``integrity_fail`` and ``gdop_limit`` epochs have a position
+(:data:`KEEPS_POSITION`); only ``ok`` ones count as solved. A window model record
 (:class:`WindowModel`) has its own status: the identification outcome
 (:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
 """
@@ -58,10 +62,16 @@ class EpochStatus(str, Enum):
     TOO_FEW_ROWS = "too_few_rows"
     DEGENERATE_DATA = "degenerate_data"
     FALLBACK_WLS = "fallback_wls"
+    INTEGRITY_FAIL = "integrity_fail"
+    GDOP_LIMIT = "gdop_limit"
 
     def __str__(self) -> str:
         return self.value
 
+
+KEEPS_POSITION = (EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,
+                  EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
+"""Statuses of epochs whose position, clocks and DOPs are written."""
 
 _SOLVER_STATUS = {
     Status.CONVERGED: EpochStatus.OK,
@@ -146,6 +156,12 @@ class WindowModel:
         return out
 
 
+UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask")
+"""Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving."""
+EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused")
+"""Fields of :class:`EpochData` with the epoch axis first."""
+
+
 @dataclass(frozen=True)
 class EpochData:
     """Everything the estimators need, prepared once per run.
@@ -184,6 +200,11 @@ class EpochData:
     """``(T, n)`` factor taking the L1 Klobuchar delay to the signal's frequency."""
     leap_seconds: float | None = None
     """GPS - UTC (s) from the navigation header's ``LEAP SECONDS``, None when absent."""
+    snr_dbhz: F64 | None = None
+    """``(T, n)`` carrier-to-noise density of the chosen code's signal, dB-Hz (NaN: none)."""
+    unused: NDArray[np.int8] | None = None
+    """``(T, n)`` why an observed satellite is not usable (:data:`UNUSED_REASONS` index;
+    0 usable, -1 not observed)."""
 
 
 @dataclass(frozen=True)
@@ -227,6 +248,17 @@ class MethodSolution:
     tdops: F64 | None = None
     """``(T, k)`` TDOP of every system's clock, ``sqrt((J J^T)_{3+j,3+j})``; NaN where the
     epoch failed or used no satellite of that system (its clock is then fixed by a constraint)."""
+    excluded: NDArray[np.bool_] | None = None
+    """``(T, n)`` satellites excluded by the integrity monitoring (fault detection and
+    exclusion) of the WLS fix; the other methods use the WLS set, so they carry the same."""
+    sigma_m: F64 | None = None
+    """``(T, n)`` pseudorange sigma of the used rows (the weights' model), m (NaN elsewhere)."""
+    test_stat: F64 | None = None
+    """``(T,)`` chi-square statistic ``sum r_i^2 / sigma_i^2`` of the final residuals (ls/wls)."""
+    hpl_m: F64 | None = None
+    """``(T,)`` horizontal protection level, m (classic slope-based RAIM; ls/wls)."""
+    vpl_m: F64 | None = None
+    """``(T,)`` vertical protection level, m."""
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ from gnss_cli.errors import NoSolutionError
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
 from gnss_cli.pipeline.epochs import load_epochs
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
+from gnss_cli.pipeline.integrity import monitor
+from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
 
@@ -34,6 +36,7 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 """Methods whose definition includes row weights: they get the configured pseudorange variances."""
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
+_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
@@ -84,13 +87,30 @@ def solve_method(
     if method not in ITERATED_METHODS:
         base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
         return _solve_once(data, method, config, base)
+    unconverged = config.integrity == "fde"  # FDE also tries the epochs a fault keeps from converging
+    sol = _gauss_newton(data, method, config, progress, keep_unconverged=unconverged)
+
+    def again(sub: EpochData, x0: F64, b0: F64) -> MethodSolution:
+        return _gauss_newton(sub, method, config, None, x0, b0, keep_unconverged=unconverged)
+
+    return monitor(data, sol, config, again)
+
+
+def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progress: Progress | None,
+                  x0: F64 | None = None, b0: F64 | None = None, keep_unconverged: bool = False) -> MethodSolution:
+    """Iterate ``method`` (ls, wls) to convergence on every epoch, from ``x0, b0`` when given
+    (else the header position, or the Earth's centre, and zero clocks). With ``keep_unconverged``
+    the ``iteration_limit`` epochs keep their last iterate (for the integrity monitoring, which
+    blanks them in the end)."""
     T = data.time_gps_s.size
     n = data.sv.size
     x = np.zeros((T, 3))
-    if data.approx_ecef_m is not None:
+    if x0 is not None:
+        x[:] = x0
+    elif data.approx_ecef_m is not None:
         x[:] = data.approx_ecef_m
     k = len(data.systems)
-    b = np.zeros((T, k))
+    b = np.zeros((T, k)) if b0 is None else np.array(b0, dtype=np.float64)
     status = np.full(T, EpochStatus.ITERATION_LIMIT.value, dtype="<U24")
     iterations = np.zeros(T, dtype=np.int64)
     active = np.ones(T, dtype=bool)
@@ -111,7 +131,8 @@ def solve_method(
             active[rows[converged | ~ok]] = False
         if progress is not None:
             progress(f"{method}: iteration {it + 1}", float(1.0 - active.mean()))
-    return out.finish(x, b, status, iterations)
+    keep = KEEPS_POSITION + ((EpochStatus.ITERATION_LIMIT.value,) if keep_unconverged else ())
+    return out.finish(x, b, status, iterations, keep)
 
 
 def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64):  # type: ignore[no-untyped-def]
@@ -140,18 +161,23 @@ def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDA
 
 
 def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
+    """One step at the WLS fix, with the WLS epoch's satellites (its FDE exclusions apply)."""
+    if base.excluded is not None:
+        data = replace(data, usable=data.usable & ~base.excluded)
     T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
     x = base.x_ecef_m.copy()
     b = base.clocks_m.copy() if base.clocks_m is not None else base.clock_m[:, None].copy()
     status = base.status.copy()
-    iterations = np.where(status == EpochStatus.OK, 1, 0).astype(np.int64)
+    flagged = np.isin(status, _FLAGGED)  # integrity_fail, gdop_limit: solved, and keep the WLS word
+    iterations = np.where((status == EpochStatus.OK) | flagged, 1, 0).astype(np.int64)
     out = _Accumulator(T, n, k, method)
-    rows = np.flatnonzero(status == EpochStatus.OK)
+    rows = np.flatnonzero((status == EpochStatus.OK) | flagged)
     if rows.size:
         lin, res, n_used, enough, ok, _ = _linear_step(data, method, config, rows, x, b)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
-    return out.finish(x, b, status, iterations)
+        status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
+    return replace(out.finish(x, b, status, iterations), excluded=base.excluded)
 
 
 def _count_used(lin: Linearization, n: int, k: int, config: ProcessingConfig) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -172,6 +198,7 @@ class _Accumulator:
         self.gain_q = np.full((T, m, m), np.nan)
         self.paper_cov = np.full((T, m, m), np.nan) if method == "tls" else None
         self.residuals = np.full((T, n), np.nan)
+        self.sigma = np.full((T, n), np.nan)
         self.n_sat = np.zeros(T, dtype=np.int64)
         self.rot = np.full((T, 3, 3), np.nan)
         self.present = np.zeros((T, k), dtype=bool)
@@ -183,14 +210,16 @@ class _Accumulator:
         if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
             self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
         self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
+        self.sigma[rows] = np.where(lin.mask[:, : self.n], np.sqrt(lin.var_m2[:, : self.n]), np.nan)
         self.n_sat[rows] = n_used
         self.rot[rows] = lin.rot
         k = self.present.shape[1]
         # with several systems, a set constraint row (after the n satellite rows) marks an absent system
         self.present[rows] = ~lin.mask[:, self.n :] if k > 1 else True
 
-    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64]) -> MethodSolution:
-        bad = status != EpochStatus.OK
+    def finish(self, x: F64, b: F64, status: NDArray[np.str_], iterations: NDArray[np.int64],
+               keep: tuple[str, ...] = KEEPS_POSITION) -> MethodSolution:
+        bad = ~np.isin(status, keep)
         x = np.where(bad[:, None], np.nan, x)
         b = np.where(bad[:, None], np.nan, b)
         gain_q = np.where(bad[:, None, None], np.eye(self.gain_q.shape[-1]), self.gain_q)
@@ -225,6 +254,7 @@ class _Accumulator:
             status=status,
             iterations=iterations,
             residuals_m=np.where(bad[:, None], np.nan, self.residuals),
+            sigma_m=np.where(bad[:, None], np.nan, self.sigma),
         )
 
 

@@ -51,6 +51,11 @@ class ErrorConfig:
         ``sigma exp(-el / el_scale)``, correlation time ``tau``.
     outlier_sats, outlier_m, outlier_start_s, outlier_end_s : bias added to the pseudoranges of
         these satellites for ``start <= t - t0 < end``.
+    outlier_rate, outlier_range_m, outlier_min_elevation_deg : random outliers (with
+        ``outliers`` on and ``outlier_rate > 0``): in each epoch with probability ``rate``, one
+        satellite drawn among those at or above ``min_elevation`` gets a bias drawn uniformly from
+        ``outlier_range_m`` (both signals; a separate random stream, so the other errors are those
+        of the same seed without random outliers).
     doppler_sigma_m_s : white Doppler noise (range-rate units) when ``noise`` is on.
     """
 
@@ -71,6 +76,9 @@ class ErrorConfig:
     outlier_m: float = 50.0
     outlier_start_s: float = 0.0
     outlier_end_s: float = float("inf")
+    outlier_rate: float = 0.0
+    outlier_range_m: tuple[float, float] = (50.0, 500.0)
+    outlier_min_elevation_deg: float = 15.0
     doppler_sigma_m_s: float = 0.05
 
     def on(self, source: str) -> bool:
@@ -216,6 +224,25 @@ def perturb_ephemeris(
     return build(scale)
 
 
+def random_outliers_m(cfg: ErrorConfig, el_rad: F64, rng: np.random.Generator) -> F64:
+    """``(T, n)`` random outlier biases (m; 0 elsewhere): ``outlier_rate`` of the epochs get one
+    on a random satellite at or above ``outlier_min_elevation_deg`` (:class:`ErrorConfig`)."""
+    n_t, n = el_rad.shape
+    bias = np.zeros((n_t, n))
+    if not (cfg.on("outliers") and cfg.outlier_rate > 0):
+        return bias
+    hit = rng.random(n_t) < cfg.outlier_rate
+    candidates = el_rad >= np.deg2rad(cfg.outlier_min_elevation_deg)
+    hit &= candidates.any(axis=1)
+    # a uniform pick among each epoch's candidates: the largest random key among them
+    keys = np.where(candidates, rng.random((n_t, n)), -1.0)
+    sat = np.argmax(keys, axis=1)
+    size = rng.uniform(cfg.outlier_range_m[0], cfg.outlier_range_m[1], n_t)
+    rows = np.flatnonzero(hit)
+    bias[rows, sat[rows]] = size[rows]
+    return bias
+
+
 def validate(cfg: ErrorConfig) -> ErrorConfig:
     """Check the settings' ranges.
 
@@ -240,6 +267,10 @@ def validate(cfg: ErrorConfig) -> ErrorConfig:
             raise ConfigError(f"{name} must be a finite non-negative number, got {value}")
     if not cfg.multipath_tau_s > 0.0 or not cfg.multipath_el_scale_deg > 0.0:
         raise ConfigError("multipath_tau_s and multipath_el_scale_deg must be positive")
+    if not 0.0 <= cfg.outlier_rate <= 1.0:
+        raise ConfigError(f"outlier_rate must be within 0..1, got {cfg.outlier_rate}")
+    if len(cfg.outlier_range_m) != 2 or not 0.0 <= cfg.outlier_range_m[0] <= cfg.outlier_range_m[1]:
+        raise ConfigError(f"outlier_range_m must be two numbers 0 <= low <= high, got {cfg.outlier_range_m}")
     if len(cfg.orbit_ric_weights) != 3 or min(cfg.orbit_ric_weights) < 0 or sum(cfg.orbit_ric_weights) == 0:
         raise ConfigError(f"orbit_ric_weights must be three non-negative numbers, not all 0, got {cfg.orbit_ric_weights}")
     return cfg

@@ -32,7 +32,7 @@ from gnss_cli.gnss.ephemeris import KeplerEphemeris, select_ephemeris
 from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.orbits import broadcast_states
 from gnss_cli.sim.constellation import SYSTEMS
-from gnss_cli.sim.error_sources import ErrorConfig, multipath_m, noise_sigma_m, receiver_clock_m
+from gnss_cli.sim.error_sources import ErrorConfig, multipath_m, noise_sigma_m, random_outliers_m, receiver_clock_m
 from gnss_cli.sim.trajectory import Trajectory
 
 F64 = NDArray[np.float64]
@@ -78,6 +78,8 @@ class Observations:
     rx_vel_ecef_m_s: F64
     rx_clock_m: F64
     rx_clock_drift_m_s: F64
+    outlier_bias_m: F64 | None = None
+    """``(T, n)`` random outlier biases put on both pseudoranges, m (0: none; None: no random outliers)."""
 
 
 def light_time_states(
@@ -202,7 +204,11 @@ def simulate_observations(
     el = np.concatenate(parts["el"], axis=1)
     pr, dop, snr = _add_errors(cfg, rng, sv_all, el, np.concatenate(parts["pr"], axis=1),
                                np.concatenate(parts["dop"], axis=1), t_rel, interval)
+    fault = random_outliers_m(cfg, el, rng.spawn(1)[0]) if cfg.outlier_rate > 0 else None
+    if fault is not None:
+        pr = pr + fault[..., None]
     return Observations(
+        outlier_bias_m=fault,
         t_gps_s=t,
         sv=sv_all,
         pseudorange_m=pr,

@@ -145,7 +145,7 @@ def config_from_mapping(data: dict[str, Any], base: ScenarioConfig, *, source: s
         bad = set(err) - err_keys
         if bad:
             raise ConfigError(f"{source}: unknown [errors] key(s) {sorted(bad)}")
-        for key in ("outlier_sats", "orbit_ric_weights"):
+        for key in ("outlier_sats", "orbit_ric_weights", "outlier_range_m"):
             if key in err:
                 err[key] = tuple(err[key])
         errors = replace(errors, **err)
@@ -349,8 +349,19 @@ def write_scenario(scenario: Scenario, out_dir: Path) -> list[Path]:
     _write_csv(truth_table(scenario), written[2], formats)
     if cfg.truth_ranges:
         written.append(out / "truth_ranges.csv")
-        _write_csv(truth_ranges_table(scenario), written[3], {"t_tx_gps_s": "%.9f", "el_deg": "%.4f", "az_deg": "%.4f"})
+        _write_csv(truth_ranges_table(scenario), written[-1], {"t_tx_gps_s": "%.9f", "el_deg": "%.4f", "az_deg": "%.4f"})
+    if obs.outlier_bias_m is not None:
+        written.append(out / "faults.csv")
+        _write_csv(faults_table(scenario), written[-1], {"bias_m": "%.3f"})
     return written
+
+
+def faults_table(scenario: Scenario) -> pd.DataFrame:
+    """The random outliers (``outlier_rate > 0``): one row per faulty epoch, its satellite and bias (m)."""
+    obs = scenario.observations
+    bias = obs.outlier_bias_m if obs.outlier_bias_m is not None else np.zeros(obs.visible.shape)
+    ti, si = np.nonzero(bias)
+    return pd.DataFrame({"time": _iso(obs.t_gps_s)[ti], "satellite": obs.sv[si], "bias_m": bias[ti, si]})
 
 
 def _write_csv(df: pd.DataFrame, path: Path, formats: dict[str, str]) -> None:

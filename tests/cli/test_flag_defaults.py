@@ -16,6 +16,7 @@ SOLVE_KEYS = {
     "--tropo": ("processing", "tropo"), "--elevation-mask": ("processing", "elevation_mask_deg"),
     "--lag": ("smoothing", "lag"), "--model": ("smoothing", "model"), "--kernel": ("smoothing", "kernel"),
     "--order": ("smoothing", "order"), "--window": ("smoothing", "window"), "--time-system": ("processing", "time_system"),
+    "--integrity": ("processing", "integrity"), "--snr-mask": ("processing", "snr_mask_dbhz"),
 }
 SIMULATE_KEYS = {
     "--trajectory": ("simulate", "trajectory"), "--duration": ("simulate", "duration_s"),

@@ -52,7 +52,7 @@ def test_format_from_the_output_extension_and_one_pos_file_per_method(d0759, tmp
 def test_out_dir_names_the_positions_by_format_and_keeps_csv_tables(d0759, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
     code, _, err = invoke([*d0759, "-m", "ls,wls", "-q", "--format", "nmea", "--out-dir", tmp_path / "o"], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["dop.csv", "positions.ls.nmea", "positions.wls.nmea", "summary.csv"]
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["dop.csv", "positions.ls.nmea", "positions.wls.nmea", "satellites.csv", "summary.csv"]
     summary = pd.read_csv(tmp_path / "o" / "summary.csv")
     assert {"mean_x_m", "mean_lat_deg", "scatter_e_m", "scatter_u_m"} <= set(summary.columns)
     code, _, err = invoke([*d0759, "-q", "--format", "geojson", "--out-dir", tmp_path / "g"], capsys)

@@ -12,7 +12,7 @@ import pytest
 
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
-from gnss_cli.report import POSITION_COLUMNS, SD_COLUMNS
+from gnss_cli.report import INTEGRITY_COLUMNS, POSITION_COLUMNS, SD_COLUMNS
 
 REF_0759 = "-3976219.1879,3382371.6041,3652511.1428"
 
@@ -33,7 +33,7 @@ def test_csv_on_stdout_has_documented_header_and_a_row_per_epoch(d0759, capsys):
     code, out, err = invoke([d0759 / "07590920.05o", d0759 / "07590920.05n", "--method", "ls,wls", "--reference", REF_0759], capsys)
     assert code == 0, err
     df = pd.read_csv(io.StringIO(out))
-    assert list(df.columns) == POSITION_COLUMNS + ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"] + SD_COLUMNS
+    assert list(df.columns) == POSITION_COLUMNS + ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"] + SD_COLUMNS + INTEGRITY_COLUMNS
     assert len(df) == 240 and set(df["method"]) == {"ls", "wls"}
     assert (df["status"] == "ok").all()
     assert df["time"].iloc[0] == "2005-04-02T00:00:00.000"
@@ -44,7 +44,7 @@ def test_out_dir_writes_four_tables(d0759, tmp_path, capsys):
     code, out, _ = invoke([d0759 / "07590920.05o", d0759 / "07590920.05n", "--reference", REF_0759, "--out-dir", tmp_path / "o", "-q"], capsys)
     assert code == 0 and out == ""
     names = sorted(p.name for p in (tmp_path / "o").iterdir())
-    assert names == ["dop.csv", "errors.csv", "positions.csv", "summary.csv"]
+    assert names == ["dop.csv", "errors.csv", "positions.csv", "satellites.csv", "summary.csv"]
     summary = pd.read_csv(tmp_path / "o" / "summary.csv")
     assert summary.loc[0, "epochs_solved"] == 120 and summary.loc[0, "rms_3d_m"] < 1.93
 
