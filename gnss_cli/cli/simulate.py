@@ -8,7 +8,9 @@ unless ``--quiet``.
 
 from __future__ import annotations
 
+import contextlib
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -16,7 +18,7 @@ import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
 from gnss_cli.config import packaged_defaults
-from gnss_cli.errors import UsageError
+from gnss_cli.errors import ConfigError, UsageError
 
 _SIM = packaged_defaults("simulate.toml")
 
@@ -34,6 +36,16 @@ def _default(table: str, key: str) -> str:
 app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
 
 _RINEX_VERSIONS = {"3": "3.04", "3.04": "3.04", "3.05": "3.05", "2": "2.11", "2.11": "2.11"}
+
+
+@contextlib.contextmanager
+def _values_are_configuration() -> Iterator[None]:
+    """A bad option value is a configuration error (exit 3), as in gnss-solve; Click keeps
+    the usage mistakes (missing or unknown options, wrong types: exit 2)."""
+    try:
+        yield
+    except UsageError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 @app.command()
@@ -79,38 +91,39 @@ def simulate(
     from gnss_cli.sim.error_sources import parse_error_list
     from gnss_cli.sim.scenario import ScenarioConfig, config_from_mapping, load_config, parse_systems, run_scenario, write_scenario
 
-    cfg = load_config(config) if config is not None else ScenarioConfig()
-    if systems is not None:
-        parse_systems(systems)  # flag errors are usage errors (exit 2), not configuration errors
-    if errors is not None:
-        parse_error_list(errors)
-    if noise_model is not None and noise_model not in ("elevation", "constant"):
-        raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
-    if rinex_version is not None and rinex_version not in _RINEX_VERSIONS:
-        raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
-    site: dict[str, float] = {}
-    if position is not None:
-        try:
-            lat, lon, h = (float(v) for v in position.split(","))
-        except ValueError as exc:
-            raise UsageError(f"--position: expected LAT_DEG,LON_DEG,HEIGHT_M, got {position!r}") from exc
-        site = {"latitude_deg": lat, "longitude_deg": lon, "height_m": h}
-    flags = {
-        "simulate": {
-            "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
-            "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
-            "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
-            "truth_ranges": truth_ranges, "errors": errors,
-        },
-        "errors": {
-            "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",
-            "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_rate": outlier_rate, **_outlier_sizes(outlier_m),
-            "outlier_sats": None if outlier_sats is None else [s.strip().upper() for s in outlier_sats.split(",") if s.strip()],
-        },
-    }
-    mapping = {table: {k: v for k, v in keys.items() if v is not None} for table, keys in flags.items()}
-    cfg = config_from_mapping(mapping, cfg, source="command line")
-    scenario = run_scenario(cfg)
+    with _values_are_configuration():
+        cfg = load_config(config) if config is not None else ScenarioConfig()
+        if systems is not None:
+            parse_systems(systems)
+        if errors is not None:
+            parse_error_list(errors)
+        if noise_model is not None and noise_model not in ("elevation", "constant"):
+            raise UsageError(f"--noise-model: expected elevation or constant, got {noise_model!r}")
+        if rinex_version is not None and rinex_version not in _RINEX_VERSIONS:
+            raise UsageError(f"--rinex-version: expected 3, 3.05 or 2, got {rinex_version!r}")
+        site: dict[str, float] = {}
+        if position is not None:
+            try:
+                lat, lon, h = (float(v) for v in position.split(","))
+            except ValueError as exc:
+                raise UsageError(f"--position: expected LAT_DEG,LON_DEG,HEIGHT_M, got {position!r}") from exc
+            site = {"latitude_deg": lat, "longitude_deg": lon, "height_m": h}
+        flags = {
+            "simulate": {
+                "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
+                "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
+                "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
+                "truth_ranges": truth_ranges, "errors": errors,
+            },
+            "errors": {
+                "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",
+                "orbit_rms_m": orbit_rms, "iono_factor": iono_factor, "outlier_rate": outlier_rate, **_outlier_sizes(outlier_m),
+                "outlier_sats": None if outlier_sats is None else [s.strip().upper() for s in outlier_sats.split(",") if s.strip()],
+            },
+        }
+        mapping = {table: {k: v for k, v in keys.items() if v is not None} for table, keys in flags.items()}
+        cfg = config_from_mapping(mapping, cfg, source="command line")
+        scenario = run_scenario(cfg)
     from gnss_cli.cli.output import OutputSet
 
     with OutputSet() as outputs:

@@ -56,6 +56,8 @@ CASES = [
     ("disk full", "solve", ["{obs}", "{nav}", "-o", "/dev/full"], 6, r"/dev/full: cannot write output \(No space left on device\)"),
     ("simulate without --out-dir", "simulate", [], 2, r"Missing option '--out-dir'"),
     ("simulate unknown option", "simulate", ["--out-dir", "s", "--duraton", "5"], 2, r"No such option: --duraton"),
+    ("simulate negative duration", "simulate", ["--out-dir", "s", "--duration", "-5"], 3, r"duration >= 0"),
+    ("simulate unknown system", "simulate", ["--out-dir", "s", "--systems", "Q"], 3, r"--systems: expected"),
     ("simulate bad config", "simulate", ["--out-dir", "s", "--config", "{here}/bad.toml"], 3, r"bad.toml"),
     ("identify no arguments", "identify", [], 2, r"Missing argument"),
     ("identify missing file", "identify", ["{here}/nothere.csv"], 4, r"nothere.csv: no such file"),

@@ -197,10 +197,11 @@ def test_config_rejects_unknown_keys(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "code", "message"),
     [
-        (["--errors", "noise,bogus"], 2, "unknown source"),
-        (["--systems", "G,X"], 2, "--systems"),
-        (["--start", "yesterday"], 2, "--start"),
-        (["--rinex-version", "2", "--systems", "C"], 2, "BeiDou"),
+        (["--errors", "noise,bogus"], 3, "unknown source"),
+        (["--systems", "G,X"], 3, "--systems"),
+        (["--start", "yesterday"], 3, "--start"),
+        (["--rinex-version", "2", "--systems", "C"], 3, "BeiDou"),
+        (["--interval", "0"], 3, "interval must be > 0"),
         (["--trajectory", "csv:/nonexistent/traj.csv"], 4, "not found"),
     ],
 )
