@@ -302,19 +302,14 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     ``below_mask`` (elevation mask), ``no_second_frequency`` (iono-free), or, for a satellite of
     an epoch that was not solved, the epoch's status; empty when used.
     """
-    from gnss_cli.gnss.frames import azimuth_elevation
+    from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
     from gnss_cli.pipeline.results import UNUSED_REASONS
 
     data = result.epochs
     method = "wls" if "wls" in result.solutions else next(iter(result.solutions))
     s = result.solutions[method]
     T, n = data.sat_ecef_m.shape[:2]
-    los = data.sat_ecef_m - s.x_ecef_m[:, None, :]
-    lat, lon, _ = ecef2geodetic(np.where(np.isfinite(s.x_ecef_m), s.x_ecef_m, np.array([6.4e6, 0.0, 0.0])))
-    rot = ecef2enu_rotation(lat, lon)
-    enu = np.einsum("tij,tnj->tni", rot, los / np.linalg.norm(los, axis=-1, keepdims=True))
-    az, el = azimuth_elevation(enu.reshape(-1, 3))
-    el, az = np.rad2deg(el).reshape(T, n), np.mod(np.rad2deg(az), 360.0).reshape(T, n)
+    az, el = satellite_azimuth_elevation_deg(data.sat_ecef_m, s.x_ecef_m)  # NaN for unsolved epochs
     unused = data.unused if data.unused is not None else np.where(data.usable, 0, 1).astype(np.int8)
     used = np.isfinite(s.residuals_m)
     excluded = s.excluded if s.excluded is not None else np.zeros((T, n), dtype=bool)

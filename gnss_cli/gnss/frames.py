@@ -69,3 +69,17 @@ def azimuth_elevation(los_enu: ArrayLike) -> tuple[NDArray[np.float64], NDArray[
     az = np.mod(np.arctan2(v[..., 0], v[..., 1]), 2.0 * np.pi)
     el = np.arctan2(v[..., 2], horiz)
     return az, el
+
+
+def satellite_azimuth_elevation_deg(sat_ecef_m: ArrayLike, rx_ecef_m: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Azimuth (deg, clockwise from north, [0, 360)) and elevation (deg) ``(T, n)`` of satellites
+    ``(T, n, 3)`` (ECEF m) seen from receivers ``(T, 3)`` (ECEF m); NaN where a receiver
+    position is not finite."""
+    sat = np.asarray(sat_ecef_m, dtype=np.float64)
+    rx = np.asarray(rx_ecef_m, dtype=np.float64)
+    ok = np.isfinite(rx).all(axis=-1)
+    rx_safe = np.where(ok[:, None], rx, np.array([WGS84_A_M, 0.0, 0.0]))
+    lat, lon, _ = ecef2geodetic(rx_safe)
+    los = np.einsum("tij,tnj->tni", ecef2enu_rotation(lat, lon), sat - rx_safe[:, None, :])
+    az, el = azimuth_elevation(los)
+    return np.where(ok[:, None], np.degrees(az), np.nan), np.where(ok[:, None], np.degrees(el), np.nan)

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from gnss_cli.errors import RinexFormatError, UsageError
 from gnss_cli.gnss.ephemeris import select_nearest_record
 from gnss_cli.gnss.orbits import SatelliteStates
-from gnss_cli.gnss.time import datetime2gps_s
+from gnss_cli.gnss.time import datetime2gps_s, gps_minus_utc_s
 
 F64 = NDArray[np.float64]
 
@@ -48,32 +48,9 @@ DFREQ_G2_HZ = 0.4375e6
 MAX_DTOE_GLO_S = 1800.0
 """Largest |t - tb| at which a record is used, s (RTKLIB MAXDTOE_GLO)."""
 
-# GPST - UTC, s, from the given UTC instant (IERS Bulletin C), for files without LEAP SECONDS.
-_LEAP_TABLE = (
-    (np.datetime64("2006-01-01"), 14.0),
-    (np.datetime64("2009-01-01"), 15.0),
-    (np.datetime64("2012-07-01"), 16.0),
-    (np.datetime64("2015-07-01"), 17.0),
-    (np.datetime64("2017-01-01"), 18.0),
-)
-
-
 def leap_seconds_at(t_utc: np.datetime64) -> float:
-    """GPST - UTC (s) at a UTC instant from 2006 on (table up to the 2017-01-01 leap second).
-
-    Raises
-    ------
-    UsageError
-        For instants before 2006-01-01 (give the leap seconds explicitly).
-    """
-    t = np.datetime64(t_utc, "ns")
-    value = None
-    for start, leap in _LEAP_TABLE:
-        if t >= start:
-            value = leap
-    if value is None:
-        raise UsageError(f"no leap-second table entry for {t}; pass leap_seconds_s explicitly")
-    return value
+    """GPST - UTC (s) at a UTC instant, from :data:`gnss_cli.gnss.time.GPS_UTC_STEPS`."""
+    return float(gps_minus_utc_s(datetime2gps_s(np.datetime64(t_utc, "ns")), utc=True))
 
 
 @dataclass(frozen=True)

@@ -29,19 +29,24 @@ Bulletin C), valid from 1980-01-06 until the next leap second is announced (none
 Bulletin C 70, July 2025: 18 s since 2017-01-01)."""
 
 
-def gps_minus_utc_s(t_gps_s: ArrayLike) -> NDArray[np.float64]:
-    """GPS - UTC (s) at GPS instants (s since the GPS epoch), from :data:`GPS_UTC_STEPS`.
+def gps_minus_utc_s(t_gps_s: ArrayLike, *, utc: bool = False) -> NDArray[np.float64]:
+    """GPS - UTC (s) at GPS instants (s since the GPS epoch), from :data:`GPS_UTC_STEPS`;
+    with ``utc=True`` the instants are UTC readings (UTC date and time counted from the GPS
+    epoch as if they were GPS seconds).
 
     >>> float(gps_minus_utc_s(datetime2gps_s(np.datetime64("2005-04-02T00:00:00"))))
     13.0
     >>> float(gps_minus_utc_s(datetime2gps_s(np.datetime64("2020-01-01"))))
     18.0
+    >>> [float(gps_minus_utc_s(datetime2gps_s(np.datetime64(u)), utc=True))
+    ...  for u in ("2016-12-31T23:59:59", "2017-01-01T00:00:00")]
+    [17.0, 18.0]
     """
     t = np.asarray(t_gps_s, dtype=np.float64)
     starts_utc = datetime2gps_s(np.array([d for d, _ in GPS_UTC_STEPS], dtype="datetime64[ns]"))
     steps = np.array([v for _, v in GPS_UTC_STEPS], dtype=np.float64)
-    starts_gps = starts_utc + steps  # the step takes effect at that UTC instant, i.e. GPST + steps
-    k = np.clip(np.searchsorted(starts_gps, t, side="right") - 1, 0, steps.size - 1)
+    starts = starts_utc if utc else starts_utc + steps  # a step takes effect at its UTC date = GPST + steps
+    k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, steps.size - 1)
     return steps[k]
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
+from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
 from gnss_cli.pipeline.results import MethodSolution, RunResult
 from gnss_cli.plots.common import F64, elapsed_axis, legend_outside, method_style, new_figure, no_data
 
@@ -35,13 +35,9 @@ def receiver_positions(sol: MethodSolution) -> F64:
 
 
 def azimuth_elevation_deg(result: RunResult, sol: MethodSolution) -> tuple[F64, F64]:
-    """Azimuth and elevation ``(T, n)`` (deg) of every satellite seen from the solution."""
-    rx = receiver_positions(sol)
-    lat, lon, _ = ecef2geodetic(rx)
-    rot = ecef2enu_rotation(lat, lon)
-    los = result.epochs.sat_ecef_m - rx[:, None, :]
-    az, el = azimuth_elevation(np.einsum("tij,tnj->tni", rot, los))
-    return np.degrees(az), np.degrees(el)
+    """Azimuth and elevation ``(T, n)`` (deg) of every satellite seen from the solution (failed
+    epochs: from the median solved position, so their observed satellites are drawn too)."""
+    return satellite_azimuth_elevation_deg(result.epochs.sat_ecef_m, receiver_positions(sol))
 
 
 def figure_sky(result: RunResult, elevation_mask_deg: float | None = None) -> Figure:
