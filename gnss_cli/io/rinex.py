@@ -187,6 +187,28 @@ def _header_value(path: Path, label: str) -> str:
 
 
 def read_nav(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | None = None) -> xr.Dataset:
+    """Read, validate and merge RINEX navigation files; drop physically impossible records.
+
+    Records that could not have been broadcast (:func:`~gnss_cli.io.nav_checks.reject_implausible_records`)
+    are set to NaN; one line per system naming the first of them is kept in the attribute
+    ``rejected_records`` (a list of str, empty when none) for the run's warnings.
+    See :func:`_read_nav_files` for the parameters.
+    """
+    from gnss_cli.io.nav_checks import klobuchar_problem, reject_implausible_records
+
+    ds = _read_nav_files(paths, systems)
+    label = str(ds.attrs.get("filename", ""))
+    ds, messages = reject_implausible_records(ds, label)
+    raw = ds.attrs.get("ionospheric_corr_GPS")
+    problem = None if raw is None else klobuchar_problem(raw)
+    if problem is not None:
+        del ds.attrs["ionospheric_corr_GPS"]
+        messages.append(f"{label}: Klobuchar coefficients not used: {problem}")
+    ds.attrs["rejected_records"] = messages
+    return ds
+
+
+def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[str] | None = None) -> xr.Dataset:
     """Read, validate and merge RINEX navigation files.
 
     Parameters
@@ -273,7 +295,9 @@ def klobuchar_coefficients(nav: xr.Dataset) -> tuple[np.ndarray, np.ndarray] | N
     raw = nav.attrs.get("ionospheric_corr_GPS")
     if raw is None:
         return None
+    from gnss_cli.io.nav_checks import klobuchar_problem
+
     arr = np.asarray(raw, dtype=np.float64).ravel()
-    if arr.size != 8 or not np.all(np.isfinite(arr)) or not np.any(arr != 0):
+    if klobuchar_problem(arr) is not None or not np.any(arr != 0):
         return None
     return arr[:4], arr[4:]

@@ -299,7 +299,7 @@ def load_epochs(
     obs = read_obs(obs_path, systems=systems, codes=codes)
     nav = read_nav(list(nav_paths), systems=systems)
     nav_name = ",".join(Path(p).name for p in nav_paths)
-    warnings: list[str] = []
+    warnings: list[str] = list(nav.attrs.get("rejected_records", []))
     if not explicit:
         systems = _systems_with_data(obs, nav, obs_path, nav_name)
     if timings is not None:
