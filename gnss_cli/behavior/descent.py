@@ -187,4 +187,4 @@ def final_kernel(chart: FullChart | SharedChart, theta: NDArray[np.float64], q: 
         r = chart.shared_r(theta)
         scale = r[-1] if abs(r[-1]) > 1e-8 * np.max(np.abs(r)) else np.linalg.norm(r)
         return KernelRepresentation.shared(r / scale, q)
-    return KernelRepresentation(chart.kernel(theta), q=q).normalized()
+    return KernelRepresentation(chart.kernel(theta), q=q).orthonormalized()

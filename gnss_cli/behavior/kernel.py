@@ -329,6 +329,19 @@ class KernelRepresentation:
         return KernelRepresentation(u[:, n:].T, q=q)
 
     # ------------------------------------------------------------------ misc
+    def orthonormalized(self) -> KernelRepresentation:
+        """The same behavior with orthonormal rows of ``R`` (``R R^T = I``): of all the
+        representations ``M R`` of the kernel, the one whose ``G Sigma G^T`` is best scaled.
+
+        ``R = U S V^T`` (thin SVD) becomes ``V^T``; rows that are numerically dependent
+        (``s_i <= 1e-12 s_1``) are kept as they are, since dropping them would change the
+        number of rows.
+        """
+        u, s, vt = np.linalg.svd(self.R, full_matrices=False)
+        if s.size == 0 or not s[-1] > 1e-12 * s[0]:
+            return self
+        return KernelRepresentation(vt, q=self.q)
+
     def normalized(self) -> KernelRepresentation:
         """The same behavior with ``R_lag = I`` when ``R_lag`` is square and well conditioned, else ``R`` unchanged."""
         if self.p == self.q and np.linalg.cond(self.blocks[-1]) < 1e10:
