@@ -90,9 +90,8 @@ def stls(w: ArrayLike, lag: int, order: int | None = None, cov: ArrayLike | None
         changes the chart coordinates by less than ``tol`` relative, or the predicted decrease
         of a Newton step is below ``tol / 10`` relative (default 1e-10).
     max_iter : int
-        Limit on outer iterations per descent (default 1000: over-parameterized full-kernel
-        fits converge only linearly; lag-3, order-9 fits of noisy 150-sample arcs took 387-475
-        iterations, and stopped at 200 in 3 of 24 seeded trials).
+        Limit on outer iterations per descent (default 1000: over-parameterized full kernels
+        converge linearly; lag-3 order-9 fits of noisy 150-sample arcs took up to 482).
     structure : {"full", "shared"}
         ``"full"``: general kernel with ``g`` rows, chart ``R = [X -I]``.
         ``"shared"``: ``R(z) = r(z) I_q``, ``lag`` free parameters (fewer with fixed roots).
