@@ -87,9 +87,17 @@ def batch(
             raise OutputError(f"{out}: cannot write output (not a folder)")
         csv_targets = {name: outputs.add(out / f"{name}.csv", "--out") for name in ("files", "summary")}
         dataset = PositionsDataset(outputs.stage_folder(out / "positions", "--out"))
-        navs = nav_spans(nav_paths, quiet)
-        settings = BatchSettings(cfg, reference, reference_sinex, reference_csv, reference_pos, navs)
-        results = _run_all([str(p) for p in obs_paths], settings, jobs, scheduler, dataset, quiet)
+        from gnss_cli.cli.batch_runner import open_runner
+
+        runner = open_runner(jobs if jobs is not None else _cores(), scheduler, len(obs_paths))
+        finished = False
+        try:
+            navs = nav_spans(nav_paths, quiet)
+            settings = BatchSettings(cfg, reference, reference_sinex, reference_csv, reference_pos, navs)
+            results = _run_all(runner.results([str(p) for p in obs_paths], settings), len(obs_paths), dataset, quiet)
+            finished = True
+        finally:
+            runner.close(finished)
         dataset.finish()
         _write_tables(outputs, csv_targets, results)
     return _finish(results, out, quiet)
@@ -186,23 +194,16 @@ def nav_spans(nav_paths: list[Path], quiet: bool) -> tuple[tuple[str, float, flo
     return tuple(spans)
 
 
-def _run_all(obs_paths: list[str], settings: Any, jobs: Optional[int], scheduler: Optional[str], dataset: Any,
-             quiet: bool) -> list[Any]:
-    """Run every file (local processes or the Dask cluster), store each result as it arrives."""
-    from gnss_cli.cli.batch_runner import run_dask, run_local
-
+def _run_all(stream: Any, total: int, dataset: Any, quiet: bool) -> list[Any]:
+    """Store each result as it arrives (its rows into the dataset) and report it on stderr."""
     t0 = time.perf_counter()
-    if scheduler is not None:
-        stream = run_dask(obs_paths, settings, scheduler)
-    else:
-        stream = run_local(obs_paths, settings, jobs if jobs is not None else _cores())
     results = []
     try:
         for result in stream:
             dataset.add(result)
             results.append(result)
             if not quiet:
-                sys.stderr.write(_progress_line(result, len(results), len(obs_paths), time.perf_counter() - t0))
+                sys.stderr.write(_progress_line(result, len(results), total, time.perf_counter() - t0))
                 sys.stderr.flush()
     finally:
         stream.close()

@@ -8,6 +8,10 @@ is left behind. Renames and the creation of temporary files run with SIGINT and 
 held back (:func:`gnss_cli.cli.signals.deferred`), so a signal cannot land between creating
 a temporary file and recording it, nor between two renames of one set.
 
+A whole folder tree (``gnss-batch``'s Parquet dataset) is staged the same way: a hidden
+temporary folder beside its target, renamed into place with the files; a folder of that
+name from an earlier run is moved aside first and removed once everything is in place.
+
 Files get the permissions of an ordinary ``open()``: ``0o666`` less the user's umask (an
 existing regular file keeps its own mode). A target that exists and is not a regular file
 (``/dev/stdout``, a named pipe, ``/dev/full``) is written directly, since it cannot be
