@@ -141,51 +141,71 @@ def _dask_case(files: list[Path], work: Path) -> tuple[float, subprocess.Complet
         return _batch(files, work / "out-dask", work, "--scheduler", cluster.scheduler_address)
 
 
+def _pairs(files: list[Path], work: Path, repeat: int) -> dict[str, object]:
+    """``repeat`` interleaved (sequential, batch --jobs 2) pairs: the ratio of each pair, so that a
+    change of the machine's load between the two halves of a pair is the only noise."""
+    import statistics
+
+    seq, bat, ratios, loads = [], [], [], []
+    csvs: list[Path] = []
+    for r in range(repeat):
+        loads.append(_load())
+        seq_s, csvs = _sequential(files, work)
+        batch_s, proc = _batch(files, work / "out-local", work, "--jobs", "2")
+        if proc.returncode != 0:
+            raise SystemExit(f"gnss-batch failed: {proc.stderr}")
+        seq.append(seq_s)
+        bat.append(batch_s)
+        ratios.append(batch_s / seq_s)
+        print(f"[{r + 1}/{repeat}] sequential gnss-solve x{len(files)}: {seq_s:.1f} s; gnss-batch --jobs 2: {batch_s:.1f} s; "
+              f"ratio {batch_s / seq_s:.3f} (load {loads[-1]:.1f})", flush=True)
+    return {"sequential_s": seq, "batch_jobs2_s": bat, "ratios": ratios, "load_averages": loads,
+            "sequential_median_s": statistics.median(seq), "batch_jobs2_median_s": statistics.median(bat),
+            "ratio_batch_jobs2_to_sequential_median": statistics.median(ratios),
+            "max_position_difference_vs_gnss_solve_csv_m": _max_csv_difference(work / "out-local", csvs, files)}
+
+
+def _corrupt_case(files: list[Path], corrupt: Path, work: Path) -> dict[str, object]:
+    import pandas as pd
+
+    bad_s, proc = _batch([*files[:3], corrupt, *files[3:]], work / "out-bad", work, "--jobs", "2")
+    table = pd.read_csv(work / "out-bad" / "files.csv")
+    ok = table[table["status"] == "ok"]
+    failed = table[table["status"] != "ok"]
+    out = {"batch_corrupt_s": bad_s, "batch_corrupt_exit_code": proc.returncode,
+           "corrupt_reported": failed["obs_path"].tolist() == [str(corrupt)],
+           "corrupt_error": str(failed["error"].iloc[0]) if len(failed) else "",
+           "others_complete": bool(len(ok) == len(files) and (ok["solved"] == ok["epochs"]).all())}
+    print(f"with a corrupt file: exit {proc.returncode}, failed {[Path(p).name for p in failed['obs_path']]}, "
+          f"others complete: {out['others_complete']}", flush=True)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--files", type=int, default=8, help="station copies (default 8)")
     parser.add_argument("--epochs", type=int, default=0, help="epochs per file, 0 = the whole day (2880)")
+    parser.add_argument("--repeat", type=int, default=3, help="interleaved sequential/batch pairs (median ratio)")
     parser.add_argument("--skip-dask", action="store_true", help="leave out the Dask scheduler case")
     args = parser.parse_args(argv)
     if not OBS.is_file():
         print(f"bench_batch: {OBS} is missing (../shared/rinex beside the repository)", file=sys.stderr)
         return 1
-    import pandas as pd
-
     result: dict[str, object] = {"files": args.files, "epochs_per_file": args.epochs or 2880, "cores": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="bench-batch-") as tmp:
         work = Path(tmp)
         files, corrupt = make_network(work, args.files, args.epochs)
-        result["load_before_sequential"] = _load()
-        seq_s, csvs = _sequential(files, work)
-        result["sequential_s"] = seq_s
-        result["load_before_batch"] = _load()
-        batch_s, proc = _batch(files, work / "out-local", work, "--jobs", "2")
-        if proc.returncode != 0:
-            raise SystemExit(f"gnss-batch failed: {proc.stderr}")
-        result["batch_jobs2_s"] = batch_s
-        result["ratio_batch_jobs2_to_sequential"] = batch_s / seq_s
-        result["max_position_difference_vs_gnss_solve_csv_m"] = _max_csv_difference(work / "out-local", csvs, files)
-        print(f"sequential gnss-solve x{len(files)}: {seq_s:.1f} s; gnss-batch --jobs 2: {batch_s:.1f} s; "
-              f"ratio {batch_s / seq_s:.3f}", flush=True)
+        result.update(_pairs(files, work, args.repeat))
         if not args.skip_dask:
             result["load_before_dask"] = _load()
             dask_s, dproc = _dask_case(files, work)
             same = dproc.returncode == 0 and _positions(work / "out-dask").equals(_positions(work / "out-local"))
-            result.update({"batch_dask_s": dask_s, "ratio_batch_dask_to_sequential": dask_s / seq_s,
+            ratio = dask_s / float(result["sequential_median_s"])  # type: ignore[arg-type]
+            result.update({"batch_dask_s": dask_s, "ratio_batch_dask_to_sequential_median": ratio,
                            "dask_positions_identical": bool(same)})
-            print(f"gnss-batch --scheduler (2 local Dask workers): {dask_s:.1f} s, ratio {dask_s / seq_s:.3f}, "
-                  f"positions identical: {same}", flush=True)
-        bad_s, bproc = _batch([*files[:3], corrupt, *files[3:]], work / "out-bad", work, "--jobs", "2")
-        table = pd.read_csv(work / "out-bad" / "files.csv")
-        failed = table[table["status"] != "ok"]
-        complete = bool((table[table["status"] == "ok"]["solved"] == table[table["status"] == "ok"]["epochs"]).all())
-        result.update({"batch_corrupt_s": bad_s, "batch_corrupt_exit_code": bproc.returncode,
-                       "corrupt_reported": failed["obs_path"].tolist() == [str(corrupt)],
-                       "corrupt_error": str(failed["error"].iloc[0]) if len(failed) else "",
-                       "others_complete": complete and len(table) == len(files) + 1})
-        print(f"with a corrupt file: exit {bproc.returncode}, failed rows {failed['obs_path'].map(lambda p: Path(p).name).tolist()}, "
-              f"others complete: {result['others_complete']}", flush=True)
+            print(f"gnss-batch --scheduler (2 local Dask worker processes): {dask_s:.1f} s, ratio {ratio:.3f} "
+                  f"(to the median sequential time), positions identical: {same}", flush=True)
+        result.update(_corrupt_case(files, corrupt, work))
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps(result, indent=2) + "\n")
     print(json.dumps(result, indent=2))

@@ -219,3 +219,26 @@ def test_readme_table_lists_every_case_with_its_exit_code() -> None:
     expected.update({"Ctrl-C during a run": 130, "SIGTERM during a run": 143})
     assert rows == expected
     assert len(rows) >= 15
+
+
+def test_interrupted_batch_ends_its_workers_and_writes_nothing(long_run: Path, tmp_path: Path) -> None:
+    """Ctrl-C while two local workers solve: exit 130, one line, no output folder, and the
+    run ends at once instead of waiting for the files to finish."""
+    data = tmp_path / "data"
+    data.mkdir()
+    for name in ("AAAA00DNK_R_20240610000_01H_01S_MO.rnx", "BBBB00DNK_R_20240610000_01H_01S_MO.rnx"):
+        shutil.copy(long_run / "obs.rnx", data / name)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", MODULES["batch"], str(data / "*.rnx"), "--nav", str(long_run / "nav.rnx"),
+           "--out", str(out), "--jobs", "2", "--method", "all"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(6.0)
+    assert proc.poll() is None, proc.communicate()
+    sent = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert time.perf_counter() - sent < 10.0
+    assert proc.returncode == 130, stderr
+    assert stderr.splitlines() == ["gnss-batch: interrupted (SIGINT); no output written"], stderr
+    assert "Traceback" not in stderr and stdout == ""
+    assert not out.exists() and _all_files(tmp_path) == {"data", *(f"data/{p.name}" for p in data.iterdir())}
