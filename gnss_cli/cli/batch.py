@@ -37,7 +37,7 @@ app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTI
 
 @app.command()
 def batch(
-    files: list[str] = typer.Argument(..., help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS...", show_default=False),
+    files: list[str] = typer.Argument(..., help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS", show_default=False),
     nav: Optional[list[str]] = typer.Option(None, "--nav", help="Navigation file or quoted glob pattern; repeat --nav for more. Each OBS gets the ones whose records cover its epochs.", show_default="none"),
     out: Path = typer.Option(..., "--out", help="Output folder: positions/ (Parquet, partitioned by station and day), files.csv, summary.csv."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Local worker processes (one file per task).", show_default="all cores"),

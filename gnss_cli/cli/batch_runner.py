@@ -25,8 +25,6 @@ from gnss_cli.errors import ConfigError
 
 CLUSTER_HINT = "pip install 'gnss-solve[cluster]'"
 CONNECT_TIMEOUT_S = 5.0
-POLL_S = 0.25
-"""Seconds between checks for finished files (and for signals)."""
 
 
 class LocalRunner:
@@ -54,26 +52,20 @@ class LocalRunner:
                 self.pool.submit(warm_up)
 
     def results(self, obs_paths: Sequence[str], settings: BatchSettings) -> Iterator[FileResult]:
-        """Run the files; yield each result as it finishes.
-
-        The wait polls (:data:`POLL_S`): a wait without a timeout would hold SIGINT and SIGTERM
-        back until the next file finishes (Python runs signal handlers between bytecodes)."""
-        from concurrent.futures import FIRST_COMPLETED, wait
+        """Run the files; yield each result as it finishes."""
+        from concurrent.futures import as_completed
 
         if self.pool is None:
             for i, obs in enumerate(obs_paths):
                 yield run_file(i, obs, settings)
             return
         futures = {self.pool.submit(run_file, i, obs, settings): (i, obs) for i, obs in enumerate(obs_paths)}
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=lambda f: futures[f][0]):
-                i, obs = futures[future]
-                try:
-                    yield future.result()
-                except Exception as exc:  # noqa: BLE001 - a worker that died (BrokenProcessPool) fails its file only
-                    yield failed(i, obs, exc)
+        for future in as_completed(futures):
+            i, obs = futures[future]
+            try:
+                yield future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker that died (BrokenProcessPool) fails its file only
+                yield failed(i, obs, exc)
 
     def close(self, finished: bool) -> None:
         """Wait for the workers to exit (``finished``), else cancel the queue and end them now."""

@@ -222,22 +222,24 @@ def test_readme_table_lists_every_case_with_its_exit_code() -> None:
 
 
 def test_interrupted_batch_ends_its_workers_and_writes_nothing(long_run: Path, tmp_path: Path) -> None:
-    """Ctrl-C while two local workers solve: exit 130, one line, no output folder, and the
-    run ends at once instead of waiting for the files to finish."""
+    """Ctrl-C after the first two of four files (two workers): exit 130, one line, no output
+    folder, and the run ends at once instead of finishing the two files being solved."""
     data = tmp_path / "data"
     data.mkdir()
-    for name in ("AAAA00DNK_R_20240610000_01H_01S_MO.rnx", "BBBB00DNK_R_20240610000_01H_01S_MO.rnx"):
-        shutil.copy(long_run / "obs.rnx", data / name)
+    for name in "ABCD":
+        shutil.copy(long_run / "obs.rnx", data / f"{name * 4}00DNK_R_20240610000_01H_01S_MO.rnx")
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", MODULES["batch"], str(data / "*.rnx"), "--nav", str(long_run / "nav.rnx"),
            "--out", str(out), "--jobs", "2", "--method", "all"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(6.0)
-    assert proc.poll() is None, proc.communicate()
+    assert proc.stderr is not None
+    done = [proc.stderr.readline(), proc.stderr.readline()]  # the first two files finished: the last two just started
+    assert all(re.match(r"gnss-batch: \[ *\d+\.\d s\] [12]/4 .*, (\d+\.\d) s$", ln) for ln in done), done
+    file_s = min(float(ln.rsplit(", ", 1)[1][:-2]) for ln in done)
     sent = time.perf_counter()
     proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=60)
-    assert time.perf_counter() - sent < 10.0
+    stdout, stderr = proc.communicate(timeout=60)  # returns when every holder of the pipes (the workers) is gone
+    assert time.perf_counter() - sent < 0.5 * file_s + 0.5  # not after the running files finish
     assert proc.returncode == 130, stderr
     assert stderr.splitlines() == ["gnss-batch: interrupted (SIGINT); no output written"], stderr
     assert "Traceback" not in stderr and stdout == ""
