@@ -178,7 +178,7 @@ class ProcessingConfig:
     robust_huber_k: float = 1.345
     robust_cauchy_c: float = 2.385
     robust_tolerance: float = 1e-8
-    robust_max_iterations: int = 100
+    robust_max_iterations: int = 1000
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""

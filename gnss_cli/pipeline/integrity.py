@@ -27,6 +27,16 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   (The bias on one satellite that the test misses with probability ``pmd`` gives at most
   this error; noise is not added on top, as in the classic formulation.)
 
+With a robust estimator (``robust = "huber" | "cauchy"``, :func:`gnss_cli.pipeline.snapshot.solve_method`)
+the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(w_i / sigma_i^2)``
+(``w_i`` the robust weight factors; ``diag(w_i)`` for ls). At the M-estimate ``A^T W_e q = 0``, so
+``r = (I - A K) q = q``: the statistic is the sum of the squared final (reweighted) residuals over
+the a-priori variances, ``T = sum_i r_i^2 / sigma_i^2``, with the same threshold and ``dof``. A
+fault the robust fit down-weights keeps its large residual, so the test still fails and the
+status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` and the slopes with the
+same ``K``) and the epoch is solved again, robustly. The protection levels are those of the
+linear estimator with the final weights (a first-order description of the M-estimate).
+
 Epochs that did not converge (``iteration_limit``) are tested at their last iterate too: a
 large fault can keep Gauss-Newton from converging (measured: a 250 m bias left a simulated
 static fix oscillating across Saastamoinen's -100 m height cut-off), and excluding it lets the

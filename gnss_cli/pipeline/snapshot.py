@@ -7,6 +7,18 @@ until the step is below ``convergence_m``. Corrections (Klobuchar, Saastamoinen)
 elevation mask and the weights are evaluated at the current position once it is near the
 Earth's surface (the first iterations from the Earth's centre use none of them, as in
 RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
+
+With ``robust = "huber" | "cauchy"`` the ls/wls fixes are M-estimates: from the converged plain
+fix, Gauss-Newton again, each linear step solved by IRLS to settled weights
+(:mod:`gnss_cli.solvers.robust`), so that at the fix ``sum_i psi(u_i) a_i / sigma_i = 0`` with
+``u_i = r_i / sigma_i`` and ``sigma_i`` the a-priori sigma of :mod:`gnss_cli.gnss.weights`
+(wls; for ls ``sum_i sigma_i psi(u_i) a_i = 0``: equal weights, outliers down-weighted). The
+scale is the a-priori sigma, not a residual scale such as the MAD: an epoch has 4-15 residuals
+and a few degrees of freedom after the fit, too few for a stable scale estimate, and in urban
+epochs half of them can be reflected signals (the MAD breaks down at 50 %); the a-priori sigma
+is also the one the chi-square test uses. Then :func:`~gnss_cli.pipeline.integrity.monitor`
+tests the final residuals; its FDE re-solves are robust too. The other methods take their one
+step at the robust WLS fix with the a-priori weights.
 """
 
 from __future__ import annotations

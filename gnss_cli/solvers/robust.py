@@ -149,7 +149,7 @@ def solve_irls_batch(
     weighted: bool = True,
     reweight: NDArray[np.bool_] | None = None,
     tolerance: float = 1e-8,
-    max_iterations: int = 100,
+    max_iterations: int = 1000,
 ) -> IrlsResult:
     """M-estimate of ``A x ~ q`` for every epoch by IRLS (module Notes: the equations solved).
 
@@ -166,8 +166,10 @@ def solve_irls_batch(
         whose outlying rows are down-weighted).
     reweight : ``(T, N)`` rows that get robust weights (default all); the others keep
         weight 1 (exact constraints, pseudo-observations).
-    tolerance : the iteration stops when no weight changes by more than this (unitless).
-    max_iterations : reweighting iterations at most.
+    tolerance : the iteration stops when no weight changes by more than this (unitless;
+        default 1e-8).
+    max_iterations : reweighting iterations at most (default 1000; IRLS converges linearly,
+        slowly when several residuals sit near Huber's ``k``).
 
     Returns
     -------
