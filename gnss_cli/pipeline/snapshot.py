@@ -39,7 +39,7 @@ from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
-from gnss_cli.solvers.robust import IrlsResult, solve_irls_batch
+from gnss_cli.solvers.robust import IrlsResult, irls_batch
 
 __all__ = ["solve_method", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
 
@@ -113,7 +113,7 @@ def _robust_refit(data: EpochData, method: str, config: ProcessingConfig, sol: M
                   keep_unconverged: bool) -> MethodSolution:
     """The M-estimate (``config.robust``) of the epochs ``sol`` solved, by Gauss-Newton from
     their plain ls/wls fix, each linear step an IRLS solve to settled weights
-    (:func:`~gnss_cli.solvers.robust.solve_irls_batch`): its fixed point solves
+    (:func:`~gnss_cli.solvers.robust.irls_batch`): its fixed point solves
     ``sum_i psi(u_i) a_i / sigma_i = 0``, ``u_i = (rho_i - rho_hat_i(x, b)) / sigma_i`` with the
     a-priori sigmas (wls; ls: ``sum_i sigma_i psi(u_i) a_i = 0``). ``iterations`` counts both runs."""
     tried = (EpochStatus.OK.value,) + ((EpochStatus.ITERATION_LIMIT.value,) if keep_unconverged else ())
@@ -188,7 +188,7 @@ def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: N
     irls: IrlsResult | None = None
     if robust:
         satellite_rows = np.arange(lin.q.shape[1]) < data.sv.size
-        irls = solve_irls_batch(lin.A, lin.q, mask, np.sqrt(lin.var_m2), estimator=config.robust,
+        irls = irls_batch(lin.A, lin.q, mask, np.sqrt(lin.var_m2), estimator=config.robust,
                                 tuning=config.robust_huber_k if config.robust == "huber" else config.robust_cauchy_c,
                                 weighted=method == "wls", reweight=np.broadcast_to(satellite_rows, mask.shape),
                                 tolerance=config.robust_tolerance, max_iterations=config.robust_max_iterations)

@@ -46,7 +46,7 @@ Examples
 >>> A = np.column_stack([np.ones(6), np.arange(6.0)])
 >>> q = A @ np.array([1.0, 2.0])
 >>> q[4] += 50.0                                   # one gross outlier
->>> fit = solve_irls_batch(A[None], q[None], np.ones((1, 6), bool), np.ones((1, 6)), estimator="cauchy")
+>>> fit = irls_batch(A[None], q[None], np.ones((1, 6), bool), np.ones((1, 6)), estimator="cauchy")
 >>> np.round(fit.x[0], 1).tolist(), bool(fit.weights[0, 4] < 0.01)   # least squares: [-1.4, 6.3]
 ([1.0, 2.0], True)
 """
@@ -61,7 +61,7 @@ from numpy.typing import NDArray
 from gnss_cli.errors import UsageError
 from gnss_cli.solvers.ls import ls_gain
 
-__all__ = ["ESTIMATORS", "DEFAULT_TUNING", "m_estimator_weights", "m_estimator_rho", "IrlsResult", "solve_irls_batch"]
+__all__ = ["ESTIMATORS", "DEFAULT_TUNING", "m_estimator_weights", "m_estimator_rho", "IrlsResult", "irls_batch"]
 
 F64 = NDArray[np.float64]
 
@@ -138,7 +138,7 @@ def _wls(A: F64, q: F64, w: F64) -> F64:
         return out
 
 
-def solve_irls_batch(
+def irls_batch(
     A: F64,
     q: F64,
     mask: NDArray[np.bool_],

@@ -8,7 +8,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from gnss_cli.errors import UsageError
-from gnss_cli.solvers.robust import DEFAULT_TUNING, m_estimator_rho, m_estimator_weights, solve_irls_batch
+from gnss_cli.solvers.robust import DEFAULT_TUNING, m_estimator_rho, m_estimator_weights, irls_batch
 
 
 def _problem(seed: int, n: int = 9, m: int = 4, outlier: float = 40.0):
@@ -44,7 +44,7 @@ def test_irls_equals_scipy_least_squares_with_the_robust_loss(estimator, seed):
     for loss='huber' / 'cauchy' and f_scale = k / c that is sum rho(u) of the module table."""
     A, q, sigma = _problem(seed)
     k = DEFAULT_TUNING[estimator]
-    fit = solve_irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator=estimator,
+    fit = irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator=estimator,
                            tolerance=1e-13, max_iterations=500)
     assert fit.converged[0]
     x0 = np.linalg.lstsq(A / sigma[:, None], q / sigma, rcond=None)[0]
@@ -58,12 +58,12 @@ def test_irls_equals_scipy_least_squares_with_the_robust_loss(estimator, seed):
 def test_unweighted_irls_solves_its_estimating_equations():
     """weighted=False: sum_i sigma_i psi(u_i) a_i = 0 (unit a-priori weights, u = r / sigma)."""
     A, q, sigma = _problem(5)
-    fit = solve_irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber",
+    fit = irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber",
                            weighted=False, tolerance=1e-13, max_iterations=500)
     u = (q - A @ fit.x[0]) / sigma
     psi = m_estimator_weights(u, "huber") * u
     np.testing.assert_allclose(A.T @ (sigma * psi), 0.0, atol=1e-8)
-    weighted = solve_irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber")
+    weighted = irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber")
     assert np.linalg.norm(weighted.x[0] - fit.x[0]) > 1e-3  # a different problem
 
 
@@ -76,10 +76,10 @@ def test_epochs_are_independent_and_masked_rows_ignored():
     mask[1, 5] = False
     q_junk = q.copy()
     q_junk[1, 5] = 1e9  # a masked row's value does not matter
-    batch = solve_irls_batch(A, q_junk, mask, sigma, estimator="cauchy")
+    batch = irls_batch(A, q_junk, mask, sigma, estimator="cauchy")
     assert np.isnan(batch.weights[1, 5])
     for t in range(4):
-        one = solve_irls_batch(A[t:t + 1], q[t:t + 1], mask[t:t + 1], sigma[t:t + 1], estimator="cauchy")
+        one = irls_batch(A[t:t + 1], q[t:t + 1], mask[t:t + 1], sigma[t:t + 1], estimator="cauchy")
         np.testing.assert_allclose(batch.x[t], one.x[0], atol=1e-9)
 
 
@@ -87,7 +87,7 @@ def test_rows_not_reweighted_keep_weight_one():
     A, q, sigma = _problem(3)
     keep = np.ones((1, q.size), bool)
     keep[0, 2] = False  # the outlier row is exact by declaration: no down-weighting
-    fit = solve_irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber", reweight=keep)
+    fit = irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], estimator="huber", reweight=keep)
     assert fit.weights[0, 2] == 1.0
 
 
@@ -96,4 +96,4 @@ def test_rows_not_reweighted_keep_weight_one():
 def test_bad_options_are_usage_errors(kwargs):
     A, q, sigma = _problem(0)
     with pytest.raises(UsageError):
-        solve_irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], **kwargs)
+        irls_batch(A[None], q[None], np.ones((1, q.size), bool), sigma[None], **kwargs)
