@@ -26,6 +26,8 @@ IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 TIME_SYSTEMS = ("gpst", "utc")
 """Time scale of the output time stamps (``--time-system``)."""
 INTEGRITY_OPTIONS = ("fde", "check", "off")
+ROBUST_OPTIONS = ("off", "huber", "cauchy")
+"""``robust``: plain ls/wls, or an M-estimator by IRLS (:mod:`gnss_cli.solvers.robust`)."""
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
@@ -171,6 +173,12 @@ class ProcessingConfig:
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
     snr_mask_dbhz: float = 0.0
+    robust: str = "off"
+    """``off``, ``huber`` or ``cauchy``: M-estimation of the ls/wls fixes (see default.toml)."""
+    robust_huber_k: float = 1.345
+    robust_cauchy_c: float = 2.385
+    robust_tolerance: float = 1e-8
+    robust_max_iterations: int = 1000
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -236,6 +244,13 @@ class ProcessingConfig:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
+        if self.robust not in ROBUST_OPTIONS:
+            raise ConfigError(f"robust: expected one of {', '.join(ROBUST_OPTIONS)}; received {self.robust!r}")
+        for name in ("robust_huber_k", "robust_cauchy_c", "robust_tolerance"):
+            if not 0.0 < getattr(self, name) < float("inf"):
+                raise ConfigError(f"{name}: expected a positive number; received {getattr(self, name)}")
+        if self.robust_max_iterations < 1:
+            raise ConfigError(f"robust_max_iterations: expected >= 1; received {self.robust_max_iterations}")
 
 
 def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
@@ -308,10 +323,13 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["time_system"] = str(proc["time_system"]).lower()
         if "exclude" in proc:
             proc["exclude"] = parse_satellites(proc["exclude"])
-        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz"):
+        if "robust" in proc:
+            proc["robust"] = str(proc["robust"]).lower()
+        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz",
+                    "robust_huber_k", "robust_cauchy_c", "robust_tolerance"):
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites", "max_exclusions"):
+        for key in ("max_iterations", "min_satellites", "max_exclusions", "robust_max_iterations"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)

@@ -57,7 +57,7 @@ FLOAT_FORMATS = {
     "tow_s": "{:.3f}", "x_m": "{:.4f}", "y_m": "{:.4f}", "z_m": "{:.4f}", "lat_deg": "{:.9f}",
     "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}", "mean_lat_deg": "{:.9f}", "mean_lon_deg": "{:.9f}",
     "sden_m2": "{:.6f}", "sdnu_m2": "{:.6f}", "sdue_m2": "{:.6f}",
-    "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}",
+    "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}", "weight": "{:.6f}",
 }
 
 
@@ -290,20 +290,23 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 
 SATELLITE_COLUMNS = ["time", "method", "satellite", "elevation_deg", "azimuth_deg", "snr_dbhz", "residual_m",
-                     "sigma_m", "used", "reason"]
+                     "sigma_m", "weight", "used", "reason"]
 """Columns of ``satellites.csv`` (one row per observed satellite and epoch, README)."""
 
 
 def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore[no-untyped-def]
     """Per-satellite rows of the wls solution (else the first method's): geometry at the fix,
-    C/N0, post-fit residual, sigma, and why a satellite was not used.
+    C/N0, post-fit residual, sigma, robust weight, and why a satellite was not used.
 
-    ``reason``: ``no_ephemeris``, ``excluded_by_user``, ``snr_mask``, ``excluded_fde``,
-    ``below_mask`` (elevation mask), ``no_second_frequency`` (iono-free), or, for a satellite of
-    an epoch that was not solved, the epoch's status; empty when used.
+    ``weight``: the robust weight factor ``w_i`` of a used satellite (``--robust``; 1 for a
+    plain fit), its effective sigma is ``sigma_m / sqrt(weight)``. ``reason``: ``no_ephemeris``,
+    ``excluded_by_user``, ``snr_mask``, ``excluded_fde``, ``below_mask`` (elevation mask),
+    ``no_second_frequency`` (iono-free), or, for a satellite of an epoch that was not solved,
+    the epoch's status; for a used satellite ``downweighted`` when its weight is below
+    :data:`~gnss_cli.pipeline.results.DOWNWEIGHTED_BELOW`, else empty.
     """
     from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
-    from gnss_cli.pipeline.results import UNUSED_REASONS
+    from gnss_cli.pipeline.results import DOWNWEIGHTED_BELOW, UNUSED_REASONS
 
     data = result.epochs
     method = "wls" if "wls" in result.solutions else next(iter(result.solutions))
@@ -313,9 +316,10 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     unused = data.unused if data.unused is not None else np.where(data.usable, 0, 1).astype(np.int8)
     used = np.isfinite(s.residuals_m)
     excluded = s.excluded if s.excluded is not None else np.zeros((T, n), dtype=bool)
+    weight = s.robust_weights if s.robust_weights is not None else np.where(used, 1.0, np.nan)
     reason = np.select(
-        [used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
-        ["", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
+        [used & (weight < DOWNWEIGHTED_BELOW), used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
+        ["downweighted", "", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
          "no_second_frequency"],
         default=np.broadcast_to(s.status[:, None], (T, n)).astype(object))
     ti, si = np.nonzero(unused >= 0)
@@ -324,7 +328,7 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     return pd.DataFrame({
         "time": _iso(data.time_gps_s)[ti], "method": method, "satellite": data.sv[si], "elevation_deg": el[ti, si],
         "azimuth_deg": az[ti, si], "snr_dbhz": snr, "residual_m": s.residuals_m[ti, si], "sigma_m": sigma,
-        "used": used[ti, si].astype(np.int64), "reason": reason[ti, si],
+        "weight": weight[ti, si], "used": used[ti, si].astype(np.int64), "reason": reason[ti, si],
     })
 
 

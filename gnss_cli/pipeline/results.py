@@ -158,6 +158,9 @@ class WindowModel:
 
 UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask")
 """Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving."""
+DOWNWEIGHTED_BELOW = 0.1
+"""A used satellite whose robust weight factor is below this is reported (``satellites.csv``
+``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
 EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused")
 """Fields of :class:`EpochData` with the epoch axis first."""
 
@@ -259,6 +262,10 @@ class MethodSolution:
     """``(T,)`` horizontal protection level, m (classic slope-based RAIM; ls/wls)."""
     vpl_m: F64 | None = None
     """``(T,)`` vertical protection level, m."""
+    robust_weights: F64 | None = None
+    """``(T, n)`` robust weight factor ``w(u_i) = psi(u_i) / u_i`` in (0, 1] of the used rows
+    (``config.robust``, ls/wls; 1 for a plain fit): the effective weight is ``w_i / sigma_i^2``
+    (NaN for rows not used)."""
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ SOLVE_KEYS = {
     "--lag": ("smoothing", "lag"), "--model": ("smoothing", "model"), "--kernel": ("smoothing", "kernel"),
     "--order": ("smoothing", "order"), "--window": ("smoothing", "window"), "--time-system": ("processing", "time_system"),
     "--integrity": ("processing", "integrity"), "--snr-mask": ("processing", "snr_mask_dbhz"),
+    "--robust": ("processing", "robust"),
 }
 SIMULATE_KEYS = {
     "--trajectory": ("simulate", "trajectory"), "--duration": ("simulate", "duration_s"),
