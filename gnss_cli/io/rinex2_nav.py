@@ -223,7 +223,7 @@ def _field_values(
     except ValueError:  # characters of a number in an impossible order ('1-2', '..'): find them
         for k in np.flatnonzero(ok):
             try:
-                float(text[k].tobytes())
+                values[k] = float(text[k].tobytes())
             except ValueError:
                 bad_text[k] = True
     problems = [
