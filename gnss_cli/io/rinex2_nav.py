@@ -102,9 +102,9 @@ def _split_header(content: bytes, name: str) -> tuple[list[str], int]:
         line = content[pos:end].decode("ascii", "replace").rstrip("\r\n")
         lines.append(line)
         label = line[60:].strip()
-        if label == "END OF HEADER":
+        if "END OF HEADER" in line:
             return lines, end
-        if lines[1:] and not (label[:1].isalpha() or label[:1] == "#"):
+        if lines[1:] and label and not (label[0].isalpha() or label[0] == "#"):  # a number: records began
             raise _error(name, len(lines), "header not terminated", "an 'END OF HEADER' line before the records",
                          f"a line without a header label: {line.rstrip()[:40]!r}")
         pos = end

@@ -15,15 +15,12 @@ from gnss_cli.io.fixed_width import days_in_month, parse_decimal_ns
 from gnss_cli.io.rinex import klobuchar_coefficients, read_nav
 from gnss_cli.io.rinex2_nav import FIELD_NAMES_V2, read_nav2
 
-RINEX_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "rinex"
 SHARED_NAV2 = [
-    RINEX_DIR / "rtklib-0759" / "07590920.05n",
-    RINEX_DIR / "p433-2019" / "brdc0010.19n",
-    RINEX_DIR / "orbits-2021-118" / "brdc1180.21n",
-    RINEX_DIR / "yamatogawa-2010006-kinematic" / "brdc0060.10n",
+    "rtklib-0759/07590920.05n",
+    "p433-2019/brdc0010.19n",
+    "orbits-2021-118/brdc1180.21n",
+    "yamatogawa-2010006-kinematic/brdc0060.10n",
 ]
-OBS_0759 = RINEX_DIR / "rtklib-0759" / "07590920.05o"
-NAV_0759 = SHARED_NAV2[0]
 
 GPS_HEADER = (
     "     2.11           N: GPS NAV DATA                         RINEX VERSION / TYPE\n"
@@ -47,12 +44,6 @@ GLONASS_EXAMPLE = (
     "   -0.236819248047D+05 0.102263259888D+01 0.931322574615D-09 0.120000000000D+02\n"
     "    0.324842382812D+04 0.355930233002D+01-0.186264514923D-08 0.300000000000D+01\n"
 )
-
-
-def _need(path: Path) -> Path:
-    if not path.is_file():
-        pytest.skip(f"shared RINEX data not found: {path} (expected ../shared/rinex next to the repository)")
-    return path
 
 
 def _georinex(path: Path):
@@ -86,9 +77,10 @@ def _write(tmp_path: Path, text: str, name: str = "t.05n") -> Path:
 # ---------------------------------------------------------------- georinex as the oracle
 
 
-@pytest.mark.parametrize("path", SHARED_NAV2, ids=lambda p: p.name)
-def test_every_variable_equals_georinex_and_toc_up_to_its_truncation(path: Path) -> None:
-    ref = _georinex(_need(path))
+@pytest.mark.parametrize("relative", SHARED_NAV2)
+def test_every_variable_equals_georinex_and_toc_up_to_its_truncation(rinex_dir: Path, relative: str) -> None:
+    path = rinex_dir / relative
+    ref = _georinex(path)
     ours = read_nav2(path)
     assert list(ours.data_vars) == list(ref.data_vars) == FIELD_NAMES_V2["G"]
     np.testing.assert_array_equal(ours.sv.values, ref.sv.values)
@@ -285,11 +277,12 @@ def _solve(args: list[object], capsys: pytest.CaptureFixture[str]) -> tuple[int,
     return int(exc.value.code or 0), out, err
 
 
-def test_cli_truncated_nav_file_exits_4_naming_the_nav_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    text = _need(NAV_0759).read_bytes()
-    cut = tmp_path / NAV_0759.name
-    cut.write_bytes(text[:3000])  # inside the fourth record
-    code, out, err = _solve([_need(OBS_0759), cut, "-q"], capsys)
+def test_cli_truncated_nav_file_exits_4_naming_the_nav_file(
+    rinex_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cut = tmp_path / "07590920.05n"
+    cut.write_bytes((rinex_dir / "rtklib-0759" / "07590920.05n").read_bytes()[:3000])  # inside the fourth record
+    code, out, err = _solve([rinex_dir / "rtklib-0759" / "07590920.05o", cut, "-q"], capsys)
     assert code == 4 and out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -298,18 +291,19 @@ def test_cli_truncated_nav_file_exits_4_naming_the_nav_file(tmp_path: Path, caps
 
 
 def test_cli_bad_ion_alpha_warns_once_and_uses_the_default_coefficients(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rinex_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    text = _need(NAV_0759).read_text()
-    bad = tmp_path / NAV_0759.name
+    obs = rinex_dir / "rtklib-0759" / "07590920.05o"
+    text = (rinex_dir / "rtklib-0759" / "07590920.05n").read_text()
+    bad = tmp_path / "07590920.05n"
     bad.write_text(text.replace("1.4900D-08", "1.49ooD-08", 1))
-    no_ion = tmp_path / "noion" / NAV_0759.name
+    no_ion = tmp_path / "noion" / "07590920.05n"
     no_ion.parent.mkdir()
     no_ion.write_text("".join(ln for ln in text.splitlines(keepends=True) if "ION ALPHA" not in ln and "ION BETA" not in ln))
-    code, out, err = _solve([_need(OBS_0759), bad, "--method", "wls"], capsys)
+    code, out, err = _solve([obs, bad, "--method", "wls"], capsys)
     assert code == 0, err
     warned = [ln for ln in err.splitlines() if "ION ALPHA" in ln]
     assert len(warned) == 1 and "07590920.05n:8: ION ALPHA does not parse" in warned[0]
     assert "using the default coefficients" in warned[0]
-    code, out_no_ion, _ = _solve([OBS_0759, no_ion, "--method", "wls"], capsys)
+    code, out_no_ion, _ = _solve([obs, no_ion, "--method", "wls"], capsys)
     assert code == 0 and out == out_no_ion  # the same fallback as a header without the lines
