@@ -323,8 +323,9 @@ def read_nav2(path: str | os.PathLike[str], systems: Sequence[str] | None = None
     header_lines, hdr_end = _split_header(content, name)
     attrs, system = _header_attrs(header_lines, name)
     buf, starts, lengths = split_lines(content[hdr_end:])
-    text_end = np.flatnonzero(np.any(gather_columns(buf, starts, lengths, 0, 80) != SPACE, axis=1))
-    n_body = int(text_end[-1]) + 1 if text_end.size else 0  # trailing blank lines are not records
+    n_body = starts.size
+    while n_body and not buf[starts[n_body - 1] : starts[n_body - 1] + lengths[n_body - 1]].tobytes().strip():
+        n_body -= 1  # trailing blank lines are not records
     if n_body == 0:
         raise _error(name, len(header_lines) + 1, "no navigation records", "records after 'END OF HEADER'",
                      "the end of the file")

@@ -339,7 +339,26 @@ def systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
 def records2dataset(
     sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64], svtype: list[str]
 ) -> xarray.Dataset:
-    """The ``(time, sv)`` dataset of the records of the systems ``svtype`` (GLONASS/SBAS km converted to m)."""
+    """The ``(time, sv)`` dataset of navigation records (GLONASS/SBAS km converted to m).
+
+    Parameters
+    ----------
+    sv_code : numpy.ndarray of int64, shape (n,)
+        Satellite codes ``(system << 16) | (tens << 8) | units`` of the records.
+    toc : numpy.ndarray of datetime64[ns], shape (n,)
+        Time of clock of each record.
+    values : numpy.ndarray of float64, shape (n, k)
+        The fields of each record in the order of :data:`FIELD_NAMES` (``k`` at least the
+        longest list of the systems present); NaN where blank.
+    svtype : list of str
+        The systems present (:func:`systems_in_order`).
+
+    Returns
+    -------
+    xarray.Dataset
+        One variable per name of :data:`FIELD_NAMES` of the systems present; a second
+        record of a satellite at the same toc under ``'G01_1'``.
+    """
     sv_values, sv_of_rec = np.unique(_sv_labels(sv_code, toc), return_inverse=True)
     time_values, time_of_rec = np.unique(toc, return_inverse=True)
     n_t, n_sv = time_values.size, sv_values.size
