@@ -162,7 +162,8 @@ def _record_lines(
         return first
     r = int(bad[0])
     start, got = int(first[r]), int(count[r])
-    where = f"the record starting on line {int(lineno[start])} ({_show(head[start, :22])})"
+    prn = head[start, :2].tobytes().decode("ascii", "replace").strip()
+    where = f"the record of satellite {prn} starting on line {int(lineno[start])}"
     if got > n_lines:
         i = start + n_lines
         raise _error(name, int(lineno[i]), f"record too long: {where} has more than {n_lines} lines",
@@ -190,10 +191,12 @@ def _record_starts(
     bad = np.flatnonzero((prn < low) | (prn > high))
     if bad.size:
         i = int(bad[0])
-        raise _error(name, int(lineno[i]), "bad satellite number", f"{_SYSTEM_NAMES[system]} {low}-{high} in columns 1-2",
+        raise _error(name, int(lineno[i]), "bad satellite number",
+                     f"{_SYSTEM_NAMES[system]} {low}-{high} in columns 1-2",
                      _show(fl[i, :2]))
     sec_ok = sec_ns < 61_000_000_000
-    valid = civil_ranges_ok(month, day, hour, minute, np.zeros_like(month)) & sec_ok & (day <= days_in_month(year, month))
+    valid = civil_ranges_ok(month, day, hour, minute, np.zeros_like(month)) & sec_ok
+    valid &= day <= days_in_month(year, month)
     bad = np.flatnonzero(~valid)
     if bad.size:
         i = int(bad[0])
@@ -234,7 +237,8 @@ def _field_values(
     found = [(int(np.argmax(mask)), what, expected) for mask, what, expected in problems if mask.any()]
     if found:
         k, what, expected = min(found)
-        raise _error(name, int(line[k]), f"{describe(k)} {what}", expected, _show(grid[k]))
+        got = _show(grid[k]) if ok[k] or bad_text[k] else "blanks"
+        raise _error(name, int(line[k]), f"{describe(k)} {what}", expected, got)
     return values
 
 

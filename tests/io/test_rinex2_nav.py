@@ -185,7 +185,7 @@ ERROR_CASES = {
     "1D+300": (_set_field(GOOD, 8, 3, "0.1000000000D+301"), 8, "Cis of G05 (columns 61-79) is out of range"),
     "letters": (_set_field(GOOD, 6, 0, "0.12x4D+01"), 6, "IODE of G05 (columns 4-22) is not a number"),
     "two signs": (_set_field(GOOD, 6, 0, "1.0-2.0"), 6, "IODE of G05 (columns 4-22) is not a number"),
-    "blank field": (_set_field(GOOD, 10, 1, ""), 10, "CodesL2 of G05 (columns 23-41) is blank"),
+    "blank field": (_set_field(GOOD, 10, 1, ""), 10, "CodesL2 of G05 (columns 23-41) is blank (expected a D19.12 number, got blanks)"),
     "PRN 0": (_replace_line(GOOD, 13, " 0" + GOOD.splitlines()[12][2:] + "\n"), 13, "bad satellite number"),
     "PRN letters": (_replace_line(GOOD, 5, "G5" + GOOD.splitlines()[4][2:] + "\n"), 5, "bad record start"),
     "February 30": (GOOD.replace(" 5 05  4  2  1 59", " 5 05  2 30  1 59"), 5, "impossible time of clock"),
@@ -219,8 +219,8 @@ def test_malformed_file_gives_one_line_naming_file_and_line(tmp_path: Path, case
 
 def test_truncated_last_record_names_its_start_and_line_count(tmp_path: Path) -> None:
     text = "".join(GOOD.splitlines(keepends=True)[:16])  # the second record keeps 4 of its 8 lines
-    with pytest.raises(RinexFormatError, match=r"^t\.05n:16: truncated record: the file ends inside the record "
-                       r"starting on line 13 .*\(expected 8 lines, got 4\)$"):
+    with pytest.raises(RinexFormatError, match=r"^t\.05n:16: truncated record: the file ends inside the record of satellite 12 "
+                       r"starting on line 13 \(expected 8 lines, got 4\)$"):
         read_nav2(_write(tmp_path, text))
 
 
