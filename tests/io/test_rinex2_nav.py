@@ -159,6 +159,18 @@ def test_blank_fit_interval_is_nan_and_trailing_blank_lines_are_ignored(tmp_path
     assert nav["TransTime"].sel(sv="G12").values[1] == 127.0
 
 
+def test_crlf_and_gzip_give_the_same_dataset(tmp_path: Path) -> None:
+    import gzip
+
+    plain = read_nav2(_write(tmp_path, GPS_HEADER + GOOD_BODY))
+    crlf = (GPS_HEADER + GOOD_BODY).replace("\n", "\r\n").encode()
+    packed = tmp_path / "t.05n.gz"
+    packed.write_bytes(gzip.compress(crlf))
+    other = read_nav2(packed)
+    assert other.drop_attrs().identical(plain.drop_attrs())
+    np.testing.assert_array_equal(other.attrs["ionospheric_corr_GPS"], plain.attrs["ionospheric_corr_GPS"])
+
+
 # ---------------------------------------------------------------- errors: FILE:LINE: what (expected ..., got ...)
 
 LAST = 4 + 16  # file line of the last record line of GOOD_BODY
