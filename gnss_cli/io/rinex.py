@@ -1,8 +1,8 @@
 """RINEX observation and navigation input, validated before any computation.
 
 This is the only module that imports :mod:`georinex`. RINEX 2 observation files are
-read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files with
-georinex; RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
+read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files by
+:mod:`gnss_cli.io.rinex2_nav` (exact toc); RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
 :mod:`gnss_cli.io.rinex3_nav` when it is available, else with georinex (which rejects
 RINEX 4). Every reader is filtered to the systems and signals needed: unfiltered,
 georinex needs minutes and hundreds of MB on a 24 h multi-GNSS RINEX 3 file.
@@ -216,7 +216,8 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     paths
         One or several navigation files (RINEX 2 GPS nav, RINEX 3/4 mixed or per system).
         All RINEX 3/4 files are read in one pass by
-        :func:`~gnss_cli.io.rinex3_nav.read_nav3`; RINEX 2 files by georinex, then merged.
+        :func:`~gnss_cli.io.rinex3_nav.read_nav3`; RINEX 2 files by
+        :func:`~gnss_cli.io.rinex2_nav.read_nav2` (all their records, as georinex read them), then merged.
     systems
         System letters to keep; None keeps all.
 
@@ -252,10 +253,12 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     for info in infos:
         if info in fast:
             continue
-        kwargs: dict[str, object] = {}
-        if systems:
-            kwargs["use"] = set(systems)
-        ds = _georinex_load(info.path, **kwargs)
+        if info.version < 3:
+            from gnss_cli.io.rinex2_nav import read_nav2
+
+            ds = read_nav2(info.path)
+        else:
+            ds = _georinex_load(info.path, **({"use": set(systems)} if systems else {}))
         if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
             raise RinexFormatError(f"{info.path}: no navigation records")
         ds.attrs["filename"] = info.path.name

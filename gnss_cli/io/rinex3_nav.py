@@ -45,7 +45,7 @@ from gnss_cli.io.fixed_width import (
 from gnss_cli.io.nav_layout import Layout, layout_v3, layout_v4
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_nav_header, validate_systems
 
-__all__ = ["read_nav3", "FIELD_NAMES"]
+__all__ = ["read_nav3", "FIELD_NAMES", "drop_identical_records", "records2dataset", "systems_in_order"]
 
 _KEPLER_GPS = [
     "SVclockBias", "SVclockDrift", "SVclockDriftRate", "IODE", "Crs", "DeltaN", "M0",
@@ -288,14 +288,14 @@ def read_nav3(
         names = ", ".join(Path(p).name for p in paths)
         which = f" of the systems {''.join(systems)}" if systems else ""
         raise RinexFormatError(f"{names}: no navigation records{which}")
-    sv_code, toc, values = _drop_identical(sv_code, toc, values)
-    svtype = _systems_in_order(sv_code)
-    ds = _dataset(sv_code, toc, values, svtype)
+    sv_code, toc, values = drop_identical_records(sv_code, toc, values)
+    svtype = systems_in_order(sv_code)
+    ds = records2dataset(sv_code, toc, values, svtype)
     ds.attrs.update(_merged_attrs([a for _, a in parts], svtype))
     return ds
 
 
-def _drop_identical(
+def drop_identical_records(
     sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64]
 ) -> tuple[NDArray[np.int64], NDArray[np.datetime64], NDArray[np.float64]]:
     """Drop exact duplicate records (same sv, toc and every value, NaN-aware), keeping the first."""
@@ -327,7 +327,7 @@ def _sv_labels(sv_code: NDArray[np.int64], toc: NDArray[np.datetime64]) -> NDArr
     return np.where(occurrence == 0, base, np.char.add(np.char.add(base, "_"), occurrence.astype(str)))
 
 
-def _systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
+def systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
     """System letters of the records in order of first appearance."""
     sys_of_rec = (sv_code >> 16).astype(np.uint8)
     svtype: list[str] = []
@@ -336,10 +336,29 @@ def _systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
     return svtype
 
 
-def _dataset(
+def records2dataset(
     sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64], svtype: list[str]
 ) -> xarray.Dataset:
-    """The ``(time, sv)`` dataset of the records of the systems ``svtype`` (GLONASS/SBAS km converted to m)."""
+    """The ``(time, sv)`` dataset of navigation records (GLONASS/SBAS km converted to m).
+
+    Parameters
+    ----------
+    sv_code : numpy.ndarray of int64, shape (n,)
+        Satellite codes ``(system << 16) | (tens << 8) | units`` of the records.
+    toc : numpy.ndarray of datetime64[ns], shape (n,)
+        Time of clock of each record.
+    values : numpy.ndarray of float64, shape (n, k)
+        The fields of each record in the order of :data:`FIELD_NAMES` (``k`` at least the
+        longest list of the systems present); NaN where blank.
+    svtype : list of str
+        The systems present (:func:`systems_in_order`).
+
+    Returns
+    -------
+    xarray.Dataset
+        One variable per name of :data:`FIELD_NAMES` of the systems present; a second
+        record of a satellite at the same toc under ``'G01_1'``.
+    """
     sv_values, sv_of_rec = np.unique(_sv_labels(sv_code, toc), return_inverse=True)
     time_values, time_of_rec = np.unique(toc, return_inverse=True)
     n_t, n_sv = time_values.size, sv_values.size

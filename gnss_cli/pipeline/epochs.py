@@ -256,7 +256,8 @@ def _klobuchar(nav, config: ProcessingConfig, nav_name: str, warnings: list[str]
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
         klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
-        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; using the default coefficients (as RTKLIB)")
+        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
+        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
     return klob
 
 
