@@ -272,9 +272,15 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     valid = [ds.attrs["ionospheric_corr_GPS"] for ds in datasets if klobuchar_coefficients(ds) is not None]
     if valid:  # Klobuchar coefficients from any file of the run that has them
         attrs["ionospheric_corr_GPS"] = valid[0]
+    # Union of the (time, sv) grids, each cell from the first file that has it. (xr.merge with
+    # compat="override" took a variable present in several files, e.g. SVclockBias of a GPS and
+    # a GLONASS file, from the first file alone: the GLONASS clocks were lost.)
+    merged = datasets[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        merged = xr.merge(datasets, compat="override", join="outer", combine_attrs="drop")
+        for ds in datasets[1:]:
+            merged = merged.combine_first(ds)
+    merged.attrs = {}
     merged.attrs.update(attrs)
     merged.attrs["filename"] = ",".join(str(d.attrs.get("filename", "")) for d in datasets)
     return merged

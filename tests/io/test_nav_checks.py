@@ -172,7 +172,7 @@ def test_absurd_klobuchar_coefficients_fall_back_to_the_defaults_with_a_warning(
     obs, nav = rinex_dir / "rtklib-0759" / "07590920.05o", rinex_dir / "rtklib-0759" / "07590920.05n"
     text = nav.read_text().splitlines()
     i = next(k for k, x in enumerate(text) if "ION ALPHA" in x)
-    text[i] = "   1.0000D+300" + text[i][14:]  # alpha0 (2X, D12.4) = 1e300
+    text[i] = "    1.0000D+10" + text[i][14:]  # alpha0 (2X, D12.4) = 1e10 s: parses, far beyond +-1.2e-7 s
     bad = tmp_path / "ion.05n"
     bad.write_text("\n".join(text) + "\n")
     code, err = _solve([obs, bad, "-o", tmp_path / "a.csv", "--method", "wls"], capsys)

@@ -99,9 +99,13 @@ def test_read_nav_uses_this_reader_and_keeps_the_toc_exact(tmp_path: Path) -> No
     assert nav.time.values[0] == np.datetime64("2005-04-02T01:59:59.900000000")
     ref = _georinex(path)
     assert ref.time.values[0] == np.datetime64("2005-04-02T01:59:59.899999")  # float seconds, truncated
-    assert nav["M0"].sel(sv="G05").values[0] == 7.0 and nav["FitIntvl"].sel(sv="G12").values[1] == 128.0
+    # the synthetic counting values (M0 = 7 rad, af0 = 1 s, ...) are no possible orbit: read_nav
+    # drops them after reading (gnss_cli.io.nav_checks); the reader itself keeps them
+    assert "2 GPS navigation record(s) rejected as physically impossible" in nav.attrs["rejected_records"][0]
+    raw = read_nav2(path)
+    assert raw["M0"].sel(sv="G05").values[0] == 7.0 and raw["FitIntvl"].sel(sv="G12").values[1] == 128.0
     for name in ref.data_vars:
-        np.testing.assert_array_equal(nav[name].values, ref[name].values, err_msg=name)
+        np.testing.assert_array_equal(raw[name].values, ref[name].values, err_msg=name)
     alpha, beta = klobuchar_coefficients(nav)
     np.testing.assert_array_equal(alpha, [0.1118e-07, 0.1490e-07, -0.5960e-07, -0.5960e-07])
     np.testing.assert_array_equal(beta, [0.8806e05, 0.1638e05, -0.1966e06, -0.1311e06])
@@ -139,8 +143,11 @@ def test_gps_and_glonass_files_merge(tmp_path: Path) -> None:
     glo = _write(tmp_path, GLONASS_EXAMPLE, "zimm0460.98g")
     nav = read_nav([gps, glo])
     assert list(nav.sv.values) == ["G05", "G12", "R03", "R04"]
-    assert nav["SVclockBias"].sel(sv="G12").dropna("time").item() == 100.0
     assert nav["dX"].sel(sv="R04").dropna("time").item() == -0.289074897766 * 1000.0
+    # a variable both files have keeps each file's values (the GLONASS clocks were once lost)
+    assert nav["SVclockBias"].sel(sv="R03").dropna("time").item() == 0.163525342941e-03
+    # the GPS records' counting values (af0 = 1 s, 100 s) are dropped as impossible, GLONASS's kept
+    assert nav.attrs["rejected_records"] == [r for r in nav.attrs["rejected_records"] if "GPS" in r] != []
 
 
 def test_repeated_records_kept_once_and_a_different_one_labelled(tmp_path: Path) -> None:
