@@ -351,7 +351,8 @@ def ion_alpha(text: bytes, rng: np.random.Generator, kind: str) -> tuple[bytes, 
     k = int(rng.integers(0, 4))
     line[start + width * k:start + width * (k + 1)] = garbage.rjust(width)[:width]
     lines[i] = bytes(line).rstrip()
-    return _join(lines), {"line": i + 1, "coefficient": k, "value": garbage.decode()}
+    return _join(lines), {"line": i + 1, "coefficient": k, "value": garbage.decode(),
+                          "in_range": garbage == b"0.0"}  # zero is a valid coefficient
 
 
 def nav_year_1980(text: bytes, rng: np.random.Generator, kind: str) -> tuple[bytes, dict]:

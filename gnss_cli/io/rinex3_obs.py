@@ -40,6 +40,7 @@ from gnss_cli.io.fixed_width import (
     split_lines,
     sv_codes2str,
 )
+from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_obs_header, validate_systems
 
 __all__ = ["read_obs3"]
@@ -179,8 +180,9 @@ def read_obs3(
     times are the epochs that hold at least one satellite of the selected systems,
     satellites are all satellites of the selected systems that appear, even when every
     selected code is blank for them. Differences: ``'G 7'`` is read as ``'G07'`` before
-    sorting; event epochs (flag 2-6) and their special records are skipped; when the same
-    epoch appears twice, the later record wins. Loss-of-lock and signal-strength
+    sorting; event epochs (flag 2-6) and their special records are skipped; an epoch that
+    is not later than the one before it (the same epoch twice, a re-stamped epoch) is an
+    error, as is a file cut inside its last value. Loss-of-lock and signal-strength
     indicators are not read.
 
     Examples
@@ -256,8 +258,9 @@ def _body_lines(body: bytes, n_header_lines: int) -> _Lines:
 def _epochs(lines: _Lines, name: str) -> tuple[NDArray[np.int64], _EpochLines]:
     """Epoch index of each line (-1 before the first) and the decoded epoch lines.
 
-    Raises when there is no epoch line, text precedes the first one, or an epoch announces
-    another number of satellite lines than follow it.
+    Raises when there is no epoch line, text precedes the first one, an epoch announces
+    another number of satellite lines than follow it, or an observation epoch (flag 0/1) is
+    not later than the one before it.
     """
     n_lines = lines.starts.size
     is_epoch = lines.first_char == ord(">")
@@ -280,6 +283,11 @@ def _epochs(lines: _Lines, name: str) -> tuple[NDArray[np.int64], _EpochLines]:
             f"{name}: bad epoch line {int(lines.lineno[ep_idx[i]])}: it announces {int(nsat[i])} "
             f"records but {int(follow[i])} lines follow"
         )
+    observed = flag <= 1
+    check_epochs_increasing(times[observed], lines.lineno[ep_idx][observed], name)
+    last = n_lines - 1
+    if lines.buf[lines.starts[last] + lines.lengths[last]] != ord("\n") and not is_epoch[last]:
+        check_last_value_complete(int(lines.lengths[last]), _SV_WIDTH, int(lines.lineno[last]), name)
     return np.cumsum(is_epoch) - 1, _EpochLines(times, flag, nsat)
 
 
