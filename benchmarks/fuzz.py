@@ -49,10 +49,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+REPO = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(REPO), str(REPO / "benchmarks")]  # fuzz the checkout this file belongs to
 import fuzz_mutators as mut  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 RINEX = (REPO / ".." / "shared" / "rinex").resolve()
 RESULTS = REPO / "benchmarks" / "results" / "fuzz.json"
 WRONG_OK_M = 100.0
@@ -95,8 +95,10 @@ def _kind(text: bytes, target: str) -> str:
     return f"{target}{2 if major == b'2' else 3}"
 
 
-def plan_case(seed: int, case: int, datasets: dict[str, tuple[str, list[str]]]) -> dict:
-    """What case ``case`` of campaign ``seed`` does (data set, target, mutator), drawn reproducibly."""
+def plan_case(seed: int, case: int, datasets: dict[str, tuple[str, list[str]]],
+              targets: tuple[str, ...] = ("obs", "nav")) -> dict:
+    """What case ``case`` of campaign ``seed`` does (data set, target, mutator), drawn reproducibly;
+    ``targets`` limits the damaged file to the observation or the navigation file."""
     rng = np.random.default_rng([seed, case])
     names = list(datasets)
     weights = np.array([WEIGHTS.get(n, 0.0) for n in names])
@@ -107,6 +109,7 @@ def plan_case(seed: int, case: int, datasets: dict[str, tuple[str, list[str]]]) 
     name = names[int(rng.choice(len(names), p=weights))]
     obs, navs = datasets[name]
     target = "obs" if rng.random() < 0.6 else "nav"
+    target = target if target in targets else targets[0]
     path = obs if target == "obs" else navs[0]
     choices = list(mut.OBS_MUTATORS if target == "obs" else mut.NAV_MUTATORS)
     if path.endswith(".gz"):
@@ -162,7 +165,7 @@ def _run_cli(argv: list[str], workdir: Path) -> tuple[int, str, str]:
     from gnss_cli.cli.solve import app
 
     out_path, err_path = workdir / "stdout.txt", workdir / "stderr.txt"
-    saved = os.dup(1), os.dup(2)
+    saved, saved_streams = (os.dup(1), os.dup(2)), (sys.stdout, sys.stderr)
     with open(out_path, "wb") as out, open(err_path, "wb") as err:
         os.dup2(out.fileno(), 1)
         os.dup2(err.fileno(), 2)
@@ -181,8 +184,13 @@ def _run_cli(argv: list[str], workdir: Path) -> tuple[int, str, str]:
     finally:
         sys.stdout.flush()
         sys.stderr.flush()
+        sys.stdout.close()
+        sys.stderr.close()
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+        sys.stdout, sys.stderr = saved_streams
     text = out_path.read_bytes().decode("utf-8", "replace"), err_path.read_bytes().decode("utf-8", "replace")
     return code, text[0], text[1]
 
@@ -287,7 +295,8 @@ def violations(rec: dict) -> list[str]:
 
 
 def _preload() -> None:
-    """Import what a run needs once, so that every forked worker starts warm."""
+    """Import what a run needs once and solve the repository's sample once, so that every
+    forked worker starts warm (no lazy import or first-call cost per case)."""
     import georinex  # noqa: F401
     import hatanaka  # noqa: F401
 
@@ -301,6 +310,13 @@ def _preload() -> None:
     import gnss_cli.io.reference  # noqa: F401
     import gnss_cli.pipeline  # noqa: F401
     import gnss_cli.report  # noqa: F401
+
+    if getattr(_preload, "done", False):
+        return
+    sample = REPO / "sample_rinex" / "static"
+    with tempfile.TemporaryDirectory(prefix="gnss-fuzz-warm-") as tmp:
+        _run_cli([str(sample / "obs.rnx"), str(sample / "nav.rnx"), "--quiet", "--out-dir", f"{tmp}/out"], Path(tmp))
+    _preload.done = True  # type: ignore[attr-defined]
 
 
 def run_cases(plans: list[dict], root: Path, jobs: int = 2, timeout_s: float = 60.0, keep: Path | None = None,
@@ -442,13 +458,14 @@ def table(summary: dict) -> str:
 
 
 def campaign(n: int, seed: int, jobs: int = 2, timeout_s: float = 60.0, root: Path = RINEX,
-             datasets: list[str] | None = None, first_case: int = 0, progress: bool = False) -> tuple[list[dict], dict]:
+             datasets: list[str] | None = None, first_case: int = 0, progress: bool = False,
+             targets: tuple[str, ...] = ("obs", "nav")) -> tuple[list[dict], dict]:
     """Plan and run cases ``first_case .. first_case + n - 1``; the records and the clean runs."""
     names = datasets or list(DATASETS)
     chosen = {k: DATASETS[k] for k in names}
     _preload()
     clean = clean_runs(root, [k for k in names if not k.startswith("malformed")])
-    plans = [plan_case(seed, c, chosen) for c in range(first_case, first_case + n)]
+    plans = [plan_case(seed, c, chosen, targets) for c in range(first_case, first_case + n)]
     return run_cases(plans, root, jobs, timeout_s, progress=progress), clean
 
 
@@ -461,6 +478,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--case", type=int, default=None, help="re-run this one case (with --seed) and print it")
     ap.add_argument("--keep", type=Path, default=None, help="keep the case folders here (with --case)")
     ap.add_argument("--datasets", default=None, help="comma list of data sets (default all): " + ",".join(DATASETS))
+    ap.add_argument("--targets", default="obs,nav", help="damage the obs file, the nav file, or either")
     ap.add_argument("--rinex", type=Path, default=RINEX, help="the shared real-data folder")
     ap.add_argument("--out", type=Path, default=RESULTS, help="JSON results")
     args = ap.parse_args(argv)
@@ -470,13 +488,14 @@ def main(argv: list[str] | None = None) -> int:
     names = args.datasets.split(",") if args.datasets else list(DATASETS)
     if args.case is not None:
         _preload()
-        plan = plan_case(args.seed, args.case, {k: DATASETS[k] for k in names})
+        plan = plan_case(args.seed, args.case, {k: DATASETS[k] for k in names}, tuple(args.targets.split(",")))
         clean_runs(args.rinex, [plan["dataset"]] if not plan["dataset"].startswith("malformed") else [])
         rec = run_cases([plan], args.rinex, 1, args.timeout, keep=args.keep)[0]
         print(json.dumps(rec, indent=1, default=float))
         return 0
     t0 = time.perf_counter()
-    records, clean = campaign(args.n, args.seed, args.jobs, args.timeout, args.rinex, names, progress=True)
+    records, clean = campaign(args.n, args.seed, args.jobs, args.timeout, args.rinex, names, progress=True,
+                              targets=tuple(args.targets.split(",")))
     summary = summarize(records)
     print(table(summary))
     wall = time.perf_counter() - t0

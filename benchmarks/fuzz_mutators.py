@@ -242,11 +242,12 @@ def restamp(text: bytes, rng: np.random.Generator, kind: str) -> tuple[bytes, di
 def sat_line_swap(text: bytes, rng: np.random.Generator, kind: str) -> tuple[bytes, dict]:
     """Exchange the observations of two satellites of one epoch (their ids stay in place)."""
     lines = _lines(text)
-    epochs = [r for r in epoch_records(lines, kind) if r[2] - r[1] >= 2]
+    per_sat = 1 if kind == "obs3" else (_obs2_types(lines, header_end(lines)) + 4) // 5
+    epochs = [r for r in epoch_records(lines, kind) if (min(r[2], len(lines)) - r[1]) // per_sat >= 2]
     if not epochs:
         return line_swap(text, rng, kind)
     e, first, end = epochs[int(rng.integers(0, len(epochs)))]
-    per_sat = 1 if kind == "obs3" else (_obs2_types(lines, header_end(lines)) + 4) // 5
+    end = min(end, len(lines))
     nsat = (end - first) // per_sat
     i, j = (int(v) for v in rng.choice(nsat, 2, replace=False))
     a, b = first + i * per_sat, first + j * per_sat

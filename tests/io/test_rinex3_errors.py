@@ -274,3 +274,11 @@ def test_a_file_cut_inside_its_last_value_is_rejected(tmp_path: Path) -> None:
     for end in (text.rstrip("\n"), text.rstrip("\n")[:-2]):  # no line end, after the strength digit or the value
         whole = read_obs3(_write(tmp_path, "whole.rnx", end))
         assert whole["C1C"].sel(sv="E01").item() == 27616185.992
+
+
+def test_compact_rinex_that_crx2rnx_only_warns_about_is_rejected(tmp_path: Path) -> None:
+    lines = _need(RINEX_DIR / "kms3-2022159-rinex4" / "KMS300DNK_R_20221591000_01H_30S_MO.crx").read_bytes().split(b"\n")
+    crx = tmp_path / "dup.crx"
+    crx.write_bytes(b"\n".join(lines[:1089] + lines[1088:]))  # one differential line twice
+    with pytest.raises(RinexFormatError, match=r"^dup\.crx: corrupt Compact RINEX \(Hatanaka\) file \(crx2rnx: "):
+        open_bytes(crx)
