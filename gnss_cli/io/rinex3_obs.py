@@ -29,6 +29,7 @@ from gnss_cli.errors import RinexFormatError, UsageError
 from gnss_cli.io.fixed_width import (
     DIGIT0,
     DOT,
+    PAD,
     SPACE,
     civil2datetime64,
     civil_ranges_ok,
@@ -206,6 +207,7 @@ def read_obs3(
     lines = _body_lines(content[hdr_end:], header.count("\n"))
     owner, times = _epochs(lines, name)
     data_idx, sv_code, sys_code = _data_lines(lines, owner, times.flag, chosen, name)
+    _check_record_lengths(lines, data_idx, sys_code, obs_types, name)
     line_epoch = owner[data_idx]
     time_values, time_of_line = np.unique(times.time[line_epoch], return_inverse=True)
     sv_values, sv_of_line = np.unique(sv_code, return_inverse=True)
@@ -315,6 +317,28 @@ def _data_lines(
     if data_idx.size == 0:
         raise RinexFormatError(f"{name}: no observation records of the systems {''.join(chosen)}")
     return data_idx, sv_code, sys_code
+
+
+def _check_record_lengths(lines: _Lines, data_idx: NDArray[np.int64], sys_code: NDArray[np.uint8],
+                          obs_types: dict[str, list[str]], name: str) -> None:
+    """Raise when an observation line holds more fields than its system's header types."""
+    n_types = np.zeros(256, dtype=np.int64)
+    for sys_char, types in obs_types.items():
+        n_types[ord(sys_char)] = len(types)
+    used = _SV_WIDTH + _FIELD_WIDTH * n_types[sys_code]
+    long = np.flatnonzero(lines.lengths[data_idx] > used)
+    if long.size == 0:
+        return
+    width = int(min(PAD, np.max(lines.lengths[data_idx[long]] - used[long])))
+    tail = lines.columns(data_idx[long], used[long], width)
+    bad = np.flatnonzero(np.any(tail != SPACE, axis=1))
+    if bad.size:
+        i = long[bad[0]]
+        sys_char = chr(int(sys_code[i]))
+        raise RinexFormatError(
+            f"{name}: line {int(lines.lineno[data_idx[i]])}: more observations than the {int(n_types[sys_code[i]])} "
+            f"of the header's 'SYS / # / OBS TYPES' for system {sys_char}"
+        )
 
 
 def _decode_values(

@@ -121,6 +121,8 @@ def test_event_epochs_are_skipped(tmp_path: Path) -> None:
         ("> 2020 06 25 00 00 30.0000000  0  1\nX05  20947300.931 8\n", "bad satellite id 'X05' on line 6"),
         ("> 2020 06 25 00 00 30.0000000  0  1\nG05  2094730x.931 8\n", "bad C1C value '  2094730x.931' on line 6"),
         ("garbage\n" + GOOD_EPOCH, "unexpected text on line 5 before the first epoch line"),
+        ("> 2020 06 25 00 00 30.0000000  0  2\nG05  20947300.931 8\nE01  27616185.992 6  27616185.992 6\n",
+         "line 7: more observations than the 1 of the header's 'SYS / # / OBS TYPES' for system E"),
     ],
 )  # fmt: skip
 def test_bad_obs_bodies(tmp_path: Path, body: str, message: str) -> None:
@@ -282,3 +284,9 @@ def test_compact_rinex_that_crx2rnx_only_warns_about_is_rejected(tmp_path: Path)
     crx.write_bytes(b"\n".join(lines[:1089] + lines[1088:]))  # one differential line twice
     with pytest.raises(RinexFormatError, match=r"^dup\.crx: corrupt Compact RINEX \(Hatanaka\) file \(crx2rnx: "):
         open_bytes(crx)
+
+
+def test_blanks_after_the_last_field_are_not_extra_observations(tmp_path: Path) -> None:
+    body = GOOD_EPOCH.replace("E01  27616185.992 6\n", "E01  27616185.992 6" + " " * 40 + "\n")
+    obs = read_obs3(_write(tmp_path, "padded.rnx", OBS3_HEADER + body))
+    assert obs["C1C"].sel(sv="E01").item() == 27616185.992
