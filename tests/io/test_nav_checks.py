@@ -180,3 +180,18 @@ def test_absurd_klobuchar_coefficients_fall_back_to_the_defaults_with_a_warning(
     assert "Klobuchar coefficients not used: alpha0" in err and "default coefficients" in err
     assert "Warning" not in err and "RuntimeWarning" not in err
     assert (pd.read_csv(tmp_path / "a.csv")["status"] == "ok").all()
+
+
+def test_a_record_whose_date_was_damaged_is_rejected_by_its_week_and_toe(nav0759) -> None:  # type: ignore[no-untyped-def]
+    """The fuzz case of a GPS record re-dated 1980 (still after GPS began): its week and Toe
+    say 2005, so it is rejected; a week rolled over by 1024 is accepted."""
+    ti, si = _cell(nav0759)
+    redated = nav0759.isel(time=[ti]).assign_coords(time=[np.datetime64("1985-04-02T02:00", "ns")])
+    messages = reject_implausible_records(redated)[1]
+    assert messages and "week and Toe more than 6 h from the time of clock" in messages[0]
+    rolled = nav0759.copy(deep=True)
+    rolled["GPSWeek"].values[:] = rolled["GPSWeek"].values - 1024
+    assert reject_implausible_records(rolled)[1] == []
+    shifted = nav0759.copy(deep=True)
+    shifted["Toe"].values[ti, si] += 7 * 3600.0
+    assert "week and Toe" in reject_implausible_records(shifted)[1][0]
