@@ -23,6 +23,7 @@ RINEX 3.05 tables A6-A15 and RINEX 4.00 tables A31-A52 (IGS/RTCM-SC104); georine
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -145,11 +146,58 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     fl = gather_columns(buf, starts[first_lines], lengths[first_lines], 0, 23)
     sys_chars = fl[:, 0]
     sv_code, toc = _record_starts(fl, lineno[first_lines], name)
+    if attrs["version"] < 4.0:
+        _check_record_lengths(head, lineno, layout, sys_chars, name)
+    _check_last_line(buf, starts, lengths, lineno, layout, name)
     values = _record_values(buf, starts, lengths, lineno, layout, name)
     keep = np.ones(first_lines.size, dtype=bool)
     if systems is not None:
         keep = np.isin(sys_chars, np.frombuffer("".join(sorted(systems)).encode(), dtype=np.uint8))
     return _Records(sv_code[keep], toc[keep], values[keep]), attrs
+
+
+_LINES_PER_RECORD_V3 = {ord("R"): (4, 5), ord("S"): (4,)}
+"""Lines of a RINEX 3 record: 8 for the Kepler systems, 4 for GLONASS (5 from RINEX 3.05) and SBAS."""
+
+
+def _check_record_lengths(head: NDArray[np.uint8], lineno: NDArray[np.int64], layout: Layout,
+                          sys_chars: NDArray[np.uint8], name: str) -> None:
+    """Refuse a record with too few or too many lines: a file cut inside its last record, or
+    lines lost or doubled inside one (blank lines after the last record are allowed)."""
+    line_idx, _, rec_of_line, first_lines = layout
+    filled = np.any(head[line_idx] != SPACE, axis=1)
+    n_lines = np.bincount(rec_of_line[filled], minlength=first_lines.size)
+    for code in np.unique(sys_chars):
+        rows = np.flatnonzero(sys_chars == code)
+        allowed = np.asarray(_LINES_PER_RECORD_V3.get(int(code), (8,)))
+        bad = rows[~np.isin(n_lines[rows], allowed)]
+        if bad.size:
+            i = int(bad[0])
+            end = "the file ends inside it" if i == first_lines.size - 1 and n_lines[i] < allowed.min() else "a line is missing or extra"
+            raise RinexFormatError(
+                f"{name}:{int(lineno[first_lines[i]])}: record of {chr(int(code))} has {int(n_lines[i])} lines "
+                f"(expected {' or '.join(str(a) for a in allowed)}): {end}"
+            )
+
+
+def _check_last_line(buf: NDArray[np.uint8], starts: NDArray[np.int64], lengths: NDArray[np.int64],
+                     lineno: NDArray[np.int64], layout: Layout, name: str) -> None:
+    """Refuse a file cut inside the last value: every field of the last record's last line
+    ends with its exponent (``D+03``); a cut one would be read as another number."""
+    line_idx, ordinal, _, _ = layout
+    filled = [int(i) for i in line_idx[::-1][:8] if lengths[i] > 0 and np.any(buf[starts[i]:starts[i] + lengths[i]] != SPACE)]
+    if not filled:
+        return
+    i = filled[0]
+    text = buf[starts[i]:starts[i] + lengths[i]].tobytes().decode("ascii", "replace")
+    first = 23 if ordinal[np.searchsorted(line_idx, i)] == 0 else 4
+    for k in range(first, len(text), _FIELD_WIDTH):
+        field = text[k:k + _FIELD_WIDTH].strip()
+        if field and not _EXPONENT.search(field):
+            raise RinexFormatError(f"{name}:{int(lineno[i])}: the file ends inside a value ({field!r} has no exponent)")
+
+
+_EXPONENT = re.compile(r"[DEde][+-]?\d{1,3}$")
 
 
 def _record_starts(
