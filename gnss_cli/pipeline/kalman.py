@@ -57,6 +57,7 @@ __all__ = ["run_kalman", "transition"]
 _RELINEARIZE_M = 0.5
 _MAX_PASSES = 3
 _CLOCK_RESET_VAR_M2 = 1e12
+_ABSENT_CLOCK_VAR_M2 = 1e8
 _BLOCK = 2048  # epochs per linearization block
 
 
@@ -211,23 +212,31 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, in
 
 
 def _prior(init: dict[str, F64], t0: int, lay: _Layout, config: ProcessingConfig) -> tuple[F64, F64]:
-    """Mean and covariance of the first state of a segment: the WLS fix (10 m), its clocks
-    (free), the Doppler velocity and drift where there is one, else zero with the initial sigmas."""
+    """Mean and covariance of the first state of a segment: the WLS fix and clocks with 4 x their
+    covariance (a clock of a system without satellites there: 10 km), the Doppler velocity and
+    drift with 100 x ``doppler_sigma_m_s^2`` where there is one, else zero with the initial sigmas."""
     m0 = np.zeros(lay.m)
-    var = np.zeros(lay.m)
-    m0[:3], var[:3] = init["x"][t0], 100.0
+    P0 = np.zeros((lay.m, lay.m))
+    pc = np.r_[0:3, lay.clocks]
     clocks = init["clocks"][t0]
-    m0[lay.clocks], var[lay.clocks] = np.nan_to_num(clocks), _CLOCK_RESET_VAR_M2
+    m0[:3], m0[lay.clocks] = init["x"][t0], np.nan_to_num(clocks)
+    cov = 4.0 * init["cov"][t0]
+    absent = 3 + np.flatnonzero(~np.isfinite(init["tdops"][t0]))
+    cov[absent, :] = 0.0
+    cov[:, absent] = 0.0
+    cov[absent, absent] = _ABSENT_CLOCK_VAR_M2
+    P0[np.ix_(pc, pc)] = np.where(np.isfinite(cov), cov, 0.0) + np.diag(np.where(np.isfinite(np.diag(cov)), 0.0, 100.0))
     v, d = init["vel"][t0], init["drift"][t0]
-    have_v = np.isfinite(v).all() and np.isfinite(d)
+    have_v = bool(np.isfinite(v).all() and np.isfinite(d))
     kc = config.kalman
     m0[3:6] = v if have_v else 0.0
-    var[3:6] = config.doppler_sigma_m_s**2 * 100.0 if have_v else kc.initial_velocity_sigma_m_s**2
     m0[lay.drift] = d if have_v else 0.0
-    var[lay.drift] = config.doppler_sigma_m_s**2 * 100.0 if have_v else kc.initial_drift_sigma_m_s**2
+    vd = np.r_[3:6, lay.drift]
+    P0[vd, vd] = (config.doppler_sigma_m_s**2 * 100.0 if have_v else
+                  np.array([kc.initial_velocity_sigma_m_s**2] * 3 + [kc.initial_drift_sigma_m_s**2]))
     if lay.n_kin == 3:
-        var[6:9] = 100.0  # (10 m/s^2)^2
-    return m0, np.diag(var)
+        P0[6:9, 6:9] = 100.0 * np.eye(3)  # (10 m/s^2)^2
+    return m0, P0
 
 
 def _nominal(t: F64, x: F64) -> F64:
@@ -260,7 +269,8 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     has_fix = np.isfinite(wls.x_ecef_m).all(axis=1)
     clocks = wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]
     vel = solve_velocity(data, wls.x_ecef_m, wls.sigma_m if wls.sigma_m is not None else np.ones(data.usable.shape), config)
-    init = {"x": wls.x_ecef_m, "clocks": clocks, "vel": vel.vel_ecef_m_s if vel else np.full((T, 3), np.nan),
+    tdops = wls.tdops if wls.tdops is not None else np.zeros((T, k))
+    init = {"x": wls.x_ecef_m, "clocks": clocks, "cov": wls.cov_m2, "tdops": tdops, "vel": vel.vel_ecef_m_s if vel else np.full((T, 3), np.nan),
             "drift": vel.clock_drift_m_s if vel else np.full(T, np.nan)}
     segments = _segments(data.time_gps_s, has_fix, config.kalman.gap_s)
     jumps = _clock_jumps(data.time_gps_s, clocks[:, 0], config.kalman.clock_reset_m)

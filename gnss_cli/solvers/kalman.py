@@ -72,7 +72,10 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64) -> tuple[F64, F64, F64
     PHt = P @ H.T
     S = H @ PHt
     S[np.diag_indices_from(S)] += r
-    K = cho_solve(cho_factor(S, check_finite=False), PHt.T, check_finite=False).T
+    try:
+        K = cho_solve(cho_factor(S, check_finite=False), PHt.T, check_finite=False).T
+    except np.linalg.LinAlgError:  # S numerically indefinite (huge prior against tiny variances)
+        K = np.linalg.lstsq(S, PHt.T, rcond=None)[0].T
     IKH = np.eye(x.size) - K @ H
     P_new = IKH @ P @ IKH.T + (K * r) @ K.T
     return x + K @ nu, 0.5 * (P_new + P_new.T), nu
