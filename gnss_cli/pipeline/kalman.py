@@ -16,9 +16,9 @@ and FDE exclusions), row ``[-e, 0, ..., clock one-hot, 0]``; with Doppler (and
 Linearization: the pseudoranges are linearized at a nominal trajectory -- the WLS fixes,
 interpolated in time where WLS has none -- with the corrections and weights evaluated there;
 the filter then works on the linear model ``q - e . x_nom = -e . x + b``. Where the smoothed
-(or filtered) trajectory ends more than 0.5 m from the nominal one, the pseudoranges are
+(or filtered) trajectory ends more than 50 m from the nominal one, the pseudoranges are
 linearized again at it and the filter rerun (at most 3 passes): the neglected curvature is
-``|dx|^2 / (2 rho)``, below 1e-8 m for 0.5 m.
+``|dx|^2 / (2 rho)``, below 1e-4 m for 50 m (the corrections and weights change less).
 
 Time: a gap longer than ``gap_s`` starts a new segment, filtered (and smoothed) on its own from
 its first WLS fix; shorter gaps are bridged by the motion model. Epochs of a segment before its
@@ -54,7 +54,7 @@ F64 = NDArray[np.float64]
 
 __all__ = ["run_kalman", "transition"]
 
-_RELINEARIZE_M = 0.5
+_RELINEARIZE_M = 50.0
 _MAX_PASSES = 3
 _CLOCK_RESET_VAR_M2 = 1e12
 _ABSENT_CLOCK_VAR_M2 = 1e8
@@ -198,8 +198,12 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, in
     t = data.time_gps_s[seg]
     F = np.zeros((seg.size, lay.m, lay.m))
     Q = np.zeros_like(F)
+    steps: dict[float, tuple[F64, F64]] = {}  # one transition per distinct interval
     for j in range(1, seg.size):
-        F[j], Q[j] = transition(float(t[j] - t[j - 1]), lay.n_kin, lay.k, config)
+        dt = round(float(t[j] - t[j - 1]), 9)
+        if dt not in steps:
+            steps[dt] = transition(dt, lay.n_kin, lay.k, config)
+        F[j], Q[j] = steps[dt]
         if jumps[seg[j]]:
             Q[j][lay.clocks, lay.clocks] += _CLOCK_RESET_VAR_M2
     sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
