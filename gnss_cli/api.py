@@ -38,7 +38,7 @@ __all__ = ["solve", "to_dataset"]
 F64 = NDArray[np.float64]
 PathArg = str | PathLike[str]
 
-_SECTIONS = ("weights", "signals", "stls", "wtls", "smoothing")
+_SECTIONS = ("weights", "signals", "stls", "wtls", "smoothing", "kalman")
 _SMOOTHING_KEYS = ("lag", "model", "kernel", "order", "window", "tolerance")
 _UNITS = {
     "x_m": ("m", "ECEF X"), "y_m": ("m", "ECEF Y"), "z_m": ("m", "ECEF Z"),

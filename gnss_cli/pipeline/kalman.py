@@ -17,7 +17,8 @@ Linearization: the pseudoranges are linearized at a nominal trajectory -- the WL
 interpolated in time where WLS has none -- with the corrections and weights evaluated there;
 the filter then works on the linear model ``q - e . x_nom = -e . x + b``. Where the smoothed
 (or filtered) trajectory ends more than 50 m from the nominal one, the pseudoranges are
-linearized again at it and the filter rerun (at most 3 passes): the neglected curvature is
+linearized again at it and the filter rerun (at most 3 passes; with the innovation gate, the
+gate applies in one more, final pass at the converged trajectory): the neglected curvature is
 ``|dx|^2 / (2 rho)``, below 1e-4 m for 50 m (the corrections and weights change less).
 
 Time: a gap longer than ``gap_s`` starts a new segment, filtered (and smoothed) on its own from
@@ -25,6 +26,10 @@ its first WLS fix; shorter gaps are bridged by the motion model. Epochs of a seg
 first WLS fix have no kf position (they keep the WLS status). A clock jump (the second time
 difference of the WLS reference clock above ``clock_reset_m``, e.g. a millisecond reset of a
 steered receiver clock) adds a large process noise to every clock at that epoch.
+
+Innovation gate (``innovation_gate``, in sigmas of the predicted innovation; 0 = off): a
+pseudorange or range rate whose innovation is larger is not used at that epoch (``n_sat`` and
+the residuals count only the pseudoranges used).
 
 Per epoch: ``ok`` after an update with at least one pseudorange, ``predicted`` when the epoch
 had no usable measurement (motion model, and smoother, only). ``cov_m2`` is the smoothed
@@ -193,8 +198,9 @@ def _clock_jumps(t: F64, clock_m: F64, threshold_m: float) -> NDArray[np.bool_]:
 
 
 def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, init: dict[str, F64],
-                 lay: _Layout, jumps: NDArray[np.bool_], config: ProcessingConfig) -> tuple[F64, F64]:
-    """Filter (and smooth) one segment; returns the state means ``(s, m)`` and covariances."""
+                 lay: _Layout, jumps: NDArray[np.bool_], config: ProcessingConfig, gate: float | None = None) -> tuple[F64, F64]:
+    """Filter (and smooth) one segment; returns the state means ``(s, m)`` and covariances.
+    Pseudoranges the innovation gate rejected are taken out of ``meas.used``."""
     t = data.time_gps_s[seg]
     F = np.zeros((seg.size, lay.m, lay.m))
     Q = np.zeros_like(F)
@@ -209,7 +215,10 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, in
     sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
     H, y, r = zip(*(_rows(meas, int(i), lay, sysidx) for i in seg))
     m0, P0 = _prior(init, int(seg[0]), lay, config)
-    res = kalman_filter(m0, P0, F, Q, H, y, r)
+    res = kalman_filter(m0, P0, F, Q, H, y, r, gate)
+    for i, nu in zip(seg, res.innovations):
+        rows = np.flatnonzero(meas.used[i])
+        meas.used[i, rows[np.isnan(nu[: rows.size])]] = False
     if config.kalman.smoother == "rts":
         return rts_smooth(res, F)
     return res.x, res.P
@@ -281,16 +290,23 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     nominal = _nominal(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
     x = np.full((T, lay.m), np.nan)
     P = np.full((T, lay.m, lay.m), np.nan)
-    passes = 0
-    for passes in range(1, _MAX_PASSES + 1):
+    def one_pass(gate: float | None) -> _Measurements:
         meas = _measurements(data, nominal, config)
         for seg in segments:
-            x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config)
+            x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config, gate)
+        return meas
+
+    passes = 0
+    for passes in range(1, _MAX_PASSES + 1):
+        meas = one_pass(None)
         have = np.isfinite(x[:, 0])
         moved = np.linalg.norm(x[have, :3] - nominal[have], axis=1)
+        nominal[have] = x[have, :3]
         if moved.size == 0 or moved.max() <= _RELINEARIZE_M:
             break
-        nominal[have] = x[have, :3]
+    if config.kalman.innovation_gate > 0:  # gated only where linearized at the data (else it rejects them all)
+        meas = one_pass(config.kalman.innovation_gate)
+        passes += 1
     return _solution(data, wls, meas, x, P, lay, passes, config)
 
 

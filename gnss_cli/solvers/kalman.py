@@ -39,7 +39,7 @@ class FilterResult:
     ----------
     x, P : ``(T, m)``, ``(T, m, m)`` filtered means and covariances (after step t's update).
     x_pred, P_pred : the same before the update (``x_pred[0] = m_0``).
-    innovations : per step ``(n_t,)`` innovations ``y_t - H_t x-_t``.
+    innovations : per step ``(n_t,)`` innovations ``y_t - H_t x-_t`` (NaN: rejected by the gate).
     """
 
     x: F64
@@ -49,13 +49,15 @@ class FilterResult:
     innovations: tuple[F64, ...]
 
 
-def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64) -> tuple[F64, F64, F64]:
+def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64, gate: float | None = None) -> tuple[F64, F64, F64]:
     """One measurement update (Joseph form); returns ``(x+, P+, innovation)``.
 
     Parameters
     ----------
     x : ``(m,)``, P : ``(m, m)`` prior mean and covariance.
     H : ``(n, m)``, y : ``(n,)``, r : ``(n,)`` measurement rows, values and variances.
+    gate : rows whose normalized innovation ``|nu_i| / sqrt(S_ii)`` exceeds it are not used
+        (their innovation is returned as NaN); None uses every row.
 
     Examples
     --------
@@ -70,6 +72,15 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64) -> tuple[F64, F64, F64
     PHt = P @ H.T
     S = H @ PHt
     S[np.diag_indices_from(S)] += r
+    if gate is not None:
+        keep = nu**2 <= gate**2 * np.diag(S)
+        if not keep.all():
+            nu = np.where(keep, nu, np.nan)
+            if not keep.any():
+                return x, P, nu
+            H, r, PHt, S = H[keep], r[keep], PHt[:, keep], S[np.ix_(keep, keep)]
+            x_new, P_new, _ = kalman_update(x, P, H, y[keep], r)
+            return x_new, P_new, nu
     try:
         K = np.linalg.solve(S, PHt.T).T  # LU: S is symmetric positive definite; cheaper per call than Cholesky in scipy
     except np.linalg.LinAlgError:  # S numerically singular (huge prior against tiny variances)
@@ -79,7 +90,8 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64) -> tuple[F64, F64, F64
     return x + K @ nu, 0.5 * (P_new + P_new.T), nu
 
 
-def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequence[F64], r: Sequence[F64]) -> FilterResult:
+def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequence[F64], r: Sequence[F64],
+                  gate: float | None = None) -> FilterResult:
     """Run the filter over ``T`` steps.
 
     Parameters
@@ -90,6 +102,7 @@ def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequenc
         Transition from step ``t-1`` to ``t`` and its process-noise covariance (index 0 unused).
     H, y, r : sequences of length ``T``
         Per step: rows ``(n_t, m)``, measurements ``(n_t,)``, variances ``(n_t,)``.
+    gate : innovation gate of :func:`kalman_update` (None: every row is used).
     """
     T, m = len(y), m0.size
     xs, Ps = np.empty((T, m)), np.empty((T, m, m))
@@ -101,7 +114,7 @@ def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequenc
             x = F[t] @ x
             P = F[t] @ P @ F[t].T + Q[t]
         xp[t], Pp[t] = x, P
-        x, P, nu = kalman_update(x, P, H[t], y[t], r[t])
+        x, P, nu = kalman_update(x, P, H[t], y[t], r[t], gate)
         xs[t], Ps[t] = x, P
         nus.append(nu)
     return FilterResult(xs, Ps, xp, Pp, tuple(nus))

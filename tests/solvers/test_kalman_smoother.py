@@ -81,3 +81,21 @@ def test_joseph_update_equals_the_information_form_and_stays_symmetric():
     assert np.allclose(nu, y - H @ x0)
     same = kalman_update(x0, P, np.zeros((0, 5)), np.zeros(0), np.zeros(0))
     assert np.array_equal(same[0], x0) and np.array_equal(same[1], P)
+
+
+def test_innovation_gate_drops_only_the_outlying_row():
+    rng = np.random.default_rng(3)
+    P = np.diag([4.0, 4.0, 1.0])
+    H = rng.normal(size=(5, 3))
+    r = np.full(5, 0.25)
+    x0 = np.zeros(3)
+    y = H @ np.array([1.0, -1.0, 0.5]) + rng.normal(scale=0.5, size=5)
+    y_bad = y.copy()
+    y_bad[2] += 100.0
+    x, P1, nu = kalman_update(x0, P, H, y_bad, r, gate=3.29)
+    keep = np.arange(5) != 2
+    x_ref, P_ref, _ = kalman_update(x0, P, H[keep], y[keep], r[keep])
+    assert np.isnan(nu[2]) and np.isfinite(nu[keep]).all()
+    assert np.allclose(x, x_ref) and np.allclose(P1, P_ref)
+    x_all, _, _ = kalman_update(x0, P, H, y_bad, r)
+    assert np.linalg.norm(x_all - x_ref) > 1.0  # without the gate the outlier pulls the state
