@@ -18,7 +18,8 @@ interpolated in time where WLS has none -- with the corrections and weights eval
 the filter then works on the linear model ``q - e . x_nom = -e . x + b``. Where the smoothed
 (or filtered) trajectory ends more than 50 m from the nominal one, the pseudoranges are
 linearized again at it and the filter rerun (at most 3 passes; with the innovation gate, the
-gate applies in one more, final pass at the converged trajectory): the neglected curvature is
+gate applies in one more, final pass at the last trajectory, at the epochs whose last pass
+moved them less than 50 m): the neglected curvature is
 ``|dx|^2 / (2 rho)``, below 1e-4 m for 50 m (the corrections and weights change less).
 
 Time: a gap longer than ``gap_s`` starts a new segment, filtered (and smoothed) on its own from
@@ -29,7 +30,8 @@ steered receiver clock) adds a large process noise to every clock at that epoch.
 
 Innovation gate (``innovation_gate``, in sigmas of the predicted innovation; 0 = off): a
 pseudorange or range rate whose innovation is larger is not used at that epoch (``n_sat`` and
-the residuals count only the pseudoranges used).
+the residuals count only the pseudoranges used), unless more than half of the epoch's rows are
+larger (:func:`~gnss_cli.solvers.kalman.kalman_update`: the motion model failed, not the data).
 
 Per epoch: ``ok`` after an update with at least one pseudorange, ``predicted`` when the epoch
 had no usable measurement (motion model, and smoother, only). ``cov_m2`` is the smoothed
@@ -198,7 +200,8 @@ def _clock_jumps(t: F64, clock_m: F64, threshold_m: float) -> NDArray[np.bool_]:
 
 
 def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, init: dict[str, F64],
-                 lay: _Layout, jumps: NDArray[np.bool_], config: ProcessingConfig, gate: float | None = None) -> tuple[F64, F64]:
+                 lay: _Layout, jumps: NDArray[np.bool_], config: ProcessingConfig,
+                 gate: NDArray[np.float64] | None = None) -> tuple[F64, F64]:
     """Filter (and smooth) one segment; returns the state means ``(s, m)`` and covariances.
     Pseudoranges the innovation gate rejected are taken out of ``meas.used``."""
     t = data.time_gps_s[seg]
@@ -215,7 +218,7 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, in
     sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
     H, y, r = zip(*(_rows(meas, int(i), lay, sysidx) for i in seg))
     m0, P0 = _prior(init, int(seg[0]), lay, config)
-    res = kalman_filter(m0, P0, F, Q, H, y, r, gate)
+    res = kalman_filter(m0, P0, F, Q, H, y, r, None if gate is None else [g if np.isfinite(g) else None for g in gate[seg]])
     for i, nu in zip(seg, res.innovations):
         rows = np.flatnonzero(meas.used[i])
         meas.used[i, rows[np.isnan(nu[: rows.size])]] = False
@@ -290,22 +293,23 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     nominal = _nominal(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
     x = np.full((T, lay.m), np.nan)
     P = np.full((T, lay.m, lay.m), np.nan)
-    def one_pass(gate: float | None) -> _Measurements:
+    def one_pass(gate: F64 | None) -> _Measurements:
         meas = _measurements(data, nominal, config)
         for seg in segments:
             x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config, gate)
         return meas
 
     passes = 0
+    moved = np.zeros(T)
     for passes in range(1, _MAX_PASSES + 1):
         meas = one_pass(None)
         have = np.isfinite(x[:, 0])
-        moved = np.linalg.norm(x[have, :3] - nominal[have], axis=1)
+        moved[have] = np.linalg.norm(x[have, :3] - nominal[have], axis=1)
         nominal[have] = x[have, :3]
-        if moved.size == 0 or moved.max() <= _RELINEARIZE_M:
+        if moved.max() <= _RELINEARIZE_M:
             break
-    if config.kalman.innovation_gate > 0:  # gated only where linearized at the data (else it rejects them all)
-        meas = one_pass(config.kalman.innovation_gate)
+    if config.kalman.innovation_gate > 0:  # only where the linearization has settled (else it rejects good data)
+        meas = one_pass(np.where(moved <= _RELINEARIZE_M, config.kalman.innovation_gate, np.nan))
         passes += 1
     return _solution(data, wls, meas, x, P, lay, passes, config)
 

@@ -57,7 +57,9 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64, gate: float | None = N
     x : ``(m,)``, P : ``(m, m)`` prior mean and covariance.
     H : ``(n, m)``, y : ``(n,)``, r : ``(n,)`` measurement rows, values and variances.
     gate : rows whose normalized innovation ``|nu_i| / sqrt(S_ii)`` exceeds it are not used
-        (their innovation is returned as NaN); None uses every row.
+        (their innovation is returned as NaN) -- while they are at most half of the rows: when
+        more exceed it, the prior is what is wrong (a manoeuvre the motion model did not
+        expect) and every row is used. None uses every row.
 
     Examples
     --------
@@ -74,10 +76,8 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64, gate: float | None = N
     S[np.diag_indices_from(S)] += r
     if gate is not None:
         keep = nu**2 <= gate**2 * np.diag(S)
-        if not keep.all():
+        if not keep.all() and 2 * keep.sum() >= keep.size:
             nu = np.where(keep, nu, np.nan)
-            if not keep.any():
-                return x, P, nu
             H, r, PHt, S = H[keep], r[keep], PHt[:, keep], S[np.ix_(keep, keep)]
             x_new, P_new, _ = kalman_update(x, P, H, y[keep], r)
             return x_new, P_new, nu
@@ -91,7 +91,7 @@ def kalman_update(x: F64, P: F64, H: F64, y: F64, r: F64, gate: float | None = N
 
 
 def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequence[F64], r: Sequence[F64],
-                  gate: float | None = None) -> FilterResult:
+                  gate: float | Sequence[float | None] | None = None) -> FilterResult:
     """Run the filter over ``T`` steps.
 
     Parameters
@@ -102,19 +102,21 @@ def kalman_filter(m0: F64, P0: F64, F: F64, Q: F64, H: Sequence[F64], y: Sequenc
         Transition from step ``t-1`` to ``t`` and its process-noise covariance (index 0 unused).
     H, y, r : sequences of length ``T``
         Per step: rows ``(n_t, m)``, measurements ``(n_t,)``, variances ``(n_t,)``.
-    gate : innovation gate of :func:`kalman_update` (None: every row is used).
+    gate : innovation gate of :func:`kalman_update`, one for every step or one per step
+        (None: every row is used).
     """
     T, m = len(y), m0.size
     xs, Ps = np.empty((T, m)), np.empty((T, m, m))
     xp, Pp = np.empty((T, m)), np.empty((T, m, m))
     nus = []
+    gates = [gate] * T if gate is None or np.isscalar(gate) else list(gate)  # type: ignore[arg-type]
     x, P = np.asarray(m0, dtype=np.float64), np.asarray(P0, dtype=np.float64)
     for t in range(T):
         if t > 0:
             x = F[t] @ x
             P = F[t] @ P @ F[t].T + Q[t]
         xp[t], Pp[t] = x, P
-        x, P, nu = kalman_update(x, P, H[t], y[t], r[t], gate)
+        x, P, nu = kalman_update(x, P, H[t], y[t], r[t], gates[t])
         xs[t], Ps[t] = x, P
         nus.append(nu)
     return FilterResult(xs, Ps, xp, Pp, tuple(nus))

@@ -182,3 +182,31 @@ def test_kf_with_its_innovation_gate_in_the_urban_canyon(rinex_dir):
     # measured: kf 2.1 m over the 157 truth epochs (10.8 m without the gate), WLS 6.8 m over its 152 ok ones
     assert _rms(err["kf"][window]) < 0.6 * _rms(err["wls"][ok])
     assert (kf.n_sat[window] < wls.n_sat[window]).any()  # the gate rejected some of the WLS satellites
+
+
+def test_epochs_with_two_satellites_are_updated_not_dropped(flight):
+    """One minute of a turning flight with two satellites (no WLS fix): the kf updates those
+    epochs, which beats coasting on the motion model and, by far, interpolating the WLS fixes;
+    its sd covers its error. Measured: 49 m RMS, 63 m coasting, 432 m interpolated."""
+    cfg = load_config(None, {"methods": "wls,kf", **MATCHED})
+    data = load_epochs(flight / "obs.rnx", [flight / "nav.rnx"], cfg)
+    ref = reference_from_csv(flight / "truth.csv", data.time_gps_s)
+    gap = slice(250, 310)
+    rms, sols = {}, {}
+    for kept in (2, 0):
+        usable = data.usable.copy()
+        for t in range(gap.start, gap.stop):
+            usable[t, np.flatnonzero(usable[t])[kept:]] = False
+        sparse = replace(data, usable=usable)
+        wls = solve_method(sparse, "wls", cfg)
+        sols[kept] = kf = run_kalman(sparse, wls, cfg)
+        err = np.linalg.norm(kf.x_ecef_m[gap] - ref[gap], axis=1)
+        rms[kept] = _rms(err)
+        assert (err < 3 * np.sqrt(np.trace(kf.cov_m2[gap, :3, :3], axis1=1, axis2=2))).all()
+    assert (wls.status[gap] == "too_few_satellites").all()
+    assert (sols[2].status[gap] == "ok").all() and (sols[2].n_sat[gap] == 2).all()
+    assert (sols[0].status[gap] == "predicted").all()
+    fixed = wls.status == "ok"
+    interpolated = np.stack([np.interp(data.time_gps_s[gap], data.time_gps_s[fixed], wls.x_ecef_m[fixed, i])
+                             for i in range(3)], axis=1)
+    assert rms[2] < 0.9 * rms[0] and rms[2] < 0.2 * _rms(np.linalg.norm(interpolated - ref[gap], axis=1))

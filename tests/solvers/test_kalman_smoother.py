@@ -99,3 +99,7 @@ def test_innovation_gate_drops_only_the_outlying_row():
     assert np.allclose(x, x_ref) and np.allclose(P1, P_ref)
     x_all, _, _ = kalman_update(x0, P, H, y_bad, r)
     assert np.linalg.norm(x_all - x_ref) > 1.0  # without the gate the outlier pulls the state
+    # most rows far off: the prior is what is wrong (an unexpected manoeuvre), every row is used
+    y_shift = y + 100.0
+    x_s, _, nu_s = kalman_update(x0, P, H, y_shift, r, gate=3.29)
+    assert np.isfinite(nu_s).all() and np.allclose(x_s, kalman_update(x0, P, H, y_shift, r)[0])
