@@ -218,7 +218,8 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, in
     sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
     H, y, r = zip(*(_rows(meas, int(i), lay, sysidx) for i in seg))
     m0, P0 = _prior(init, int(seg[0]), lay, config)
-    res = kalman_filter(m0, P0, F, Q, H, y, r, None if gate is None else [g if np.isfinite(g) else None for g in gate[seg]])
+    gates = None if gate is None else [float(g) if np.isfinite(g) else None for g in gate[seg]]
+    res = kalman_filter(m0, P0, F, Q, H, y, r, gates)
     for i, nu in zip(seg, res.innovations):
         rows = np.flatnonzero(meas.used[i])
         meas.used[i, rows[np.isnan(nu[: rows.size])]] = False
@@ -286,13 +287,15 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     clocks = wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]
     vel = solve_velocity(data, wls.x_ecef_m, wls.sigma_m if wls.sigma_m is not None else np.ones(data.usable.shape), config)
     tdops = wls.tdops if wls.tdops is not None else np.zeros((T, k))
-    init = {"x": wls.x_ecef_m, "clocks": clocks, "cov": wls.cov_m2, "tdops": tdops, "vel": vel.vel_ecef_m_s if vel else np.full((T, 3), np.nan),
+    init = {"x": wls.x_ecef_m, "clocks": clocks, "cov": wls.cov_m2, "tdops": tdops,
+            "vel": vel.vel_ecef_m_s if vel else np.full((T, 3), np.nan),
             "drift": vel.clock_drift_m_s if vel else np.full(T, np.nan)}
     segments = _segments(data.time_gps_s, has_fix, config.kalman.gap_s)
     jumps = _clock_jumps(data.time_gps_s, clocks[:, 0], config.kalman.clock_reset_m)
     nominal = _nominal(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
     x = np.full((T, lay.m), np.nan)
     P = np.full((T, lay.m, lay.m), np.nan)
+
     def one_pass(gate: F64 | None) -> _Measurements:
         meas = _measurements(data, nominal, config)
         for seg in segments:
