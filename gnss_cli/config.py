@@ -12,7 +12,9 @@ from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gnss_cli.constants import METHOD_KEYS
+from gnss_cli.constants import FILTER_METHOD_KEYS, METHOD_KEYS
+
+ALL_METHOD_KEYS = METHOD_KEYS + FILTER_METHOD_KEYS
 from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -140,6 +142,41 @@ class SmoothingConfig:
                               f"use order >= {3 * lag} or a shorter window")
 
 
+KALMAN_MODELS = ("cv", "ca")
+SMOOTHERS = ("rts", "none")
+
+
+@dataclass(frozen=True)
+class KalmanConfig:
+    """The ``kf`` method (``[kalman]`` in ``gnss_cli/configs/default.toml``, which explains each value)."""
+
+    model: str = "cv"
+    smoother: str = "rts"
+    accel_psd_m2_s3: float = 10.0
+    jerk_psd_m2_s5: float = 10.0
+    clock_psd_m2_s: float = 0.01
+    drift_psd_m2_s3: float = 0.04
+    initial_velocity_sigma_m_s: float = 100.0
+    initial_drift_sigma_m_s: float = 1000.0
+    doppler: bool = True
+    gap_s: float = 60.0
+    clock_reset_m: float = 1000.0
+    innovation_gate: float = 3.29
+
+    def validated(self) -> "KalmanConfig":
+        """Self, after checking every value; raises :class:`ConfigError` naming the key."""
+        for name, allowed in (("model", KALMAN_MODELS), ("smoother", SMOOTHERS)):
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"kalman.{name}: expected one of {', '.join(allowed)}; received {getattr(self, name)!r}")
+        for name in ("accel_psd_m2_s3", "jerk_psd_m2_s5", "clock_psd_m2_s", "drift_psd_m2_s3", "initial_velocity_sigma_m_s",
+                     "initial_drift_sigma_m_s", "gap_s", "clock_reset_m"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"kalman.{name}: expected > 0; received {getattr(self, name)}")
+        if not self.innovation_gate >= 0:
+            raise ConfigError(f"kalman.innovation_gate: expected >= 0 (0 = off); received {self.innovation_gate}")
+        return self
+
+
 @dataclass(frozen=True)
 class ProcessingConfig:
     """Every processing option, with units in the names."""
@@ -179,14 +216,17 @@ class ProcessingConfig:
     robust_cauchy_c: float = 2.385
     robust_tolerance: float = 1e-8
     robust_max_iterations: int = 1000
+    doppler_sigma_m_s: float = 0.1
+    """Range-rate sigma (m/s, ``-lambda D``) of a typical satellite of the epoch (see default.toml)."""
+    kalman: KalmanConfig = field(default_factory=lambda: KalmanConfig())
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
         from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of  # numpy: not needed for --help
 
-        bad = [m for m in self.methods if m not in METHOD_KEYS]
+        bad = [m for m in self.methods if m not in ALL_METHOD_KEYS]
         if bad or not self.methods:
-            raise ConfigError(f"methods: expected some of {', '.join(METHOD_KEYS)} or 'all'; received {list(self.methods)}")
+            raise ConfigError(f"methods: expected some of {', '.join(ALL_METHOD_KEYS)} or 'all'; received {list(self.methods)}")
         if self.iono not in IONO_OPTIONS:
             raise ConfigError(f"iono: expected one of {', '.join(IONO_OPTIONS)}; received {self.iono!r}")
         if self.tropo not in ("saastamoinen", "none"):
@@ -242,6 +282,9 @@ class ProcessingConfig:
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
+        if not self.doppler_sigma_m_s > 0:
+            raise ConfigError(f"doppler_sigma_m_s: expected > 0; received {self.doppler_sigma_m_s}")
+        self.kalman.validated()
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
         if self.robust not in ROBUST_OPTIONS:
@@ -261,8 +304,8 @@ def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
         if not item:
             continue
         for m in METHOD_KEYS if item == "all" else (item,):
-            if m not in METHOD_KEYS:
-                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(METHOD_KEYS)} or all")
+            if m not in ALL_METHOD_KEYS:
+                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(ALL_METHOD_KEYS)} or all")
             if m not in out:
                 out.append(m)
     if not out:
@@ -304,13 +347,13 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 
 
 def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
-    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing"}
+    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing", "kalman"}
     unknown = set(data) - known_sections
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
     proc = dict(data.get("processing", {}))
     names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "signals_second", "orbit_sigma_m",
-                                                          "wtls_column_scaling", "smoothing"}
+                                                          "wtls_column_scaling", "smoothing", "kalman"}
     bad = set(proc) - names
     if bad:
         raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
@@ -326,7 +369,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
         if "robust" in proc:
             proc["robust"] = str(proc["robust"]).lower()
         for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz",
-                    "robust_huber_k", "robust_cauchy_c", "robust_tolerance"):
+                    "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s"):
             if key in proc:
                 proc[key] = float(proc[key])
         for key in ("max_iterations", "min_satellites", "max_exclusions", "robust_max_iterations"):
@@ -360,6 +403,13 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             cfg = replace(cfg, wtls_column_scaling=str(data["wtls"].get("column_scaling", cfg.wtls_column_scaling)))
         if "smoothing" in data:
             cfg = replace(cfg, smoothing=_apply_smoothing(cfg.smoothing, data["smoothing"], source))
+        if "kalman" in data:
+            kbad = set(data["kalman"]) - {f.name for f in fields(KalmanConfig)}
+            if kbad:
+                raise ConfigError(f"{source}: unknown [kalman] key(s) {sorted(kbad)}")
+            kal = {k: (str(v) if k in ("model", "smoother") else bool(v) if k == "doppler" else float(v))
+                   for k, v in data["kalman"].items()}
+            cfg = replace(cfg, kalman=replace(cfg.kalman, **kal))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise

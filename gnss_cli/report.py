@@ -23,7 +23,10 @@ method's ``cov_m2`` (ECEF, m^2) and ``R`` the ECEF -> ENU rotation at the soluti
 ``sdnu_m2``, ``sdue_m2`` are its off-diagonal elements (E-N, N-U, U-E covariances, m^2). For
 the smoothed stls rows (``--lag``) ``cov_m2`` is the multi-epoch covariance of the window's
 behavior (:func:`gnss_cli.behavior.multi_epoch.window_covs`); ``fallback_wls`` epochs keep the
-WLS covariance.
+WLS covariance; for kf the smoothed (or filtered) state covariance.
+
+Velocity columns (the very last, :data:`VELOCITY_COLUMNS`): always written, empty when the
+observation file has no Doppler.
 
 Time: ``time`` is GPS time, or UTC with ``time_system="utc"`` (GPST minus
 :func:`utc_offset_s`); ``gps_week`` and ``tow_s`` are GPS time in both.
@@ -58,6 +61,7 @@ FLOAT_FORMATS = {
     "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}", "mean_lat_deg": "{:.9f}", "mean_lon_deg": "{:.9f}",
     "sden_m2": "{:.6f}", "sdnu_m2": "{:.6f}", "sdue_m2": "{:.6f}",
     "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}", "weight": "{:.6f}",
+    "vx_m_s": "{:.4f}", "vy_m_s": "{:.4f}", "vz_m_s": "{:.4f}", "clock_drift_m_s": "{:.4f}",
 }
 
 
@@ -144,6 +148,7 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
             df["sde_m"], df["sdn_m"], df["sdu_m"] = (np.sqrt(cov[:, k, k]) for k in range(3))
         df["sden_m2"], df["sdnu_m2"], df["sdue_m2"] = cov[:, 0, 1], cov[:, 1, 2], cov[:, 2, 0]
         _add_integrity_columns(df, s, result.epochs.sv)
+        _add_velocity_columns(df, s)
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
 
@@ -163,6 +168,19 @@ def _add_integrity_columns(df: pd.DataFrame, s, sv: NDArray[np.str_]) -> None:  
     df["excluded"] = names
     for col, values in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m)):
         df[col] = values if values is not None else np.nan
+
+
+VELOCITY_COLUMNS = ["vx_m_s", "vy_m_s", "vz_m_s", "clock_drift_m_s", "gdop_vel"]
+"""The last columns: receiver velocity (ECEF, m/s), clock drift (m/s) and velocity DOP, from
+the Doppler WLS at the fix (kf: the filter's state); empty cells when the file has no Doppler."""
+
+
+def _add_velocity_columns(df: pd.DataFrame, s) -> None:  # type: ignore[no-untyped-def]
+    v = s.vel_ecef_m_s if s.vel_ecef_m_s is not None else np.full((len(df), 3), np.nan)
+    have = np.isfinite(s.x_ecef_m).all(axis=1)
+    df["vx_m_s"], df["vy_m_s"], df["vz_m_s"] = (np.where(have, v[:, i], np.nan) for i in range(3))
+    for col, values in (("clock_drift_m_s", s.clock_drift_m_s), ("gdop_vel", s.gdop_vel)):
+        df[col] = np.where(have, values, np.nan) if values is not None else np.nan
 
 
 def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:

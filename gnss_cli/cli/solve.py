@@ -23,6 +23,7 @@ from gnss_cli.errors import ConfigError, UsageError
 _DEFAULTS = packaged_defaults()
 _PROC = _DEFAULTS.get("processing", {})
 _SMOOTH = _DEFAULTS.get("smoothing", {})
+_KALMAN = _DEFAULTS.get("kalman", {})
 
 
 def _shown(value: Any) -> str:
@@ -41,7 +42,7 @@ SMOOTHING_FLAGS = ("--model", "--kernel", "--order", "--window", "--model-out")
 @app.command()
 def solve(
     files: list[Path] = typer.Argument(..., help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, a comma list, or all.", show_default=_shown(_PROC.get("methods"))),
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, kf (Kalman filter), a comma list, or all (= ls ... wtls).", show_default=_shown(_PROC.get("methods"))),
     systems: Optional[str] = typer.Option(None, "--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=_shown(_PROC.get("systems"))),
     iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=_shown(_PROC.get("iono"))),
     tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none.", show_default=_shown(_PROC.get("tropo"))),
@@ -60,6 +61,8 @@ def solve(
     kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
     order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
     window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
+    kf_model: Optional[str] = typer.Option(None, "--kf-model", help="cv | ca: constant-velocity or constant-acceleration motion model of --method kf.", show_default=_shown(_KALMAN.get("model"))),
+    smoother: Optional[str] = typer.Option(None, "--smoother", help="rts | none: Rauch-Tung-Striebel smoothed or filtered kf rows.", show_default=_shown(_KALMAN.get("smoother"))),
     integrity: Optional[str] = typer.Option(None, "--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=_shown(_PROC.get("integrity"))),
     robust: Optional[str] = typer.Option(None, "--robust", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=_shown(_PROC.get("robust"))),
     exclude: Optional[str] = typer.Option(None, "--exclude", help="Satellites never used, comma list (G07,C28).", show_default=_shown(_PROC.get("exclude")) or "none"),
@@ -98,6 +101,8 @@ def solve(
             "smoothing.kernel": kernel,
             "smoothing.order": order,
             "smoothing.window": window,
+            "kalman.model": kf_model,
+            "kalman.smoother": smoother,
             "time_system": time_system,
         }
         from gnss_cli.config import load_config
@@ -114,6 +119,9 @@ def solve(
             raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
         if cfg.smoothing.lag > 0 and "stls" not in cfg.methods:
             raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
+        kf_given = [flag for flag, v in (("--kf-model", kf_model), ("--smoother", smoother)) if v is not None]
+        if kf_given and "kf" not in cfg.methods:
+            raise UsageError(f"{', '.join(kf_given)}: only with --method kf")
         progress = Progress("gnss-solve", enabled=not quiet)
         try:
             tables, models, warnings, (result, ref) = _run(files, cfg, progress, reference, reference_sinex, reference_csv,
