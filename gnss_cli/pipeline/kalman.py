@@ -320,7 +320,7 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
 def _solution(data: EpochData, wls: MethodSolution, meas: _Measurements, x: F64, P: F64, lay: _Layout,
               passes: int, config: ProcessingConfig) -> MethodSolution:
     """Build the ``kf`` :class:`MethodSolution` from the state means and covariances."""
-    T, k = x.shape[0], lay.k
+    k = lay.k
     have = np.isfinite(x[:, 0])
     n_sat = np.where(have, meas.used.sum(axis=1), 0).astype(np.int64)
     status = np.where(have, np.where(n_sat > 0, EpochStatus.OK.value, EpochStatus.PREDICTED.value), wls.status)
