@@ -14,7 +14,6 @@ from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.orbits import broadcast_states
-from gnss_cli.gnss.time import datetime2gps_s
 from gnss_cli.io.nav_checks import KEPLER_LIMITS, STATE_LIMITS, klobuchar_problem, reject_implausible_records
 from gnss_cli.io.rinex import klobuchar_coefficients, read_nav
 
