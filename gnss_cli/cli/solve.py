@@ -57,7 +57,7 @@ def solve(
     fmt: Optional[str] = typer.Option(None, "--format", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
     time_system: Optional[str] = typer.Option(None, "--time-system", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=_shown(_PROC.get("time_system"))),
     lag: Optional[int] = typer.Option(None, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=_shown(_SMOOTH.get("lag"))),
-    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static: kernel identified per window or fixed (with --lag).", show_default=_shown(_SMOOTH.get("model"))),
+    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static | kinematic: kernel identified per window, fixed, or positions tied to Doppler velocities (with --lag).", show_default=_shown(_SMOOTH.get("model"))),
     kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
     order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
     window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),

@@ -31,9 +31,9 @@ class WeightConfig:
     iono_free_factor: float = 3.0
 
 
-SMOOTHING_MODELS = ("identify", "pva", "static")
+SMOOTHING_MODELS = ("identify", "pva", "static", "kinematic")
 SMOOTHING_KERNELS = ("shared", "full")
-FIXED_MODEL_LAGS = {"static": 1, "pva": 3}
+FIXED_MODEL_LAGS = {"static": 1, "pva": 3, "kinematic": 1}
 """Lags of the fixed kernels ``(z-1) I`` and ``(z-1)^3 I`` (they ignore ``lag``)."""
 
 
@@ -74,7 +74,7 @@ class SmoothingConfig:
         """Shortest window (epochs) the model can be fitted on: static 2, pva 5, shared
         ``2 lag + 2``, full ``3 (lag + 1) + 1``."""
         lag = self.effective_lag
-        need = {"static": 2, "pva": 5}.get(self.model)
+        need = {"static": 2, "pva": 5, "kinematic": 2}.get(self.model)
         if need is None:
             need = 2 * lag + 2 if self.kernel == "shared" else 3 * (lag + 1) + 1
         return max(need, 2)

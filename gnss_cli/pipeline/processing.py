@@ -87,6 +87,11 @@ def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], con
     result = run(obs_path, nav_paths, snapshot, progress=progress)
     if progress is not None:
         progress(f"stls: smoothing, lag {lag}", 0.0)
-    sol, models = smooth(result.epochs, result.solutions["wls"], config)
+    if config.smoothing.model == "kinematic":
+        from gnss_cli.pipeline.kinematic import kinematic_smooth
+
+        sol, models = kinematic_smooth(result.epochs, result.solutions["wls"], config)
+    else:
+        sol, models = smooth(result.epochs, result.solutions["wls"], config)
     solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in config.methods}
     return replace(result, solutions=solutions, models=models)
