@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,7 @@ def _open_lines(path: Path, header_only: bool = False) -> list[str]:
                             break
                     return lines
                 return f.read().splitlines()
-    except (OSError, EOFError, ValueError, LookupError, RuntimeError) as exc:
+    except (OSError, EOFError, ValueError, LookupError, RuntimeError, zlib.error) as exc:
         raise RinexFormatError(f"{path}: cannot read file ({type(exc).__name__}: {exc})") from exc
 
 

@@ -194,3 +194,28 @@ def test_a_record_whose_date_was_damaged_is_rejected_by_its_week_and_toe(nav0759
     shifted = nav0759.copy(deep=True)
     shifted["Toe"].values[ti, si] += 7 * 3600.0
     assert "week and Toe" in reject_implausible_records(shifted)[1][0]
+
+
+def test_a_corrupt_deflate_stream_is_a_format_error_naming_the_file(rinex_dir: Path, tmp_path: Path) -> None:
+    """zlib.error is no OSError: a gzip whose deflate data are damaged was an internal error."""
+    import gzip
+    import zlib
+
+    from gnss_cli.errors import RinexFormatError
+
+    raw = gzip.compress((rinex_dir / "rtklib-0759" / "07590920.05n").read_bytes())
+    for pos in range(300, len(raw) - 8, 61):
+        bad = bytearray(raw)
+        bad[pos] ^= 0xFF
+        try:
+            gzip.decompress(bytes(bad))
+        except zlib.error:
+            break
+        except (OSError, EOFError):
+            continue
+    else:
+        pytest.skip("no single-byte flip gave a zlib error")
+    path = tmp_path / "bad.05n.gz"
+    path.write_bytes(bytes(bad))
+    with pytest.raises(RinexFormatError, match=r"bad\.05n\.gz: cannot read file"):
+        read_nav(path)
