@@ -82,6 +82,8 @@ class ProcessingConfig:
     integrity_pfa: float = 1e-3
     integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
+    alert_limit_h_m: float = 556.0
+    """An ``ok`` ls/wls epoch whose HPL exceeds this gets ``hpl_limit`` (see default.toml)."""
     max_exclusions: int = 4
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
@@ -155,6 +157,8 @@ class ProcessingConfig:
             raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
+        if not self.alert_limit_h_m > 0:
+            raise ConfigError(f"alert_limit_h_m: expected > 0 (inf: no limit); received {self.alert_limit_h_m}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
@@ -244,7 +248,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["exclude"] = parse_satellites(proc["exclude"])
         if "robust" in proc:
             proc["robust"] = str(proc["robust"]).lower()
-        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz",
+        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m", "snr_mask_dbhz",
                     "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s"):
             if key in proc:
                 proc[key] = float(proc[key])

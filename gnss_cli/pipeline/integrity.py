@@ -42,7 +42,9 @@ large fault can keep Gauss-Newton from converging (measured: a 250 m bias left a
 static fix oscillating across Saastamoinen's -100 m height cut-off), and excluding it lets the
 epoch converge; ones that still do not converge keep the status with empty numbers.
 Epochs that still fail get ``integrity_fail``; epochs that pass but have ``GDOP > max_gdop``
-get ``gdop_limit``. Both keep their position.
+get ``gdop_limit``; epochs that pass with a horizontal protection level above
+``alert_limit_h_m`` get ``hpl_limit`` (an epoch without redundancy has no protection level and
+is not limited). All keep their position.
 """
 
 from __future__ import annotations
@@ -224,4 +226,5 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     ok = status == EpochStatus.OK
     status[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
     status[ok & ~failed & ~(sol.gdop <= config.max_gdop)] = EpochStatus.GDOP_LIMIT.value
+    status[ok & ~failed & (sol.gdop <= config.max_gdop) & (hpl > config.alert_limit_h_m)] = EpochStatus.HPL_LIMIT.value
     return replace(sol, status=status, excluded=excluded, test_stat=stat, hpl_m=hpl, vpl_m=vpl)

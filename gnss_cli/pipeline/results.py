@@ -24,12 +24,14 @@ value                   meaning
 ``integrity_fail``      ls/wls: the chi-square test of the residuals fails and no satellite can
                         be excluded any more (``integrity = "check"``: it fails); position kept
 ``gdop_limit``          ls/wls: GDOP above ``max_gdop`` (position kept)
+``hpl_limit``           ls/wls: the test passes but the horizontal protection level exceeds
+                        ``alert_limit_h_m`` (position kept)
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
                         model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
 
 A kf epoch is ``ok`` when the filter updated it with at least one pseudorange (1-3 satellites
-included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit`` and ``predicted`` epochs have a position
+included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``hpl_limit`` and ``predicted`` epochs have a position
 (:data:`KEEPS_POSITION`); only ``ok`` ones count as solved. A window model record
 (:class:`WindowModel`) has its own status: the identification outcome
 (:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
@@ -67,6 +69,7 @@ class EpochStatus(str, Enum):
     FALLBACK_WLS = "fallback_wls"
     INTEGRITY_FAIL = "integrity_fail"
     GDOP_LIMIT = "gdop_limit"
+    HPL_LIMIT = "hpl_limit"
     PREDICTED = "predicted"
 
     def __str__(self) -> str:
@@ -74,7 +77,8 @@ class EpochStatus(str, Enum):
 
 
 KEEPS_POSITION = (EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,
-                  EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.PREDICTED.value)
+                  EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
+                  EpochStatus.PREDICTED.value)
 """Statuses of epochs whose position, clocks and DOPs are written."""
 
 _SOLVER_STATUS = {

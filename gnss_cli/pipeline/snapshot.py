@@ -49,7 +49,7 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 """Methods whose definition includes row weights: they get the configured pseudorange variances."""
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
-_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
+_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
