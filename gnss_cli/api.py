@@ -38,7 +38,7 @@ __all__ = ["solve", "to_dataset"]
 F64 = NDArray[np.float64]
 PathArg = str | PathLike[str]
 
-_SECTIONS = ("weights", "signals", "stls", "wtls", "smoothing")
+_SECTIONS = ("weights", "signals", "stls", "wtls", "smoothing", "kalman")
 _SMOOTHING_KEYS = ("lag", "model", "kernel", "order", "window", "tolerance")
 _UNITS = {
     "x_m": ("m", "ECEF X"), "y_m": ("m", "ECEF Y"), "z_m": ("m", "ECEF Z"),
@@ -53,6 +53,9 @@ _UNITS = {
     "n_excluded": ("1", "satellites excluded by the integrity monitoring (FDE) of the WLS fix"),
     "test_stat": ("1", "chi-square statistic of the residuals (ls, wls)"),
     "hpl_m": ("m", "horizontal protection level (ls, wls)"), "vpl_m": ("m", "vertical protection level (ls, wls)"),
+    "vx_m_s": ("m/s", "ECEF X velocity (Doppler)"), "vy_m_s": ("m/s", "ECEF Y velocity (Doppler)"),
+    "vz_m_s": ("m/s", "ECEF Z velocity (Doppler)"), "clock_drift_m_s": ("m/s", "receiver clock drift, times c"),
+    "gdop_vel": ("1", "velocity DOP of velocity and clock drift"),
 }
 
 
@@ -162,6 +165,9 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> xr.Dat
         nan = np.full(s.n_sat.shape, np.nan)
         values["n_excluded"] = s.excluded.sum(axis=1) if s.excluded is not None else np.zeros_like(s.n_sat)
         values.update({k: (v if v is not None else nan) for k, v in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m))})
+        vel = s.vel_ecef_m_s if s.vel_ecef_m_s is not None else np.full((nan.size, 3), np.nan)
+        values.update({"vx_m_s": vel[:, 0], "vy_m_s": vel[:, 1], "vz_m_s": vel[:, 2]})
+        values.update({k: (v if v is not None else nan) for k, v in (("clock_drift_m_s", s.clock_drift_m_s), ("gdop_vel", s.gdop_vel))})
         for name, v in values.items():
             columns.setdefault(name, []).append(np.asarray(v))
     data_vars = {}

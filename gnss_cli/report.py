@@ -23,7 +23,10 @@ method's ``cov_m2`` (ECEF, m^2) and ``R`` the ECEF -> ENU rotation at the soluti
 ``sdnu_m2``, ``sdue_m2`` are its off-diagonal elements (E-N, N-U, U-E covariances, m^2). For
 the smoothed stls rows (``--lag``) ``cov_m2`` is the multi-epoch covariance of the window's
 behavior (:func:`gnss_cli.behavior.multi_epoch.window_covs`); ``fallback_wls`` epochs keep the
-WLS covariance.
+WLS covariance; for kf the smoothed (or filtered) state covariance.
+
+Velocity columns (the very last, :data:`VELOCITY_COLUMNS`): always written, empty when the
+observation file has no Doppler.
 
 Time: ``time`` is GPS time, or UTC with ``time_system="utc"`` (GPST minus
 :func:`utc_offset_s`); ``gps_week`` and ``tow_s`` are GPS time in both.
@@ -57,7 +60,8 @@ FLOAT_FORMATS = {
     "tow_s": "{:.3f}", "x_m": "{:.4f}", "y_m": "{:.4f}", "z_m": "{:.4f}", "lat_deg": "{:.9f}",
     "lon_deg": "{:.9f}", "height_m": "{:.4f}", "clock_m": "{:.4f}", "mean_lat_deg": "{:.9f}", "mean_lon_deg": "{:.9f}",
     "sden_m2": "{:.6f}", "sdnu_m2": "{:.6f}", "sdue_m2": "{:.6f}",
-    "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}",
+    "elevation_deg": "{:.2f}", "azimuth_deg": "{:.2f}", "snr_dbhz": "{:.1f}", "weight": "{:.6f}",
+    "vx_m_s": "{:.4f}", "vy_m_s": "{:.4f}", "vz_m_s": "{:.4f}", "clock_drift_m_s": "{:.4f}",
 }
 
 
@@ -144,6 +148,7 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
             df["sde_m"], df["sdn_m"], df["sdu_m"] = (np.sqrt(cov[:, k, k]) for k in range(3))
         df["sden_m2"], df["sdnu_m2"], df["sdue_m2"] = cov[:, 0, 1], cov[:, 1, 2], cov[:, 2, 0]
         _add_integrity_columns(df, s, result.epochs.sv)
+        _add_velocity_columns(df, s)
         frames.append(df)
     return pd.concat(frames, ignore_index=True)
 
@@ -163,6 +168,19 @@ def _add_integrity_columns(df: pd.DataFrame, s, sv: NDArray[np.str_]) -> None:  
     df["excluded"] = names
     for col, values in (("test_stat", s.test_stat), ("hpl_m", s.hpl_m), ("vpl_m", s.vpl_m)):
         df[col] = values if values is not None else np.nan
+
+
+VELOCITY_COLUMNS = ["vx_m_s", "vy_m_s", "vz_m_s", "clock_drift_m_s", "gdop_vel"]
+"""The last columns: receiver velocity (ECEF, m/s), clock drift (m/s) and velocity DOP, from
+the Doppler WLS at the fix (kf: the filter's state); empty cells when the file has no Doppler."""
+
+
+def _add_velocity_columns(df: pd.DataFrame, s) -> None:  # type: ignore[no-untyped-def]
+    v = s.vel_ecef_m_s if s.vel_ecef_m_s is not None else np.full((len(df), 3), np.nan)
+    have = np.isfinite(s.x_ecef_m).all(axis=1)
+    df["vx_m_s"], df["vy_m_s"], df["vz_m_s"] = (np.where(have, v[:, i], np.nan) for i in range(3))
+    for col, values in (("clock_drift_m_s", s.clock_drift_m_s), ("gdop_vel", s.gdop_vel)):
+        df[col] = np.where(have, values, np.nan) if values is not None else np.nan
 
 
 def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.DataFrame:
@@ -290,20 +308,23 @@ def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> st
 
 
 SATELLITE_COLUMNS = ["time", "method", "satellite", "elevation_deg", "azimuth_deg", "snr_dbhz", "residual_m",
-                     "sigma_m", "used", "reason"]
+                     "sigma_m", "weight", "used", "reason"]
 """Columns of ``satellites.csv`` (one row per observed satellite and epoch, README)."""
 
 
 def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore[no-untyped-def]
     """Per-satellite rows of the wls solution (else the first method's): geometry at the fix,
-    C/N0, post-fit residual, sigma, and why a satellite was not used.
+    C/N0, post-fit residual, sigma, robust weight, and why a satellite was not used.
 
-    ``reason``: ``no_ephemeris``, ``excluded_by_user``, ``snr_mask``, ``excluded_fde``,
-    ``below_mask`` (elevation mask), ``no_second_frequency`` (iono-free), or, for a satellite of
-    an epoch that was not solved, the epoch's status; empty when used.
+    ``weight``: the robust weight factor ``w_i`` of a used satellite (``--robust``; 1 for a
+    plain fit), its effective sigma is ``sigma_m / sqrt(weight)``. ``reason``: ``no_ephemeris``,
+    ``excluded_by_user``, ``snr_mask``, ``excluded_fde``, ``below_mask`` (elevation mask),
+    ``no_second_frequency`` (iono-free), or, for a satellite of an epoch that was not solved,
+    the epoch's status; for a used satellite ``downweighted`` when its weight is below
+    :data:`~gnss_cli.pipeline.results.DOWNWEIGHTED_BELOW`, else empty.
     """
     from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
-    from gnss_cli.pipeline.results import UNUSED_REASONS
+    from gnss_cli.pipeline.results import DOWNWEIGHTED_BELOW, UNUSED_REASONS
 
     data = result.epochs
     method = "wls" if "wls" in result.solutions else next(iter(result.solutions))
@@ -313,9 +334,10 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     unused = data.unused if data.unused is not None else np.where(data.usable, 0, 1).astype(np.int8)
     used = np.isfinite(s.residuals_m)
     excluded = s.excluded if s.excluded is not None else np.zeros((T, n), dtype=bool)
+    weight = s.robust_weights if s.robust_weights is not None else np.where(used, 1.0, np.nan)
     reason = np.select(
-        [used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
-        ["", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
+        [used & (weight < DOWNWEIGHTED_BELOW), used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
+        ["downweighted", "", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
          "no_second_frequency"],
         default=np.broadcast_to(s.status[:, None], (T, n)).astype(object))
     ti, si = np.nonzero(unused >= 0)
@@ -324,7 +346,7 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     return pd.DataFrame({
         "time": _iso(data.time_gps_s)[ti], "method": method, "satellite": data.sv[si], "elevation_deg": el[ti, si],
         "azimuth_deg": az[ti, si], "snr_dbhz": snr, "residual_m": s.residuals_m[ti, si], "sigma_m": sigma,
-        "used": used[ti, si].astype(np.int64), "reason": reason[ti, si],
+        "weight": weight[ti, si], "used": used[ti, si].astype(np.int64), "reason": reason[ti, si],
     })
 
 

@@ -72,6 +72,21 @@ def write_stdout(text: str) -> None:
         raise PipeClosed() from None
 
 
+def one_line(text: str) -> str:
+    """``text`` as one printable line: runs of whitespace (line ends and raw CRs included)
+    become one space, other control characters their ``\\xNN`` escape.
+
+    A message can quote bytes of a damaged input file; printed raw, a CR or an escape
+    sequence would overwrite the terminal line, a line feed split the message.
+
+    >>> one_line("obs.rnx: bad line\\r\\n  'G01\\x1b[2J'\\x00")
+    "obs.rnx: bad line 'G01\\\\x1b[2J'\\\\x00"
+    """
+    joined = " ".join(text.split())
+    return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" if ord(c) < 256 else f"\\u{ord(c):04x}"
+                   for c in joined)
+
+
 def _exit_code_of(exc: BaseException) -> int | None:
     """The exit code carried by a Click/Typer ``Exit``, or None."""
     code = getattr(exc, "exit_code", None)
@@ -112,8 +127,7 @@ def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> 
     except GnssError as exc:
         if debug:
             raise
-        message = " ".join(str(exc).split())
-        sys.stderr.write(f"{prog_name}: error: {message}\n")
+        sys.stderr.write(f"{prog_name}: error: {one_line(str(exc))}\n")
         code = exc.exit_code
     except exits as exc:
         code = _exit_code_of(exc) or 0
@@ -126,8 +140,8 @@ def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> 
     except Exception as exc:  # noqa: BLE001 - the bug path of the exit-code contract
         if debug:
             raise
-        message = " ".join(str(exc).split())
-        sys.stderr.write(f"{prog_name}: internal error: {type(exc).__name__}: {message} (run with --debug for a traceback)\n")
+        sys.stderr.write(f"{prog_name}: internal error: {type(exc).__name__}: {one_line(str(exc))} "
+                         "(run with --debug for a traceback)\n")
         code = 1
     finally:
         for s, handler in previous.items():

@@ -18,9 +18,9 @@ import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
 from gnss_cli.cli.options import (
-    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, Lag, Method, Model, Order, Quiet, Reference,
-    ReferenceCsv, ReferencePos, ReferenceSinex, SnrMask, Systems, TimeSystem, Tropo, Window, check_reference_options,
-    check_smoothing_flags, reference_inputs, run_config,
+    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Quiet, Reference,
+    ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
+    check_reference_options, check_smoothing_flags, reference_inputs, run_config,
 )
 from gnss_cli.errors import ConfigError, UsageError
 
@@ -49,7 +49,10 @@ def solve(
     kernel: Kernel = None,
     order: Order = None,
     window: Window = None,
+    kf_model: KfModel = None,
+    smoother: Smoother = None,
     integrity: Integrity = None,
+    robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),

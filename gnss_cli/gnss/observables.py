@@ -128,3 +128,35 @@ def align_pseudoranges(prs: Pseudoranges, sv: NDArray[np.str_]) -> Pseudoranges:
     pr[:, have] = prs.pr_m[:, src[have]]
     code[:, have] = prs.code[:, src[have]]
     return Pseudoranges(prs.time_gps_s, np.asarray(sv), pr, code)
+
+
+def doppler_code(code: str) -> str:
+    """The Doppler observation of a pseudorange code's signal: ``C1C`` -> ``D1C``, ``C1``/``P1`` -> ``D1``.
+
+    Examples
+    --------
+    >>> doppler_code("C1C"), doppler_code("P1"), doppler_code("C2I")
+    ('D1C', 'D1', 'D2I')
+    """
+    return "D" + code[1:]
+
+
+def select_dopplers(obs: xr.Dataset, prs: Pseudoranges) -> NDArray[np.float64] | None:
+    """``(T, n)`` Doppler (Hz) of the signal of each chosen pseudorange code, on ``prs``'s axes.
+
+    The Doppler of the same signal as the pseudorange (:func:`doppler_code`), so the two share
+    the priority order of :data:`DEFAULT_SIGNAL_PRIORITY`. NaN where the file has no value
+    (blank, or exactly 0, which some receivers write for a missing Doppler). None when the
+    file has no Doppler observation of any chosen code.
+    """
+    have = [c for c in np.unique(prs.code) if c and doppler_code(str(c)) in obs]
+    if not have:
+        return None
+    col = {sv: i for i, sv in enumerate(np.asarray(obs["sv"].values).astype(str))}
+    idx = np.array([col[sv] for sv in prs.sv], dtype=np.intp)
+    out = np.full(prs.pr_m.shape, np.nan)
+    for c in have:
+        vals = np.asarray(obs[doppler_code(str(c))].values, dtype=np.float64)[:, idx]
+        use = (prs.code == c) & np.isfinite(vals) & (vals != 0.0)
+        out[use] = vals[use]
+    return out if np.isfinite(out).any() else None

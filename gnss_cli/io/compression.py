@@ -25,6 +25,7 @@ import bz2
 import gzip
 import io
 import os
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -113,7 +114,8 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
     InputFileNotFoundError
         ``path`` does not exist or is not a regular file.
     RinexFormatError
-        The compressed stream or the Hatanaka content is corrupt.
+        The compressed stream or the Hatanaka content is corrupt (also when ``crx2rnx``
+        only warns and skips the epochs it cannot restore: their data would be missing).
 
     Notes
     -----
@@ -131,9 +133,13 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
         import hatanaka  # import cost only for Compact RINEX input
 
         try:
-            content = hatanaka.crx2rnx(content)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                content = hatanaka.crx2rnx(content)
         except (hatanaka.HatanakaException, ValueError, UnicodeError) as exc:
             raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({exc})") from exc
+        if caught:  # crx2rnx skipped records it could not restore: data are missing
+            raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({caught[0].message})")
     return content
 
 

@@ -16,7 +16,7 @@ from gnss_cli.errors import RinexFormatError, UsageError
 
 __all__ = [
     "split_lines", "gather_columns", "parse_uint_columns", "parse_uint_fields", "civil_ranges_ok",
-    "civil2datetime64", "parse_f14_3", "parse_float_fields", "sv_codes2str",
+    "civil2datetime64", "parse_f14_3", "parse_float_fields", "sv_codes2str", "parse_decimal_ns", "days_in_month",
 ]
 
 SPACE = 32
@@ -253,6 +253,60 @@ def civil_ranges_ok(
     """True where a civil date and time of day lie in their ranges (a leap second allowed)."""
     return ((month >= 1) & (month <= 12) & (day >= 1) & (day <= 31) & (hour <= 23) & (minute <= 59)
             & (sec <= 60))  # fmt: skip
+
+
+def days_in_month(year: NDArray[np.int64], month: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Number of days of each month (Gregorian calendar); 0 where ``month`` is not 1-12.
+
+    >>> days_in_month(np.array([2000, 1900, 2005]), np.array([2, 2, 4])).tolist()
+    [29, 28, 30]
+    """
+    leap = (year % 4 == 0) & ((year % 100 != 0) | (year % 400 == 0))
+    table = np.array([0, 31, 28, 31, 30, 31, 30, 31, 31, 30, 31, 30, 31], dtype=np.int64)
+    valid = (month >= 1) & (month <= 12)
+    return np.where(valid, table[np.where(valid, month, 0)] + ((month == 2) & leap), 0)
+
+
+def parse_decimal_ns(chars: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """Decode unsigned decimal seconds (``F5.1``, ``F11.7``, ...) into integer nanoseconds, exactly.
+
+    Parameters
+    ----------
+    chars : numpy.ndarray of uint8, shape (n, width)
+        One field per row: digits with at most one point, blanks around them.
+
+    Returns
+    -------
+    ns : numpy.ndarray of int64, shape (n,)
+        The value in nanoseconds (digits beyond the ninth decimal dropped); 0 where invalid.
+    ok : numpy.ndarray of bool, shape (n,)
+        False where the field is blank, is not one run of digits with at most one point,
+        or is 1e9 s or more (beyond int64 nanoseconds arithmetic here).
+
+    Notes
+    -----
+    Each digit is weighted by its integer power of ten in nanoseconds, so ``'59.9'`` gives
+    59,900,000,000 ns; a binary float (``59.9 % 1 * 1e6``) would give 59.899999 s.
+
+    >>> ns, ok = parse_decimal_ns(np.frombuffer(b" 59.9 44.0   12", dtype=np.uint8).reshape(3, 5))
+    >>> ns.tolist(), ok.tolist()
+    ([59900000000, 44000000000, 12000000000], [True, True, True])
+    """
+    is_digit = (chars >= DIGIT0) & (chars <= DIGIT0 + 9)
+    is_dot = chars == DOT
+    filled = chars != SPACE
+    n_runs = np.count_nonzero(filled[:, 1:] & ~filled[:, :-1], axis=1) + filled[:, 0]
+    ok = (np.all(is_digit | is_dot | ~filled, axis=1) & (n_runs == 1) & (np.count_nonzero(is_dot, axis=1) <= 1)
+          & np.any(is_digit, axis=1))  # fmt: skip
+    width = chars.shape[1]
+    end_of_run = width - np.argmax(filled[:, ::-1], axis=1)
+    point = np.where(np.any(is_dot, axis=1), np.argmax(is_dot, axis=1), end_of_run)
+    col = np.arange(width)
+    power = point[:, None] - col - (col < point[:, None])  # 10**power s: 0 for the units digit, -1 for tenths
+    ok &= ~np.any(is_digit & (power > 8), axis=1)
+    weight = np.where(power >= -9, 10 ** np.clip(power + 9, 0, 17), 0).astype(np.int64)
+    ns = np.sum(np.where(is_digit, chars.astype(np.int64) - DIGIT0, 0) * weight, axis=1)
+    return np.where(ok, ns, 0), ok
 
 
 def sv_codes2str(codes: NDArray[np.int64]) -> NDArray[np.str_]:

@@ -23,6 +23,10 @@ A record is rejected when
   62.5 ms for Galileo (31 bits x 2^-34 s), whose real clocks exceed 1 ms: E12 broadcast
   5.7 ms on 2020-06-25 (ESBC) and 4.6 ms on 2022-06-08 (KMS3), so a 1 ms limit for all
   systems would refuse valid Galileo records;
+- its time of ephemeris (week and ``Toe``) is more than 6 h from its time of clock (modulo
+  1024 weeks, for writers that roll the week over): on every shared file GPS, QZSS and
+  BeiDou records have ``toe = toc`` and Galileo records differ by at most 1.5 h, while a
+  record whose date was damaged (a GPS record of 2020 dated 1980) keeps its week;
 - its time of clock is before the start of its system's time scale (GPS 1980-01-06, Galileo
   1999-08-22, BeiDou 2006-01-01; GLONASS and SBAS: 1980-01-06 as well, a record of 1980 is
   still refused by the other checks when its values are absurd).
@@ -108,6 +112,22 @@ _SYSTEM_START = {
     "E": "1999-08-22", "C": "2006-01-01", "I": "1980-01-06",
 }  # fmt: skip
 _KEPLER_SYSTEMS = "GEJCI"
+_WEEK_FIELDS = {"G": "GPSWeek", "J": "GPSWeek", "E": "GALWeek", "C": "BDTWeek", "I": "BDTWeek"}
+_WEEK_ORIGIN = {"C": "2006-01-01"}  # BeiDou weeks count from BDT's start; the others from GPS's
+_TOE_TOC_MAX_S = 6 * 3600.0
+_ROLLOVER_S = 1024 * 604_800.0
+
+
+def _toe_far_from_toc(ds: xr.Dataset, system: str, cols: NDArray[np.intp]) -> NDArray[np.bool_] | None:
+    """Cells whose week and Toe put the ephemeris more than 6 h from the toc (module docstring)."""
+    week, toe = _grid(ds, _WEEK_FIELDS.get(system, ""), cols), _grid(ds, "Toe", cols)
+    if week is None or toe is None:
+        return None
+    origin = np.datetime64(_WEEK_ORIGIN.get(system, "1980-01-06"), "ns")
+    toc_s = (np.asarray(ds["time"].values, dtype="datetime64[ns]") - origin).astype(np.int64) * 1e-9
+    with np.errstate(invalid="ignore"):
+        gap = np.abs(np.remainder(week * 604_800.0 + toe - toc_s[:, None] + _ROLLOVER_S / 2, _ROLLOVER_S) - _ROLLOVER_S / 2)
+        return np.isfinite(week) & np.isfinite(toe) & (gap > _TOE_TOC_MAX_S)
 
 
 def _outside(values: F64, low: float, high: float) -> NDArray[np.bool_]:
@@ -231,6 +251,9 @@ def reject_implausible_records(ds: xr.Dataset, label: str = "") -> tuple[xr.Data
             continue
         reasons = (_kepler_reasons if kepler else _state_reasons)(ds, cols, present, system)
         reasons.append((present & _toc_too_early(ds, system, cols.size), "time of clock before the system's start"))
+        far = _toe_far_from_toc(ds, system, cols) if kepler else None
+        if far is not None:
+            reasons.append((present & far, "week and Toe more than 6 h from the time of clock"))
         bad = np.zeros_like(present)
         for cells, _ in reasons:
             bad |= cells

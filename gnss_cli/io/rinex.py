@@ -1,8 +1,8 @@
 """RINEX observation and navigation input, validated before any computation.
 
 This is the only module that imports :mod:`georinex`. RINEX 2 observation files are
-read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files with
-georinex; RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
+read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files by
+:mod:`gnss_cli.io.rinex2_nav` (exact toc); RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
 :mod:`gnss_cli.io.rinex3_nav` when it is available, else with georinex (which rejects
 RINEX 4). Every reader is filtered to the systems and signals needed: unfiltered,
 georinex needs minutes and hundreds of MB on a 24 h multi-GNSS RINEX 3 file.
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,7 @@ def _open_lines(path: Path, header_only: bool = False) -> list[str]:
                             break
                     return lines
                 return f.read().splitlines()
-    except (OSError, EOFError, ValueError, LookupError, RuntimeError) as exc:
+    except (OSError, EOFError, ValueError, LookupError, RuntimeError, zlib.error) as exc:
         raise RinexFormatError(f"{path}: cannot read file ({type(exc).__name__}: {exc})") from exc
 
 
@@ -216,7 +217,8 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     paths
         One or several navigation files (RINEX 2 GPS nav, RINEX 3/4 mixed or per system).
         All RINEX 3/4 files are read in one pass by
-        :func:`~gnss_cli.io.rinex3_nav.read_nav3`; RINEX 2 files by georinex, then merged.
+        :func:`~gnss_cli.io.rinex3_nav.read_nav3`; RINEX 2 files by
+        :func:`~gnss_cli.io.rinex2_nav.read_nav2` (all their records, as georinex read them), then merged.
     systems
         System letters to keep; None keeps all.
 
@@ -252,10 +254,12 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     for info in infos:
         if info in fast:
             continue
-        kwargs: dict[str, object] = {}
-        if systems:
-            kwargs["use"] = set(systems)
-        ds = _georinex_load(info.path, **kwargs)
+        if info.version < 3:
+            from gnss_cli.io.rinex2_nav import read_nav2
+
+            ds = read_nav2(info.path)
+        else:
+            ds = _georinex_load(info.path, **({"use": set(systems)} if systems else {}))
         if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
             raise RinexFormatError(f"{info.path}: no navigation records")
         ds.attrs["filename"] = info.path.name
@@ -269,9 +273,15 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     valid = [ds.attrs["ionospheric_corr_GPS"] for ds in datasets if klobuchar_coefficients(ds) is not None]
     if valid:  # Klobuchar coefficients from any file of the run that has them
         attrs["ionospheric_corr_GPS"] = valid[0]
+    # Union of the (time, sv) grids, each cell from the first file that has it. (xr.merge with
+    # compat="override" took a variable present in several files, e.g. SVclockBias of a GPS and
+    # a GLONASS file, from the first file alone: the GLONASS clocks were lost.)
+    merged = datasets[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        merged = xr.merge(datasets, compat="override", join="outer", combine_attrs="drop")
+        for ds in datasets[1:]:
+            merged = merged.combine_first(ds)
+    merged.attrs = {}
     merged.attrs.update(attrs)
     merged.attrs["filename"] = ",".join(str(d.attrs.get("filename", "")) for d in datasets)
     return merged

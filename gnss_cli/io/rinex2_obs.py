@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.errors import RinexFormatError
 from gnss_cli.io.fixed_width import DIGIT0, SPACE, gather_columns, parse_f14_3, parse_float_fields, split_lines, sv_codes2str
+from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import read_header
 
 __all__ = ["read_obs2", "parse_seconds_ns"]
@@ -271,7 +272,8 @@ def read_obs2(
     RinexFormatError
         Bad header, bad epoch line, a record cut short by the end of the file, a record
         with more fields than the header's observation types, a bad satellite id or
-        value, no records; the message names the file and the line.
+        value, an epoch not later than the one before it (repeated, re-stamped, a body
+        written twice), no records; the message names the file and the line.
     """
     name, content, hdr_end, header = read_header(path)
     attrs, types, file_system = _obs_header(header, name)
@@ -281,6 +283,9 @@ def read_obs2(
     if text_lines and text_lines[-1] == "":
         text_lines.pop()
     walk = _walk(text_lines, len(types), name, offset)
+    check_epochs_increasing(np.asarray(walk.times_ns, dtype=np.int64), offset + np.asarray(walk.epoch_line) + 1, name)
+    if not content.endswith(b"\n") and walk.first_line and len(text_lines) > walk.first_line[-1] and text_lines[-1].strip():
+        check_last_value_complete(len(text_lines[-1]), 0, offset + len(text_lines), name)
     first, sv, epoch = _records(walk, len(types), file_system, name, offset)
     if first.size:
         _check_record_lines(buf, starts, lengths, first, len(types), name, offset)

@@ -23,6 +23,7 @@ RINEX 3.05 tables A6-A15 and RINEX 4.00 tables A31-A52 (IGS/RTCM-SC104); georine
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,7 @@ from gnss_cli.io.fixed_width import (
 from gnss_cli.io.nav_layout import Layout, layout_v3, layout_v4
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_nav_header, validate_systems
 
-__all__ = ["read_nav3", "FIELD_NAMES"]
+__all__ = ["read_nav3", "FIELD_NAMES", "drop_identical_records", "records2dataset", "systems_in_order"]
 
 _KEPLER_GPS = [
     "SVclockBias", "SVclockDrift", "SVclockDriftRate", "IODE", "Crs", "DeltaN", "M0",
@@ -145,11 +146,58 @@ def _read_one(path: str | os.PathLike[str], systems: set[str] | None) -> tuple[_
     fl = gather_columns(buf, starts[first_lines], lengths[first_lines], 0, 23)
     sys_chars = fl[:, 0]
     sv_code, toc = _record_starts(fl, lineno[first_lines], name)
+    if attrs["version"] < 4.0:
+        _check_record_lengths(head, lineno, layout, sys_chars, name)
+    _check_last_line(buf, starts, lengths, lineno, layout, name)
     values = _record_values(buf, starts, lengths, lineno, layout, name)
     keep = np.ones(first_lines.size, dtype=bool)
     if systems is not None:
         keep = np.isin(sys_chars, np.frombuffer("".join(sorted(systems)).encode(), dtype=np.uint8))
     return _Records(sv_code[keep], toc[keep], values[keep]), attrs
+
+
+_LINES_PER_RECORD_V3 = {ord("R"): (4, 5), ord("S"): (4,)}
+"""Lines of a RINEX 3 record: 8 for the Kepler systems, 4 for GLONASS (5 from RINEX 3.05) and SBAS."""
+
+
+def _check_record_lengths(head: NDArray[np.uint8], lineno: NDArray[np.int64], layout: Layout,
+                          sys_chars: NDArray[np.uint8], name: str) -> None:
+    """Refuse a record with too few or too many lines: a file cut inside its last record, or
+    lines lost or doubled inside one (blank lines after the last record are allowed)."""
+    line_idx, _, rec_of_line, first_lines = layout
+    filled = np.any(head[line_idx] != SPACE, axis=1)
+    n_lines = np.bincount(rec_of_line[filled], minlength=first_lines.size)
+    for code in np.unique(sys_chars):
+        rows = np.flatnonzero(sys_chars == code)
+        allowed = np.asarray(_LINES_PER_RECORD_V3.get(int(code), (8,)))
+        bad = rows[~np.isin(n_lines[rows], allowed)]
+        if bad.size:
+            i = int(bad[0])
+            end = "the file ends inside it" if i == first_lines.size - 1 and n_lines[i] < allowed.min() else "a line is missing or extra"
+            raise RinexFormatError(
+                f"{name}:{int(lineno[first_lines[i]])}: record of {chr(int(code))} has {int(n_lines[i])} lines "
+                f"(expected {' or '.join(str(a) for a in allowed)}): {end}"
+            )
+
+
+def _check_last_line(buf: NDArray[np.uint8], starts: NDArray[np.int64], lengths: NDArray[np.int64],
+                     lineno: NDArray[np.int64], layout: Layout, name: str) -> None:
+    """Refuse a file cut inside the last value: every field of the last record's last line
+    ends with its exponent (``D+03``); a cut one would be read as another number."""
+    line_idx, ordinal, _, _ = layout
+    filled = [int(i) for i in line_idx[::-1][:8] if lengths[i] > 0 and np.any(buf[starts[i]:starts[i] + lengths[i]] != SPACE)]
+    if not filled:
+        return
+    i = filled[0]
+    text = buf[starts[i]:starts[i] + lengths[i]].tobytes().decode("ascii", "replace")
+    first = 23 if ordinal[np.searchsorted(line_idx, i)] == 0 else 4
+    for k in range(first, len(text), _FIELD_WIDTH):
+        field = text[k:k + _FIELD_WIDTH].strip()
+        if field and not _EXPONENT.search(field):
+            raise RinexFormatError(f"{name}:{int(lineno[i])}: the file ends inside a value ({field!r} has no exponent)")
+
+
+_EXPONENT = re.compile(r"[DEde][+-]?\d{1,3}$")
 
 
 def _record_starts(
@@ -288,14 +336,14 @@ def read_nav3(
         names = ", ".join(Path(p).name for p in paths)
         which = f" of the systems {''.join(systems)}" if systems else ""
         raise RinexFormatError(f"{names}: no navigation records{which}")
-    sv_code, toc, values = _drop_identical(sv_code, toc, values)
-    svtype = _systems_in_order(sv_code)
-    ds = _dataset(sv_code, toc, values, svtype)
+    sv_code, toc, values = drop_identical_records(sv_code, toc, values)
+    svtype = systems_in_order(sv_code)
+    ds = records2dataset(sv_code, toc, values, svtype)
     ds.attrs.update(_merged_attrs([a for _, a in parts], svtype))
     return ds
 
 
-def _drop_identical(
+def drop_identical_records(
     sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64]
 ) -> tuple[NDArray[np.int64], NDArray[np.datetime64], NDArray[np.float64]]:
     """Drop exact duplicate records (same sv, toc and every value, NaN-aware), keeping the first."""
@@ -327,7 +375,7 @@ def _sv_labels(sv_code: NDArray[np.int64], toc: NDArray[np.datetime64]) -> NDArr
     return np.where(occurrence == 0, base, np.char.add(np.char.add(base, "_"), occurrence.astype(str)))
 
 
-def _systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
+def systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
     """System letters of the records in order of first appearance."""
     sys_of_rec = (sv_code >> 16).astype(np.uint8)
     svtype: list[str] = []
@@ -336,10 +384,29 @@ def _systems_in_order(sv_code: NDArray[np.int64]) -> list[str]:
     return svtype
 
 
-def _dataset(
+def records2dataset(
     sv_code: NDArray[np.int64], toc: NDArray[np.datetime64], values: NDArray[np.float64], svtype: list[str]
 ) -> xarray.Dataset:
-    """The ``(time, sv)`` dataset of the records of the systems ``svtype`` (GLONASS/SBAS km converted to m)."""
+    """The ``(time, sv)`` dataset of navigation records (GLONASS/SBAS km converted to m).
+
+    Parameters
+    ----------
+    sv_code : numpy.ndarray of int64, shape (n,)
+        Satellite codes ``(system << 16) | (tens << 8) | units`` of the records.
+    toc : numpy.ndarray of datetime64[ns], shape (n,)
+        Time of clock of each record.
+    values : numpy.ndarray of float64, shape (n, k)
+        The fields of each record in the order of :data:`FIELD_NAMES` (``k`` at least the
+        longest list of the systems present); NaN where blank.
+    svtype : list of str
+        The systems present (:func:`systems_in_order`).
+
+    Returns
+    -------
+    xarray.Dataset
+        One variable per name of :data:`FIELD_NAMES` of the systems present; a second
+        record of a satellite at the same toc under ``'G01_1'``.
+    """
     sv_values, sv_of_rec = np.unique(_sv_labels(sv_code, toc), return_inverse=True)
     time_values, time_of_rec = np.unique(toc, return_inverse=True)
     n_t, n_sv = time_values.size, sv_values.size

@@ -29,6 +29,7 @@ from gnss_cli.errors import RinexFormatError, UsageError
 from gnss_cli.io.fixed_width import (
     DIGIT0,
     DOT,
+    PAD,
     SPACE,
     civil2datetime64,
     civil_ranges_ok,
@@ -40,6 +41,7 @@ from gnss_cli.io.fixed_width import (
     split_lines,
     sv_codes2str,
 )
+from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_obs_header, validate_systems
 
 __all__ = ["read_obs3"]
@@ -179,8 +181,9 @@ def read_obs3(
     times are the epochs that hold at least one satellite of the selected systems,
     satellites are all satellites of the selected systems that appear, even when every
     selected code is blank for them. Differences: ``'G 7'`` is read as ``'G07'`` before
-    sorting; event epochs (flag 2-6) and their special records are skipped; when the same
-    epoch appears twice, the later record wins. Loss-of-lock and signal-strength
+    sorting; event epochs (flag 2-6) and their special records are skipped; an epoch that
+    is not later than the one before it (the same epoch twice, a re-stamped epoch) is an
+    error, as is a file cut inside its last value. Loss-of-lock and signal-strength
     indicators are not read.
 
     Examples
@@ -204,6 +207,7 @@ def read_obs3(
     lines = _body_lines(content[hdr_end:], header.count("\n"))
     owner, times = _epochs(lines, name)
     data_idx, sv_code, sys_code = _data_lines(lines, owner, times.flag, chosen, name)
+    _check_record_lengths(lines, data_idx, sys_code, obs_types, name)
     line_epoch = owner[data_idx]
     time_values, time_of_line = np.unique(times.time[line_epoch], return_inverse=True)
     sv_values, sv_of_line = np.unique(sv_code, return_inverse=True)
@@ -256,8 +260,9 @@ def _body_lines(body: bytes, n_header_lines: int) -> _Lines:
 def _epochs(lines: _Lines, name: str) -> tuple[NDArray[np.int64], _EpochLines]:
     """Epoch index of each line (-1 before the first) and the decoded epoch lines.
 
-    Raises when there is no epoch line, text precedes the first one, or an epoch announces
-    another number of satellite lines than follow it.
+    Raises when there is no epoch line, text precedes the first one, an epoch announces
+    another number of satellite lines than follow it, or an observation epoch (flag 0/1) is
+    not later than the one before it.
     """
     n_lines = lines.starts.size
     is_epoch = lines.first_char == ord(">")
@@ -280,6 +285,11 @@ def _epochs(lines: _Lines, name: str) -> tuple[NDArray[np.int64], _EpochLines]:
             f"{name}: bad epoch line {int(lines.lineno[ep_idx[i]])}: it announces {int(nsat[i])} "
             f"records but {int(follow[i])} lines follow"
         )
+    observed = flag <= 1
+    check_epochs_increasing(times[observed], lines.lineno[ep_idx][observed], name)
+    last = n_lines - 1
+    if lines.buf[lines.starts[last] + lines.lengths[last]] != ord("\n") and not is_epoch[last]:
+        check_last_value_complete(int(lines.lengths[last]), _SV_WIDTH, int(lines.lineno[last]), name)
     return np.cumsum(is_epoch) - 1, _EpochLines(times, flag, nsat)
 
 
@@ -307,6 +317,28 @@ def _data_lines(
     if data_idx.size == 0:
         raise RinexFormatError(f"{name}: no observation records of the systems {''.join(chosen)}")
     return data_idx, sv_code, sys_code
+
+
+def _check_record_lengths(lines: _Lines, data_idx: NDArray[np.int64], sys_code: NDArray[np.uint8],
+                          obs_types: dict[str, list[str]], name: str) -> None:
+    """Raise when an observation line holds more fields than its system's header types."""
+    n_types = np.zeros(256, dtype=np.int64)
+    for sys_char, types in obs_types.items():
+        n_types[ord(sys_char)] = len(types)
+    used = _SV_WIDTH + _FIELD_WIDTH * n_types[sys_code]
+    long = np.flatnonzero(lines.lengths[data_idx] > used)
+    if long.size == 0:
+        return
+    width = int(min(PAD, np.max(lines.lengths[data_idx[long]] - used[long])))
+    tail = lines.columns(data_idx[long], used[long], width)
+    bad = np.flatnonzero(np.any(tail != SPACE, axis=1))
+    if bad.size:
+        i = long[bad[0]]
+        sys_char = chr(int(sys_code[i]))
+        raise RinexFormatError(
+            f"{name}: line {int(lines.lineno[data_idx[i]])}: more observations than the {int(n_types[sys_code[i]])} "
+            f"of the header's 'SYS / # / OBS TYPES' for system {sys_char}"
+        )
 
 
 def _decode_values(

@@ -30,10 +30,12 @@ from gnss_cli.gnss.observables import (
     Pseudoranges,
     align_pseudoranges,
     codes_for,
+    doppler_code,
+    select_dopplers,
     select_pseudoranges,
 )
 from gnss_cli.gnss.orbits import SatelliteStates
-from gnss_cli.gnss.signals import iono_free_pseudorange_m
+from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.gnss.weights import ephemeris_sigma_m
 from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
@@ -118,13 +120,19 @@ class _SatelliteArrays:
     iono_scale: F64
     usable: NDArray[np.bool_]
     p_if: F64
+    vel: F64 | None = None
+    drift: F64 | None = None
+    freq: F64 | None = None
 
     @classmethod
-    def empty(cls, t_n: int, n: int) -> _SatelliteArrays:
+    def empty(cls, t_n: int, n: int, rates: bool = False) -> _SatelliteArrays:
+        """NaN arrays; with ``rates`` also velocity, clock drift and carrier frequency (for Doppler)."""
+        nan = np.full((t_n, n), np.nan)
         return cls(
-            sat=np.full((t_n, n, 3), np.nan), clk=np.full((t_n, n), np.nan), tgd=np.full((t_n, n), np.nan),
-            ura=np.full((t_n, n), np.nan), iono_scale=np.ones((t_n, n)), usable=np.zeros((t_n, n), dtype=bool),
-            p_if=np.full((t_n, n), np.nan),
+            sat=np.full((t_n, n, 3), np.nan), clk=nan.copy(), tgd=nan.copy(),
+            ura=nan.copy(), iono_scale=np.ones((t_n, n)), usable=np.zeros((t_n, n), dtype=bool),
+            p_if=nan.copy(), vel=np.full((t_n, n, 3), np.nan) if rates else None,
+            drift=nan.copy() if rates else None, freq=nan.copy() if rates else None,
         )
 
 
@@ -144,10 +152,33 @@ def _fill_system(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecord
     out.ura[ii, cc] = records.sigma_m(kk)
     out.iono_scale[ii, cc] = records.iono_scale(kk)
     out.usable[ii, cc] = np.isfinite(st.clock_s) & np.isfinite(out.sat[ii, cc]).all(axis=-1)
+    if out.vel is not None:
+        _fill_rates(out, records, system, prs.code[ii, cc], (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
     if prs2 is not None:
         out.p_if[ii, cc] = iono_free_pseudorange_m(
             system, prs.code[ii, cc], pr[ii, jj], prs2.code[ii, cc], prs2.pr_m[ii, cc], **records.delays(kk)
         )
+
+
+_DRIFT_STEP_S = 1.0  # forward difference of the broadcast clock: af2 and relativistic curvature < 1e-15 s/s
+
+
+def _fill_rates(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecords, system: str, code: NDArray[np.str_],
+                where: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]], t_tx: F64, st: SatelliteStates) -> None:
+    """Satellite velocity (m/s), clock drift (s/s, forward difference of the broadcast clock with its
+    relativistic term) and the carrier frequency (Hz; GLONASS per channel) of each chosen code."""
+    assert out.vel is not None and out.drift is not None and out.freq is not None
+    ii, cc, kk = where
+    out.vel[ii, cc] = st.vel_ecef_m_s
+    out.drift[ii, cc] = (records.states(kk, t_tx + _DRIFT_STEP_S).clock_s - st.clock_s) / _DRIFT_STEP_S
+    channel = np.asarray(records.delays(kk).get("glonass_channel", np.zeros(kk.shape)), dtype=np.float64)
+    freq = np.full(kk.shape, np.nan)
+    for c in np.unique(code):
+        signal = signal_of(system, str(c))
+        if signal is not None:
+            sel = code == c
+            freq[sel] = carrier_frequency_hz(signal, channel[sel])
+    out.freq[ii, cc] = freq
 
 
 def _span_text(a: float, b: float) -> str:
@@ -256,7 +287,8 @@ def _klobuchar(nav, config: ProcessingConfig, nav_name: str, warnings: list[str]
     klob = klobuchar_coefficients(nav)
     if klob is None and config.iono == "klobuchar":
         klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
-        warnings.append(f"{nav_name}: no Klobuchar coefficients in the header; using the default coefficients (as RTKLIB)")
+        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
+        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
     return klob
 
 
@@ -293,7 +325,7 @@ def load_epochs(
     priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
-    codes += [snr_code(c) for c in codes if snr_code(c) not in codes]  # C/N0 of the first frequency
+    codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
     if iono_free:
         codes += [c for c in codes_for(systems, priority2) if c not in codes]
     obs = read_obs(obs_path, systems=systems, codes=codes)
@@ -312,7 +344,8 @@ def load_epochs(
     prs2 = align_pseudoranges(select_pseudoranges(obs, systems, priority2), prs.sv) if iono_free else None
     t = prs.time_gps_s
     sys_of = np.array([sv[0] for sv in prs.sv])
-    arrays = _SatelliteArrays.empty(t.size, prs.sv.size)
+    doppler_hz = select_dopplers(obs, prs)
+    arrays = _SatelliteArrays.empty(t.size, prs.sv.size, rates=doppler_hz is not None)
     have_obs = np.isfinite(prs.pr_m)
     toe_lo, toe_hi = np.inf, -np.inf
     for system in systems:
@@ -357,4 +390,14 @@ def load_epochs(
         system_index=system_index,
         iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused,
         leap_seconds=nav_leap_seconds(nav_paths),
+        **_rates(arrays, doppler_hz, usable),
     )
+
+
+def _rates(arrays: _SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:
+    """The Doppler fields of :class:`EpochData`: range rate ``-lambda D`` (m/s; NaN where there is no
+    Doppler or the pseudorange is not usable), satellite velocity and clock drift; empty without Doppler."""
+    if doppler_hz is None or arrays.freq is None:
+        return {}
+    rate = np.where(usable, -C_M_S / arrays.freq * doppler_hz, np.nan)
+    return {"range_rate_m_s": rate, "sat_vel_ecef_m_s": arrays.vel, "sat_clock_drift_s_s": arrays.drift}

@@ -27,12 +27,24 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   (The bias on one satellite that the test misses with probability ``pmd`` gives at most
   this error; noise is not added on top, as in the classic formulation.)
 
+With a robust estimator (``robust = "huber" | "cauchy"``, :func:`gnss_cli.pipeline.snapshot.solve_method`)
+the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(w_i / sigma_i^2)``
+(``w_i`` the robust weight factors; ``diag(w_i)`` for ls). At the M-estimate ``A^T W_e q = 0``, so
+``r = (I - A K) q = q``: the statistic is the sum of the squared final (reweighted) residuals over
+the a-priori variances, ``T = sum_i r_i^2 / sigma_i^2``, with the same threshold and ``dof``. A
+fault the robust fit down-weights keeps its large residual, so the test still fails and the
+status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` and the slopes with the
+same ``K``) and the epoch is solved again, robustly. The protection levels are those of the
+linear estimator with the final weights (a first-order description of the M-estimate).
+
 Epochs that did not converge (``iteration_limit``) are tested at their last iterate too: a
 large fault can keep Gauss-Newton from converging (measured: a 250 m bias left a simulated
 static fix oscillating across Saastamoinen's -100 m height cut-off), and excluding it lets the
 epoch converge; ones that still do not converge keep the status with empty numbers.
 Epochs that still fail get ``integrity_fail``; epochs that pass but have ``GDOP > max_gdop``
-get ``gdop_limit``. Both keep their position.
+get ``gdop_limit``; epochs that pass with a horizontal protection level above
+``alert_limit_h_m`` get ``hpl_limit`` (an epoch without redundancy has no protection level and
+is not limited). All keep their position.
 """
 
 from __future__ import annotations
@@ -48,7 +60,7 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.geometry import linearize
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
-__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "chi2_threshold", "noncentrality"]
+__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality"]
 
 F64 = NDArray[np.float64]
 Solver = Callable[[EpochData, F64, F64], MethodSolution]
@@ -87,9 +99,11 @@ class IntegrityCheck:
     vpl_m: F64
 
 
-def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
+def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool,
+                 robust_weights: F64 | None = None) -> IntegrityCheck:
     """The chi-square test, w-test and protection levels of every epoch of ``data`` at the
-    fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m)."""
+    fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m); ``robust_weights``
+    (``(t, n)``, the M-estimate's final weight factors) multiply the estimator's weights."""
     n, k = data.sv.size, len(data.systems)
     rows = np.arange(data.time_gps_s.size)
     lin = linearize(data, rows, x, clocks, config)
@@ -97,6 +111,9 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     var = np.where(mask, lin.var_m2, 1.0)
     w = np.where(mask, 1.0 / var, 0.0)
     we = w if weighted else mask.astype(np.float64)
+    if robust_weights is not None:  # satellite rows only: the clock constraint rows keep theirs
+        we = we.copy()
+        we[:, :n] *= np.where(np.isfinite(robust_weights), robust_weights, 1.0)
     AtWe = np.swapaxes(A * we[..., None], 1, 2)  # (t, m, N)
     try:
         G = np.linalg.inv(AtWe @ A)
@@ -133,7 +150,7 @@ def take_epochs(data: EpochData, rows: NDArray[np.intp], excluded: NDArray[np.bo
     return replace(data, **parts)
 
 
-def _merge(sol: MethodSolution, rows: NDArray[np.intp], sub: MethodSolution) -> MethodSolution:
+def merge_epochs(sol: MethodSolution, rows: NDArray[np.intp], sub: MethodSolution) -> MethodSolution:
     """``sol`` with the epochs ``rows`` replaced by ``sub``'s (every per-epoch array)."""
     parts = {}
     for f in fields(MethodSolution):
@@ -156,7 +173,9 @@ def _check_blocks(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], 
                   config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
     """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), in blocks."""
     clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
-    parts = [check_epochs(take_epochs(data, r, excluded), sol.x_ecef_m[r], clocks[r], config, weighted)
+    rw = sol.robust_weights if config.robust != "off" else None
+    parts = [check_epochs(take_epochs(data, r, excluded), sol.x_ecef_m[r], clocks[r], config, weighted,
+                          None if rw is None else rw[r])
              for r in np.array_split(rows, -(-rows.size // _BLOCK))]
     return IntegrityCheck(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(IntegrityCheck)))
 
@@ -198,7 +217,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
         excluded[rows, worst] = True
         clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
         sub = solver(take_epochs(data, rows, excluded), sol.x_ecef_m[rows], clocks[rows])
-        sol = _merge(sol, rows, sub)
+        sol = merge_epochs(sol, rows, sub)
         rows = rows[np.isin(sub.status, tried)]
     unconverged = sol.status == EpochStatus.ITERATION_LIMIT
     sol = _blank(sol, unconverged)
@@ -207,4 +226,5 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     ok = status == EpochStatus.OK
     status[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
     status[ok & ~failed & ~(sol.gdop <= config.max_gdop)] = EpochStatus.GDOP_LIMIT.value
+    status[ok & ~failed & (sol.gdop <= config.max_gdop) & (hpl > config.alert_limit_h_m)] = EpochStatus.HPL_LIMIT.value
     return replace(sol, status=status, excluded=excluded, test_stat=stat, hpl_m=hpl, vpl_m=vpl)

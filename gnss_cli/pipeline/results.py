@@ -24,9 +24,14 @@ value                   meaning
 ``integrity_fail``      ls/wls: the chi-square test of the residuals fails and no satellite can
                         be excluded any more (``integrity = "check"``: it fails); position kept
 ``gdop_limit``          ls/wls: GDOP above ``max_gdop`` (position kept)
+``hpl_limit``           ls/wls: the test passes but the horizontal protection level exceeds
+                        ``alert_limit_h_m`` (position kept)
+``predicted``           kf: no usable measurement at this epoch; the position is the motion
+                        model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
 
-Only ``ok``, ``fallback_wls``, ``integrity_fail`` and ``gdop_limit`` epochs have a position
+A kf epoch is ``ok`` when the filter updated it with at least one pseudorange (1-3 satellites
+included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``hpl_limit`` and ``predicted`` epochs have a position
 (:data:`KEEPS_POSITION`); only ``ok`` ones count as solved. A window model record
 (:class:`WindowModel`) has its own status: the identification outcome
 (:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
@@ -64,13 +69,16 @@ class EpochStatus(str, Enum):
     FALLBACK_WLS = "fallback_wls"
     INTEGRITY_FAIL = "integrity_fail"
     GDOP_LIMIT = "gdop_limit"
+    HPL_LIMIT = "hpl_limit"
+    PREDICTED = "predicted"
 
     def __str__(self) -> str:
         return self.value
 
 
 KEEPS_POSITION = (EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,
-                  EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
+                  EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
+                  EpochStatus.PREDICTED.value)
 """Statuses of epochs whose position, clocks and DOPs are written."""
 
 _SOLVER_STATUS = {
@@ -158,7 +166,11 @@ class WindowModel:
 
 UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask")
 """Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving."""
-EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused")
+DOWNWEIGHTED_BELOW = 0.1
+"""A used satellite whose robust weight factor is below this is reported (``satellites.csv``
+``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
+EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused",
+                     "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s")
 """Fields of :class:`EpochData` with the epoch axis first."""
 
 
@@ -205,6 +217,15 @@ class EpochData:
     unused: NDArray[np.int8] | None = None
     """``(T, n)`` why an observed satellite is not usable (:data:`UNUSED_REASONS` index;
     0 usable, -1 not observed)."""
+    range_rate_m_s: F64 | None = None
+    """``(T, n)`` range rate from the Doppler of the chosen code's signal, ``-lambda D`` (m/s;
+    lambda of that signal, GLONASS per channel); NaN where there is no Doppler or the
+    pseudorange is not usable. None when the observation file has no Doppler."""
+    sat_vel_ecef_m_s: F64 | None = None
+    """``(T, n, 3)`` satellite velocity at transmit time, ECEF (rotating frame), m/s (with Doppler)."""
+    sat_clock_drift_s_s: F64 | None = None
+    """``(T, n)`` satellite clock drift at transmit time, s/s (broadcast clock with its
+    relativistic term; with Doppler)."""
 
 
 @dataclass(frozen=True)
@@ -259,6 +280,16 @@ class MethodSolution:
     """``(T,)`` horizontal protection level, m (classic slope-based RAIM; ls/wls)."""
     vpl_m: F64 | None = None
     """``(T,)`` vertical protection level, m."""
+    robust_weights: F64 | None = None
+    """``(T, n)`` robust weight factor ``w(u_i) = psi(u_i) / u_i`` in (0, 1] of the used rows
+    (``config.robust``, ls/wls; 1 for a plain fit): the effective weight is ``w_i / sigma_i^2``
+    (NaN for rows not used)."""
+    vel_ecef_m_s: F64 | None = None
+    """``(T, 3)`` receiver velocity, ECEF, m/s: Doppler WLS at the fix, or the kf state (None without Doppler)."""
+    clock_drift_m_s: F64 | None = None
+    """``(T,)`` receiver clock drift times c, m/s (one for every system)."""
+    gdop_vel: F64 | None = None
+    """``(T,)`` velocity DOP ``sqrt(trace)`` of the velocity-and-drift noise gain (unitless)."""
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,7 @@ from gnss_cli.pipeline.results import (
 )
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["smooth", "BATCH_MAX_EPOCHS", "FIXED_KERNELS"]
+__all__ = ["smooth", "finish_smoothing", "BATCH_MAX_EPOCHS", "FIXED_KERNELS"]
 
 F64 = NDArray[np.float64]
 
@@ -281,10 +281,10 @@ def smooth(
         smoothed[mine] = True
         if fit.basis is not None and fit.basis.shape[2] > 0:
             dop_windows.append((seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis), mine))
-    return _finish(data, wls, config, x_s, status, smoothed, dop_windows, method), tuple(models)
+    return finish_smoothing(data, wls, config, x_s, status, smoothed, dop_windows, method), tuple(models)
 
 
-def _finish(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s: F64, status: NDArray[np.str_],
+def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s: F64, status: NDArray[np.str_],
             smoothed: NDArray[np.bool_], dop_windows: list[tuple[NDArray[np.intp], F64, NDArray[np.intp]]],
             method: str) -> MethodSolution:
     """The smoothed MethodSolution: clocks re-estimated, multi-epoch covariances and DOPs."""

@@ -7,6 +7,18 @@ until the step is below ``convergence_m``. Corrections (Klobuchar, Saastamoinen)
 elevation mask and the weights are evaluated at the current position once it is near the
 Earth's surface (the first iterations from the Earth's centre use none of them, as in
 RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
+
+With ``robust = "huber" | "cauchy"`` the ls/wls fixes are M-estimates: from the converged plain
+fix, Gauss-Newton again, each linear step solved by IRLS to settled weights
+(:mod:`gnss_cli.solvers.robust`), so that at the fix ``sum_i psi(u_i) a_i / sigma_i = 0`` with
+``u_i = r_i / sigma_i`` and ``sigma_i`` the a-priori sigma of :mod:`gnss_cli.gnss.weights`
+(wls; for ls ``sum_i sigma_i psi(u_i) a_i = 0``: equal weights, outliers down-weighted). The
+scale is the a-priori sigma, not a residual scale such as the MAD: an epoch has 4-15 residuals
+and a few degrees of freedom after the fit, too few for a stable scale estimate, and in urban
+epochs half of them can be reflected signals (the MAD breaks down at 50 %); the a-priori sigma
+is also the one the chi-square test uses. Then :func:`~gnss_cli.pipeline.integrity.monitor`
+tests the final residuals; its FDE re-solves are robust too. The other methods take their one
+step at the robust WLS fix with the a-priori weights.
 """
 
 from __future__ import annotations
@@ -23,10 +35,11 @@ from gnss_cli.errors import NoSolutionError
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
 from gnss_cli.pipeline.epochs import load_epochs
-from gnss_cli.pipeline.integrity import monitor
+from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
+from gnss_cli.solvers.robust import IrlsResult, irls_batch
 
 __all__ = ["solve_method", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
 
@@ -36,7 +49,7 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 """Methods whose definition includes row weights: they get the configured pseudorange variances."""
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
-_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value)
+_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
@@ -88,20 +101,39 @@ def solve_method(
         base = linearization if linearization is not None else solve_method(data, "wls", config, progress)
         return _solve_once(data, method, config, base)
     unconverged = config.integrity == "fde"  # FDE also tries the epochs a fault keeps from converging
-    sol = _gauss_newton(data, method, config, progress, keep_unconverged=unconverged)
 
-    def again(sub: EpochData, x0: F64, b0: F64) -> MethodSolution:
-        return _gauss_newton(sub, method, config, None, x0, b0, keep_unconverged=unconverged)
+    def fit(sub: EpochData, x0: F64 | None = None, b0: F64 | None = None, report: Progress | None = None) -> MethodSolution:
+        sol = _gauss_newton(sub, method, config, report, x0, b0, keep_unconverged=unconverged)
+        return _robust_refit(sub, method, config, sol, unconverged) if config.robust != "off" else sol
 
-    return monitor(data, sol, config, again)
+    return monitor(data, fit(data, report=progress), config, fit)
+
+
+def _robust_refit(data: EpochData, method: str, config: ProcessingConfig, sol: MethodSolution,
+                  keep_unconverged: bool) -> MethodSolution:
+    """The M-estimate (``config.robust``) of the epochs ``sol`` solved, by Gauss-Newton from
+    their plain ls/wls fix, each linear step an IRLS solve to settled weights
+    (:func:`~gnss_cli.solvers.robust.irls_batch`): its fixed point solves
+    ``sum_i psi(u_i) a_i / sigma_i = 0``, ``u_i = (rho_i - rho_hat_i(x, b)) / sigma_i`` with the
+    a-priori sigmas (wls; ls: ``sum_i sigma_i psi(u_i) a_i = 0``). ``iterations`` counts both runs."""
+    tried = (EpochStatus.OK.value,) + ((EpochStatus.ITERATION_LIMIT.value,) if keep_unconverged else ())
+    rows = np.flatnonzero(np.isin(sol.status, tried))
+    if not rows.size:
+        return sol
+    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    sub = _gauss_newton(take_epochs(data, rows), method, config, None, sol.x_ecef_m[rows], clocks[rows],
+                        keep_unconverged=keep_unconverged, robust=True)
+    return merge_epochs(sol, rows, replace(sub, iterations=sub.iterations + sol.iterations[rows]))
 
 
 def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progress: Progress | None,
-                  x0: F64 | None = None, b0: F64 | None = None, keep_unconverged: bool = False) -> MethodSolution:
+                  x0: F64 | None = None, b0: F64 | None = None, keep_unconverged: bool = False,
+                  robust: bool = False) -> MethodSolution:
     """Iterate ``method`` (ls, wls) to convergence on every epoch, from ``x0, b0`` when given
     (else the header position, or the Earth's centre, and zero clocks). With ``keep_unconverged``
     the ``iteration_limit`` epochs keep their last iterate (for the integrity monitoring, which
-    blanks them in the end)."""
+    blanks them in the end). With ``robust`` every linear step is the M-estimate of
+    ``config.robust`` and an epoch has converged when the step is small and its weights settled."""
     T = data.time_gps_s.size
     n = data.sv.size
     x = np.zeros((T, 3))
@@ -121,12 +153,14 @@ def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progre
             break
         # epochs are independent: blocks of _ITERATION_BLOCK bound the memory of the stacked arrays
         for rows in np.array_split(unconverged, -(-unconverged.size // _ITERATION_BLOCK)):
-            lin, res, n_used, enough, ok, step = _linear_step(data, method, config, rows, x, b)
+            lin, res, n_used, enough, ok, step, irls = _linear_step(data, method, config, rows, x, b, robust)
             iterations[rows] = it + 1
             radius = np.linalg.norm(x[rows], axis=1)
             near = (radius > EARTH_SURFACE_BAND_M[0]) & (radius < EARTH_SURFACE_BAND_M[1])
             converged = ok & near & (np.linalg.norm(step, axis=1) < config.convergence_m)
-            out.record(rows, lin, res, n_used)
+            if irls is not None:
+                converged &= irls.converged
+            out.record(rows, lin, res, n_used, None if irls is None else irls.weights)
             _set_status(status, rows, converged, enough, ok, res.status)
             active[rows[converged | ~ok]] = False
         if progress is not None:
@@ -135,20 +169,37 @@ def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progre
     return out.finish(x, b, status, iterations, keep)
 
 
-def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64):  # type: ignore[no-untyped-def]
+def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64,  # type: ignore[no-untyped-def]
+                 robust: bool = False):
     """Linearize ``rows`` at ``(x, b)``, solve the step with ``method`` and apply it in place.
 
+    With ``robust`` the step is the IRLS M-estimate of the linear system; the satellite rows
+    are reweighted, the clock constraint rows keep their weight. Its final weights then give
+    one weighted solve, which supplies the gain, covariance and residuals.
+
     Returns the linearization, the solver result, satellites used, the epochs with enough
-    satellites, the epochs solved and the step ``(len(rows), 3 + k)`` (m).
+    satellites, the epochs solved, the step ``(len(rows), 3 + k)`` (m) and the IRLS result
+    (None without ``robust``).
     """
     lin = linearize(data, rows, x[rows], b[rows], config)
     n_used, enough = _count_used(lin, data.sv.size, len(data.systems), config)
-    res = solve_batch(method, lin.A, lin.q, lin.mask & enough[:, None], **solver_options(method, lin, config))
+    mask = lin.mask & enough[:, None]
+    options = solver_options(method, lin, config)
+    irls: IrlsResult | None = None
+    if robust:
+        satellite_rows = np.arange(lin.q.shape[1]) < data.sv.size
+        irls = irls_batch(lin.A, lin.q, mask, np.sqrt(lin.var_m2), estimator=config.robust,
+                                tuning=config.robust_huber_k if config.robust == "huber" else config.robust_cauchy_c,
+                                weighted=method == "wls", reweight=np.broadcast_to(satellite_rows, mask.shape),
+                                tolerance=config.robust_tolerance, max_iterations=config.robust_max_iterations)
+        base = 1.0 / lin.var_m2 if method == "wls" else np.ones_like(lin.q)
+        options = {"weights": base * np.where(mask, np.nan_to_num(irls.weights, nan=1.0), 1.0)}
+    res = solve_batch("wls" if robust else method, lin.A, lin.q, mask, **options)
     ok = (res.status > 0) & enough
     step = np.where(ok[:, None], res.x, 0.0)
     x[rows] += step[:, :3]
     b[rows] += step[:, 3:]
-    return lin, res, n_used, enough, ok, step
+    return lin, res, n_used, enough, ok, step, irls
 
 
 def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDArray[np.bool_],
@@ -173,7 +224,7 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
     out = _Accumulator(T, n, k, method)
     rows = np.flatnonzero((status == EpochStatus.OK) | flagged)
     if rows.size:
-        lin, res, n_used, enough, ok, _ = _linear_step(data, method, config, rows, x, b)
+        lin, res, n_used, enough, ok, _, _ = _linear_step(data, method, config, rows, x, b)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
         status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
@@ -199,11 +250,13 @@ class _Accumulator:
         self.paper_cov = np.full((T, m, m), np.nan) if method == "tls" else None
         self.residuals = np.full((T, n), np.nan)
         self.sigma = np.full((T, n), np.nan)
+        self.robust_w = np.full((T, n), np.nan)
         self.n_sat = np.zeros(T, dtype=np.int64)
         self.rot = np.full((T, 3, 3), np.nan)
         self.present = np.zeros((T, k), dtype=bool)
 
-    def record(self, rows: NDArray[np.intp], lin: Linearization, res, n_used: NDArray[np.int64]) -> None:  # type: ignore[no-untyped-def]
+    def record(self, rows: NDArray[np.intp], lin: Linearization, res, n_used: NDArray[np.int64],  # type: ignore[no-untyped-def]
+               robust_w: F64 | None = None) -> None:
         self.cov[rows] = res.cov
         gain = res.gain[:, :, : self.n]  # satellites only: constraint rows are not geometry
         self.gain_q[rows] = np.einsum("tmn,tkn->tmk", gain, gain)
@@ -211,6 +264,8 @@ class _Accumulator:
             self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
         self.residuals[rows] = np.where(lin.mask[:, : self.n], res.residuals[:, : self.n], np.nan)
         self.sigma[rows] = np.where(lin.mask[:, : self.n], np.sqrt(lin.var_m2[:, : self.n]), np.nan)
+        w = np.ones((rows.size, self.n)) if robust_w is None else robust_w[:, : self.n]
+        self.robust_w[rows] = np.where(lin.mask[:, : self.n], w, np.nan)
         self.n_sat[rows] = n_used
         self.rot[rows] = lin.rot
         k = self.present.shape[1]
@@ -255,6 +310,7 @@ class _Accumulator:
             iterations=iterations,
             residuals_m=np.where(bad[:, None], np.nan, self.residuals),
             sigma_m=np.where(bad[:, None], np.nan, self.sigma),
+            robust_weights=np.where(bad[:, None], np.nan, self.robust_w),
         )
 
 

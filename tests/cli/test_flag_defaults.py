@@ -17,6 +17,8 @@ SOLVE_KEYS = {
     "--lag": ("smoothing", "lag"), "--model": ("smoothing", "model"), "--kernel": ("smoothing", "kernel"),
     "--order": ("smoothing", "order"), "--window": ("smoothing", "window"), "--time-system": ("processing", "time_system"),
     "--integrity": ("processing", "integrity"), "--snr-mask": ("processing", "snr_mask_dbhz"),
+    "--robust": ("processing", "robust"),
+    "--kf-model": ("kalman", "model"), "--smoother": ("kalman", "smoother"),
 }
 SIMULATE_KEYS = {
     "--trajectory": ("simulate", "trajectory"), "--duration": ("simulate", "duration_s"),
@@ -50,6 +52,9 @@ def test_packaged_values_are_what_a_run_uses() -> None:
     assert cfg.iono == toml["processing"]["iono"] and cfg.tropo == toml["processing"]["tropo"]
     for key in ("lag", "model", "kernel", "order", "window", "tolerance", "max_iterations"):
         assert getattr(cfg.smoothing, key) == toml["smoothing"][key], key
+    assert cfg.doppler_sigma_m_s == toml["processing"]["doppler_sigma_m_s"]
+    for key, value in toml["kalman"].items():
+        assert getattr(cfg.kalman, key) == value, key
 
 
 def test_simulate_flags_show_the_packaged_simulate_defaults() -> None:

@@ -58,10 +58,36 @@ def test_satellites_csv_explains_every_unused_satellite(sim_dir, capsys):
     usable = [(t, s) for t, s in zip(faults["time"], faults["satellite"]) if (t, s) not in masked]  # not excluded before
     assert len(usable) >= 10 and sum(f in found for f in usable) >= 0.9 * len(usable)
     pos = pd.read_csv(out / "positions.csv", keep_default_na=False)
-    assert list(pos.columns[-5:]) == ["n_excluded", "excluded", "test_stat", "hpl_m", "vpl_m"]
+    assert list(pos.columns[-10:-5]) == ["n_excluded", "excluded", "test_stat", "hpl_m", "vpl_m"]
     assert pos["n_excluded"].sum() == len(fde)
 
 
 def test_unknown_integrity_mode_is_a_configuration_error(sim_dir, capsys):
     code, _, err = invoke(app, "gnss-solve", [sim_dir / "obs.rnx", sim_dir / "nav.rnx", "--integrity", "maybe"], capsys)
     assert code == 3 and "integrity: expected one of fde, check, off" in err
+
+
+def test_robust_weights_in_satellites_csv(sim_dir, capsys):
+    """--robust cauchy --integrity off: the faults stay used but get tiny weights (reason
+    ``downweighted``); without --robust every used satellite has weight 1."""
+    plain, robust = sim_dir / "plain", sim_dir / "robust"
+    for out, extra in ((plain, []), (robust, ["--robust", "cauchy"])):
+        code, _, err = invoke(app, "gnss-solve", [sim_dir / "obs.rnx", sim_dir / "nav.rnx", "--out-dir", out,
+                                                 "--integrity", "off", "-q", *extra], capsys)
+        assert code == 0, err
+    sats = {k: pd.read_csv(d / "satellites.csv", keep_default_na=False) for k, d in (("plain", plain), ("robust", robust))}
+    used = sats["plain"][sats["plain"]["used"] == 1]
+    assert (used["weight"].astype(float) == 1.0).all() and (sats["plain"]["reason"] != "downweighted").all()
+    r = sats["robust"]
+    low = r[r["reason"] == "downweighted"]
+    assert (low["used"] == 1).all() and (low["weight"].astype(float) < 0.1).all()
+    assert (r.loc[r["used"] == 0, "weight"] == "").all()
+    faults = set(zip(*pd.read_csv(sim_dir / "faults.csv")[["time", "satellite"]].to_numpy().T))
+    flagged = set(zip(low["time"], low["satellite"]))
+    assert len(flagged) >= 10 and len(flagged & faults) >= 0.9 * len(flagged)  # the down-weighted are the faults
+    assert len(flagged & faults) >= 0.9 * len(faults & set(zip(r.loc[r["used"] == 1, "time"], r.loc[r["used"] == 1, "satellite"])))
+
+
+def test_unknown_robust_estimator_is_a_configuration_error(sim_dir, capsys):
+    code, _, err = invoke(app, "gnss-solve", [sim_dir / "obs.rnx", sim_dir / "nav.rnx", "--robust", "tukey"], capsys)
+    assert code == 3 and "robust: expected one of off, huber, cauchy" in err

@@ -12,7 +12,7 @@ import pytest
 
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
-from gnss_cli.report import INTEGRITY_COLUMNS, POSITION_COLUMNS, SD_COLUMNS
+from gnss_cli.report import INTEGRITY_COLUMNS, POSITION_COLUMNS, SD_COLUMNS, VELOCITY_COLUMNS
 
 REF_0759 = "-3976219.1879,3382371.6041,3652511.1428"
 
@@ -33,8 +33,9 @@ def test_csv_on_stdout_has_documented_header_and_a_row_per_epoch(d0759, capsys):
     code, out, err = invoke([d0759 / "07590920.05o", d0759 / "07590920.05n", "--method", "ls,wls", "--reference", REF_0759], capsys)
     assert code == 0, err
     df = pd.read_csv(io.StringIO(out))
-    assert list(df.columns) == POSITION_COLUMNS + ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"] + SD_COLUMNS + INTEGRITY_COLUMNS
+    assert list(df.columns) == POSITION_COLUMNS + ["e_err_m", "n_err_m", "u_err_m", "err_3d_m"] + SD_COLUMNS + INTEGRITY_COLUMNS + VELOCITY_COLUMNS
     assert len(df) == 240 and set(df["method"]) == {"ls", "wls"}
+    assert df[VELOCITY_COLUMNS].isna().all().all()  # no Doppler in this file: empty cells
     assert (df["status"] == "ok").all()
     assert df["time"].iloc[0] == "2005-04-02T00:00:00.000"
     assert "ls: 120/120 epochs solved" in err

@@ -14,7 +14,6 @@ from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.orbits import broadcast_states
-from gnss_cli.gnss.time import datetime2gps_s
 from gnss_cli.io.nav_checks import KEPLER_LIMITS, STATE_LIMITS, klobuchar_problem, reject_implausible_records
 from gnss_cli.io.rinex import klobuchar_coefficients, read_nav
 
@@ -172,7 +171,7 @@ def test_absurd_klobuchar_coefficients_fall_back_to_the_defaults_with_a_warning(
     obs, nav = rinex_dir / "rtklib-0759" / "07590920.05o", rinex_dir / "rtklib-0759" / "07590920.05n"
     text = nav.read_text().splitlines()
     i = next(k for k, x in enumerate(text) if "ION ALPHA" in x)
-    text[i] = "   1.0000D+300" + text[i][14:]  # alpha0 (2X, D12.4) = 1e300
+    text[i] = "    1.0000D+10" + text[i][14:]  # alpha0 (2X, D12.4) = 1e10 s: parses, far beyond +-1.2e-7 s
     bad = tmp_path / "ion.05n"
     bad.write_text("\n".join(text) + "\n")
     code, err = _solve([obs, bad, "-o", tmp_path / "a.csv", "--method", "wls"], capsys)
@@ -180,3 +179,43 @@ def test_absurd_klobuchar_coefficients_fall_back_to_the_defaults_with_a_warning(
     assert "Klobuchar coefficients not used: alpha0" in err and "default coefficients" in err
     assert "Warning" not in err and "RuntimeWarning" not in err
     assert (pd.read_csv(tmp_path / "a.csv")["status"] == "ok").all()
+
+
+def test_a_record_whose_date_was_damaged_is_rejected_by_its_week_and_toe(nav0759) -> None:  # type: ignore[no-untyped-def]
+    """The fuzz case of a GPS record re-dated 1980 (still after GPS began): its week and Toe
+    say 2005, so it is rejected; a week rolled over by 1024 is accepted."""
+    ti, si = _cell(nav0759)
+    redated = nav0759.isel(time=[ti]).assign_coords(time=[np.datetime64("1985-04-02T02:00", "ns")])
+    messages = reject_implausible_records(redated)[1]
+    assert messages and "week and Toe more than 6 h from the time of clock" in messages[0]
+    rolled = nav0759.copy(deep=True)
+    rolled["GPSWeek"].values[:] = rolled["GPSWeek"].values - 1024
+    assert reject_implausible_records(rolled)[1] == []
+    shifted = nav0759.copy(deep=True)
+    shifted["Toe"].values[ti, si] += 7 * 3600.0
+    assert "week and Toe" in reject_implausible_records(shifted)[1][0]
+
+
+def test_a_corrupt_deflate_stream_is_a_format_error_naming_the_file(rinex_dir: Path, tmp_path: Path) -> None:
+    """zlib.error is no OSError: a gzip whose deflate data are damaged was an internal error."""
+    import gzip
+    import zlib
+
+    from gnss_cli.errors import RinexFormatError
+
+    raw = gzip.compress((rinex_dir / "rtklib-0759" / "07590920.05n").read_bytes())
+    for pos in range(300, len(raw) - 8, 61):
+        bad = bytearray(raw)
+        bad[pos] ^= 0xFF
+        try:
+            gzip.decompress(bytes(bad))
+        except zlib.error:
+            break
+        except (OSError, EOFError):
+            continue
+    else:
+        pytest.skip("no single-byte flip gave a zlib error")
+    path = tmp_path / "bad.05n.gz"
+    path.write_bytes(bytes(bad))
+    with pytest.raises(RinexFormatError, match=r"bad\.05n\.gz: cannot read file"):
+        read_nav(path)

@@ -209,3 +209,59 @@ def test_impossible_date_bad_satellite_id_and_no_records_are_one_line_errors(tmp
         read_obs2(_write(tmp_path, bad_id))
     with pytest.raises(RinexFormatError, match=r"t\.10o: no observation records"):
         read_obs2(_write(tmp_path, _epoch("30.0000000", []) + _epoch("31.0000000", [])))
+
+
+# ---------------------------------------------------------------- epochs strictly increasing
+
+
+@pytest.mark.parametrize(
+    ("body", "lines", "times"),
+    [
+        (_epoch("30.0000000", ["G01"]) + _record(1.0, 2.0) + _epoch("30.0000000", ["G02"]) + _record(3.0, 4.0),
+         (6, 4), ("2010-03-05T00:00:30", "2010-03-05T00:00:30")),  # the same epoch twice
+        (_epoch("30.0000000", ["G01"]) + _record(1.0, 2.0) + _epoch("59.0000000", ["G01"]) + _record(1.0, 2.0)
+         + _epoch("59.0000000", ["G01"]) + _record(1.0, 2.0), (8, 6), ("2010-03-05T00:00:59", "2010-03-05T00:00:59")),
+        (_epoch("30.0000000", ["G01"]) + _record(1.0, 2.0) + _epoch("29.9990000", ["G01"]) + _record(1.0, 2.0),
+         (6, 4), ("2010-03-05T00:00:29.999", "2010-03-05T00:00:30")),  # back by 1 ms
+    ],
+    ids=["duplicate", "restamped", "backwards"],
+)
+def test_an_epoch_not_later_than_the_one_before_is_rejected_with_both_lines(
+        tmp_path: Path, body: str, lines: tuple[int, int], times: tuple[str, str]) -> None:
+    with pytest.raises(RinexFormatError) as info:
+        read_obs2(_write(tmp_path, body))
+    assert str(info.value) == (f"t.10o: line {lines[0]}: epoch {times[0]} is not later than the epoch {times[1]} "
+                               f"on line {lines[1]} (repeated or out-of-order epoch)")
+
+
+def test_a_body_written_twice_is_rejected_where_the_copy_starts(tmp_path: Path) -> None:
+    body = "".join(_epoch(f"{s}.0000000", ["G01", "G02"]) + _record(1.0, 2.0) * 2 for s in (0, 30))
+    with pytest.raises(RinexFormatError, match=r"t\.10o: line 10: epoch 2010-03-05T00:00:00 is not later than "
+                                               r"the epoch 2010-03-05T00:00:30 on line 7"):
+        read_obs2(_write(tmp_path, body * 2))
+
+
+def test_cycle_slip_records_may_repeat_the_time_of_their_epoch(tmp_path: Path) -> None:
+    body = (_epoch("30.0000000", ["G01"]) + _record(1.0, 2.0) + _epoch("30.0000000", ["G01"], flag=6)
+            + _record(0.0, 1.0) + _epoch("59.0000000", ["G01"]) + _record(3.0, 4.0))
+    assert read_obs2(_write(tmp_path, body))["C1"].values.ravel().tolist() == [1.0, 3.0]
+
+
+@pytest.mark.parametrize("count", ["-1", " -1", "-99", "  x"])
+def test_a_negative_or_garbage_satellite_count_is_a_bad_epoch_line(tmp_path: Path, count: str) -> None:
+    line = _epoch("30.0000000", ["G01"])
+    body = line[:29] + count.rjust(3) + line[32:] + _record(1.0, 2.0)
+    with pytest.raises(RinexFormatError, match=r"t\.10o: bad epoch line 4"):
+        read_obs2(_write(tmp_path, body))
+
+
+def test_a_file_cut_inside_a_record_names_the_line(tmp_path: Path) -> None:
+    epoch = _epoch("30.0000000", ["G01", "G02"])
+    body = epoch + _record(1000.0, 2.0) + _record(24767686.375, 4.0)
+    with pytest.raises(RinexFormatError, match=r"t\.10o: line 4: record cut short"):
+        read_obs2(_write(tmp_path, epoch + _record(1000.0, 2.0)))
+    cut = body.rindex("24767686.375") + len("24767686")  # the last value loses its decimals
+    with pytest.raises(RinexFormatError, match=r"t\.10o: line 6: the file ends inside observation 1 of the line"):
+        read_obs2(_write(tmp_path, body[:cut]))
+    whole = body.rstrip("\n").rsplit("\n", 1)[0] + "\n" + _record(24767686.375).rstrip("\n")  # no line end, no cut
+    assert read_obs2(_write(tmp_path, whole))["C1"].values.ravel().tolist() == [1000.0, 24767686.375]

@@ -121,6 +121,8 @@ def test_event_epochs_are_skipped(tmp_path: Path) -> None:
         ("> 2020 06 25 00 00 30.0000000  0  1\nX05  20947300.931 8\n", "bad satellite id 'X05' on line 6"),
         ("> 2020 06 25 00 00 30.0000000  0  1\nG05  2094730x.931 8\n", "bad C1C value '  2094730x.931' on line 6"),
         ("garbage\n" + GOOD_EPOCH, "unexpected text on line 5 before the first epoch line"),
+        ("> 2020 06 25 00 00 30.0000000  0  2\nG05  20947300.931 8\nE01  27616185.992 6  27616185.992 6\n",
+         "line 7: more observations than the 1 of the header's 'SYS / # / OBS TYPES' for system E"),
     ],
 )  # fmt: skip
 def test_bad_obs_bodies(tmp_path: Path, body: str, message: str) -> None:
@@ -229,3 +231,62 @@ def test_uint_decoder() -> None:
     values, ok = parse_uint_columns(chars)
     assert ok.tolist() == [True, True, True, False, False, True, False, False]
     assert values[ok].tolist() == [43, 2, 2, 1]
+
+
+# ---------------------------------------------------------------- whole-file checks of the epochs
+
+
+def _epoch3(sec: str, flag: int = 0) -> str:
+    return f"> 2020 06 25 00 00 {sec}  {flag}  1\nG05  20947300.931 8\n"
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        (_epoch3("30.0000000") + _epoch3("30.0000000"),
+         "line 7: epoch 2020-06-25T00:00:30 is not later than the epoch 2020-06-25T00:00:30 on line 5"),
+        (_epoch3("30.0000000") + _epoch3("59.0000000") + _epoch3("30.0000000"),
+         "line 9: epoch 2020-06-25T00:00:30 is not later than the epoch 2020-06-25T00:00:59 on line 7"),
+        ((_epoch3("30.0000000") + _epoch3("45.5000000")) * 3,
+         "line 9: epoch 2020-06-25T00:00:30 is not later than the epoch 2020-06-25T00:00:45.5 on line 7"),
+    ],
+    ids=["duplicate", "restamped", "body-three-times"],
+)
+def test_an_epoch_not_later_than_the_one_before_is_rejected(tmp_path: Path, body: str, message: str) -> None:
+    with pytest.raises(RinexFormatError) as info:
+        read_obs3(_write(tmp_path, "rep.rnx", OBS3_HEADER + body))
+    assert str(info.value) == f"rep.rnx: {message} (repeated or out-of-order epoch)"
+
+
+def test_event_records_may_repeat_a_time(tmp_path: Path) -> None:
+    body = _epoch3("30.0000000") + _epoch3("30.0000000", flag=6) + _epoch3("59.0000000")
+    obs = read_obs3(_write(tmp_path, "slips.rnx", OBS3_HEADER + body))
+    assert obs.sizes["time"] == 2
+
+
+def test_a_file_cut_inside_its_last_value_is_rejected(tmp_path: Path) -> None:
+    text = OBS3_HEADER + GOOD_EPOCH
+    cut = text.rindex("27616185.992") + len("2761618")
+    with pytest.raises(RinexFormatError, match=r"cut\.rnx: line 7: the file ends inside observation 1 of the line"):
+        read_obs3(_write(tmp_path, "cut.rnx", text[:cut]))
+    with gzip.open(tmp_path / "cut.rnx.gz", "wt") as f:
+        f.write(text[:cut])
+    with pytest.raises(RinexFormatError, match=r"cut\.rnx\.gz: line 7: the file ends inside observation 1"):
+        read_obs3(tmp_path / "cut.rnx.gz")
+    for end in (text.rstrip("\n"), text.rstrip("\n")[:-2]):  # no line end, after the strength digit or the value
+        whole = read_obs3(_write(tmp_path, "whole.rnx", end))
+        assert whole["C1C"].sel(sv="E01").item() == 27616185.992
+
+
+def test_compact_rinex_that_crx2rnx_only_warns_about_is_rejected(tmp_path: Path) -> None:
+    lines = _need(RINEX_DIR / "kms3-2022159-rinex4" / "KMS300DNK_R_20221591000_01H_30S_MO.crx").read_bytes().split(b"\n")
+    crx = tmp_path / "dup.crx"
+    crx.write_bytes(b"\n".join(lines[:1089] + lines[1088:]))  # one differential line twice
+    with pytest.raises(RinexFormatError, match=r"^dup\.crx: corrupt Compact RINEX \(Hatanaka\) file \(crx2rnx: "):
+        open_bytes(crx)
+
+
+def test_blanks_after_the_last_field_are_not_extra_observations(tmp_path: Path) -> None:
+    body = GOOD_EPOCH.replace("E01  27616185.992 6\n", "E01  27616185.992 6" + " " * 40 + "\n")
+    obs = read_obs3(_write(tmp_path, "padded.rnx", OBS3_HEADER + body))
+    assert obs["C1C"].sel(sv="E01").item() == 27616185.992

@@ -35,7 +35,8 @@ def test_thresholds_are_the_chi_square_and_noncentral_quantiles():
 
 
 def test_bad_integrity_settings_are_configuration_errors():
-    for overrides in ({"integrity": "maybe"}, {"integrity_pfa": 0.0}, {"max_gdop": -1.0}, {"exclude": "X99"}):
+    for overrides in ({"integrity": "maybe"}, {"integrity_pfa": 0.0}, {"max_gdop": -1.0}, {"exclude": "X99"},
+                      {"alert_limit_h_m": 0.0}):
         with pytest.raises(ConfigError):
             load_config(None, overrides)
     assert load_config(None, {"exclude": "g7, C28"}).exclude == ("G07", "C28")
@@ -87,6 +88,30 @@ def test_gdop_limit_keeps_the_position(data_0759):
     sol = solve_method(data_0759, "wls", replace(load_config(), max_gdop=2.6))
     limited = sol.status == "gdop_limit"
     assert limited.any() and (sol.gdop[limited] > 2.6).all() and np.isfinite(sol.x_ecef_m[limited]).all()
+
+
+def test_hpl_limit_keeps_the_position_and_only_protected_epochs_stay_ok(data_0759):
+    cfg = load_config()
+    sol = solve_method(data_0759, "wls", cfg)
+    assert (sol.status == "ok").all() and np.nanmax(sol.hpl_m) < cfg.alert_limit_h_m  # clean sky: no effect
+    tight = solve_method(data_0759, "wls", replace(cfg, alert_limit_h_m=40.0))
+    limited = tight.status == "hpl_limit"
+    assert limited.any() and (tight.hpl_m[limited] > 40.0).all() and np.isfinite(tight.x_ecef_m[limited]).all()
+    assert (tight.hpl_m[tight.status == "ok"] <= 40.0).all()
+    np.testing.assert_array_equal(tight.x_ecef_m, sol.x_ecef_m)  # a status, not another position
+
+
+def test_gps_alone_in_the_urban_canyon_is_mostly_unprotected(rinex_dir):
+    """tst2 with the GPS file only: median HPL ~1,500 m. With the 556 m alert limit the ok
+    epochs are the protected minority, and closer to the truth than all of them were."""
+    d = rinex_dir / "tst2-2020155-urban-static"
+    res = process(d / "2020_06_03_TST_03.obs.gz", [d / "hksc155d.20n"], load_config(None, {"methods": "wls"}))
+    sol = res.solutions["wls"]
+    ok, limited = sol.status == "ok", sol.status == "hpl_limit"
+    assert limited.sum() > ok.sum() > 100
+    truth = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
+    err = np.linalg.norm(sol.x_ecef_m - truth, axis=1)
+    assert _rms(err[ok]) < _rms(err[ok | limited])
 
 
 @pytest.mark.parametrize("trajectory", ["static", "flight"])

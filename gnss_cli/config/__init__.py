@@ -12,7 +12,19 @@ from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gnss_cli.constants import METHOD_KEYS
+from gnss_cli.constants import FILTER_METHOD_KEYS, METHOD_KEYS
+
+ALL_METHOD_KEYS = METHOD_KEYS + FILTER_METHOD_KEYS
+from gnss_cli.config.sections import (
+    FIXED_MODEL_LAGS,
+    KALMAN_MODELS,
+    SMOOTHERS,
+    SMOOTHING_KERNELS,
+    SMOOTHING_MODELS,
+    KalmanConfig,
+    SmoothingConfig,
+    WeightConfig,
+)
 from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -22,120 +34,23 @@ else:  # pragma: no cover
 if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
+__all__ = [
+    "ProcessingConfig", "WeightConfig", "SmoothingConfig", "KalmanConfig", "load_config", "packaged_defaults",
+    "parse_methods", "parse_systems", "parse_satellites", "ALL_METHOD_KEYS", "IONO_OPTIONS", "TIME_SYSTEMS",
+    "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH", "SMOOTHING_MODELS",
+    "SMOOTHING_KERNELS", "FIXED_MODEL_LAGS", "KALMAN_MODELS", "SMOOTHERS",
+]
+
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 TIME_SYSTEMS = ("gpst", "utc")
 """Time scale of the output time stamps (``--time-system``)."""
 INTEGRITY_OPTIONS = ("fde", "check", "off")
+ROBUST_OPTIONS = ("off", "huber", "cauchy")
+"""``robust``: plain ls/wls, or an M-estimator by IRLS (:mod:`gnss_cli.solvers.robust`)."""
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
 """GPS, Galileo, BeiDou, QZSS, GLONASS (RINEX letters)."""
 DEFAULT_CONFIG_PATH = files("gnss_cli") / "configs" / "default.toml"
 """The packaged defaults (package data, so a non-editable install has them too)."""
-
-
-@dataclass(frozen=True)
-class WeightConfig:
-    """Pseudorange variance model (see ``gnss_cli/configs/default.toml``)."""
-
-    model: str = "rtklib"
-    a_m: float = 0.3
-    b_m: float = 0.3
-    code_bias_m: float = 0.3
-    iono_factor: float = 0.5
-    saas_sigma_m: float = 0.3
-    iono_off_sigma_m: float = 5.0
-    tropo_off_sigma_m: float = 3.0
-    iono_free_factor: float = 3.0
-
-
-SMOOTHING_MODELS = ("identify", "pva", "static")
-SMOOTHING_KERNELS = ("shared", "full")
-FIXED_MODEL_LAGS = {"static": 1, "pva": 3}
-"""Lags of the fixed kernels ``(z-1) I`` and ``(z-1)^3 I`` (they ignore ``lag``)."""
-
-
-@dataclass(frozen=True)
-class SmoothingConfig:
-    """Behavioral multi-epoch smoothing of the stls rows (``[smoothing]`` in ``gnss_cli/configs/default.toml``).
-
-    ``lag = 0``: no smoothing (the stls rows are single-epoch STLS). ``order = 0``: the
-    default order ``3 lag`` of a full identified kernel. The defaults equal the packaged TOML.
-    """
-
-    lag: int = 0
-    model: str = "identify"
-    kernel: str = "shared"
-    order: int = 0
-    window: int = 15
-    tolerance: float = 1e-6
-    max_iterations: int = 200
-
-    @property
-    def effective_lag(self) -> int:
-        """The kernel's lag: ``lag`` for an identified kernel, 1 (static) or 3 (pva) for the fixed ones."""
-        return FIXED_MODEL_LAGS.get(self.model, self.lag)
-
-    @property
-    def structure(self) -> str:
-        """Kernel structure of the fits: ``kernel`` when identified; the fixed kernels are shared."""
-        return self.kernel if self.model == "identify" else "shared"
-
-    @property
-    def full_order(self) -> int | None:
-        """Order of a full identified kernel (``order``, or ``3 lag`` for 0); None for the other models."""
-        if self.model != "identify" or self.kernel != "full":
-            return None
-        return self.order if self.order > 0 else 3 * self.effective_lag
-
-    def min_window(self) -> int:
-        """Shortest window (epochs) the model can be fitted on: static 2, pva 5, shared
-        ``2 lag + 2``, full ``3 (lag + 1) + 1``."""
-        lag = self.effective_lag
-        need = {"static": 2, "pva": 5}.get(self.model)
-        if need is None:
-            need = 2 * lag + 2 if self.kernel == "shared" else 3 * (lag + 1) + 1
-        return max(need, 2)
-
-    def validated(self) -> "SmoothingConfig":
-        """Self, after checking every value; raises :class:`ConfigError` naming the option."""
-        for name in ("lag", "order", "window", "max_iterations"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "max_iterations" else 0):
-                low = 1 if name == "max_iterations" else 0
-                raise ConfigError(f"smoothing.{name}: expected an integer >= {low}; received {value!r}")
-        if self.model not in SMOOTHING_MODELS:
-            raise ConfigError(f"smoothing.model: expected one of {', '.join(SMOOTHING_MODELS)}; received {self.model!r}")
-        if self.kernel not in SMOOTHING_KERNELS:
-            raise ConfigError(f"smoothing.kernel: expected one of {', '.join(SMOOTHING_KERNELS)}; received {self.kernel!r}")
-        if not self.tolerance > 0:
-            raise ConfigError(f"smoothing.tolerance: expected > 0; received {self.tolerance}")
-        if self.lag == 0:
-            if self.model != "identify" or self.order:
-                what = f"model = {self.model!r}" if self.model != "identify" else f"order = {self.order}"
-                raise ConfigError(f"smoothing.{what} needs smoothing.lag >= 1 (lag 0 = no smoothing)")
-            return self
-        need = self.min_window()
-        if 0 < self.window < need:
-            raise ConfigError(f"smoothing.window: expected 0 or >= {need} epochs for model {self.model} "
-                              f"(lag {self.effective_lag}, kernel {self.structure}); received {self.window}")
-        order = self.full_order
-        if order is None and self.order:
-            raise ConfigError(f"smoothing.order: applies to model = 'identify' with kernel = 'full' only; "
-                              f"received order = {self.order} with model = {self.model!r}, kernel = {self.kernel!r}")
-        if order is not None:
-            self._check_full_order(order)
-        return self
-
-    def _check_full_order(self, order: int) -> None:
-        """A full ``3 x 3(l+1)`` kernel of order ``n`` has ``g = 3(l+1) - n`` rows, 1 <= g, and
-        ``g (N - l) <= 3 N`` over a window of ``N`` epochs (else ``G Sigma G^T`` is singular)."""
-        lag = self.effective_lag
-        if not 0 < order < 3 * (lag + 1):
-            raise ConfigError(f"smoothing.order: expected 1 <= order < 3 (lag + 1) = {3 * (lag + 1)} for lag {lag}; received {order}")
-        g = 3 * (lag + 1) - order
-        if g > 3 and (self.window == 0 or g * (self.window - lag) > 3 * self.window):
-            span = "whole segments (window = 0)" if self.window == 0 else f"windows of {self.window} epochs"
-            raise ConfigError(f"smoothing.order: order {order} with lag {lag} leaves {g} kernel rows, infeasible on {span}; "
-                              f"use order >= {3 * lag} or a shorter window")
 
 
 @dataclass(frozen=True)
@@ -167,18 +82,29 @@ class ProcessingConfig:
     integrity_pfa: float = 1e-3
     integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
+    alert_limit_h_m: float = 556.0
+    """An ``ok`` ls/wls epoch whose HPL exceeds this gets ``hpl_limit`` (see default.toml)."""
     max_exclusions: int = 4
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
     snr_mask_dbhz: float = 0.0
+    robust: str = "off"
+    """``off``, ``huber`` or ``cauchy``: M-estimation of the ls/wls fixes (see default.toml)."""
+    robust_huber_k: float = 1.345
+    robust_cauchy_c: float = 2.385
+    robust_tolerance: float = 1e-8
+    robust_max_iterations: int = 1000
+    doppler_sigma_m_s: float = 0.1
+    """Range-rate sigma (m/s, ``-lambda D``) of a typical satellite of the epoch (see default.toml)."""
+    kalman: KalmanConfig = field(default_factory=lambda: KalmanConfig())
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
         from gnss_cli.gnss.signals import IONO_FREE_SIGNALS, signal_of  # numpy: not needed for --help
 
-        bad = [m for m in self.methods if m not in METHOD_KEYS]
+        bad = [m for m in self.methods if m not in ALL_METHOD_KEYS]
         if bad or not self.methods:
-            raise ConfigError(f"methods: expected some of {', '.join(METHOD_KEYS)} or 'all'; received {list(self.methods)}")
+            raise ConfigError(f"methods: expected some of {', '.join(ALL_METHOD_KEYS)} or 'all'; received {list(self.methods)}")
         if self.iono not in IONO_OPTIONS:
             raise ConfigError(f"iono: expected one of {', '.join(IONO_OPTIONS)}; received {self.iono!r}")
         if self.tropo not in ("saastamoinen", "none"):
@@ -231,11 +157,23 @@ class ProcessingConfig:
             raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
+        if not self.alert_limit_h_m > 0:
+            raise ConfigError(f"alert_limit_h_m: expected > 0 (inf: no limit); received {self.alert_limit_h_m}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
+        if not self.doppler_sigma_m_s > 0:
+            raise ConfigError(f"doppler_sigma_m_s: expected > 0; received {self.doppler_sigma_m_s}")
+        self.kalman.validated()
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
+        if self.robust not in ROBUST_OPTIONS:
+            raise ConfigError(f"robust: expected one of {', '.join(ROBUST_OPTIONS)}; received {self.robust!r}")
+        for name in ("robust_huber_k", "robust_cauchy_c", "robust_tolerance"):
+            if not 0.0 < getattr(self, name) < float("inf"):
+                raise ConfigError(f"{name}: expected a positive number; received {getattr(self, name)}")
+        if self.robust_max_iterations < 1:
+            raise ConfigError(f"robust_max_iterations: expected >= 1; received {self.robust_max_iterations}")
 
 
 def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
@@ -246,8 +184,8 @@ def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
         if not item:
             continue
         for m in METHOD_KEYS if item == "all" else (item,):
-            if m not in METHOD_KEYS:
-                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(METHOD_KEYS)} or all")
+            if m not in ALL_METHOD_KEYS:
+                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(ALL_METHOD_KEYS)} or all")
             if m not in out:
                 out.append(m)
     if not out:
@@ -289,13 +227,13 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 
 
 def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
-    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing"}
+    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing", "kalman"}
     unknown = set(data) - known_sections
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
     proc = dict(data.get("processing", {}))
     names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "signals_second", "orbit_sigma_m",
-                                                          "wtls_column_scaling", "smoothing"}
+                                                          "wtls_column_scaling", "smoothing", "kalman"}
     bad = set(proc) - names
     if bad:
         raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
@@ -308,10 +246,13 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["time_system"] = str(proc["time_system"]).lower()
         if "exclude" in proc:
             proc["exclude"] = parse_satellites(proc["exclude"])
-        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "snr_mask_dbhz"):
+        if "robust" in proc:
+            proc["robust"] = str(proc["robust"]).lower()
+        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m", "snr_mask_dbhz",
+                    "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s"):
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites", "max_exclusions"):
+        for key in ("max_iterations", "min_satellites", "max_exclusions", "robust_max_iterations"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)
@@ -342,6 +283,13 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             cfg = replace(cfg, wtls_column_scaling=str(data["wtls"].get("column_scaling", cfg.wtls_column_scaling)))
         if "smoothing" in data:
             cfg = replace(cfg, smoothing=_apply_smoothing(cfg.smoothing, data["smoothing"], source))
+        if "kalman" in data:
+            kbad = set(data["kalman"]) - {f.name for f in fields(KalmanConfig)}
+            if kbad:
+                raise ConfigError(f"{source}: unknown [kalman] key(s) {sorted(kbad)}")
+            kal = {k: (str(v) if k in ("model", "smoother") else bool(v) if k == "doppler" else float(v))
+                   for k, v in data["kalman"].items()}
+            cfg = replace(cfg, kalman=replace(cfg.kalman, **kal))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise

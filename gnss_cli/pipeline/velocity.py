@@ -1,0 +1,90 @@
+"""Per-epoch receiver velocity and clock drift from Doppler (weighted least squares).
+
+At each epoch's position (the method's fix), the range rates of the satellites the fix used
+(:attr:`~gnss_cli.pipeline.results.MethodSolution.sigma_m` finite: above the mask, usable, not
+excluded by the integrity monitoring) give the linear system of
+:func:`gnss_cli.gnss.doppler.range_rate_system` in ``[v_x, v_y, v_z, d]``: the velocity
+(ECEF, m/s) and one receiver clock drift ``d`` (m/s) common to every system (all of them
+share the receiver's oscillator). The model is linear in the unknowns, so one weighted
+solve per epoch (all epochs at once) is exact.
+
+Weights: the range-rate sigma of satellite ``i`` is ``doppler_sigma_m_s * sigma_i / median_j sigma_j``
+with ``sigma`` the pseudorange sigmas of the epoch (the weight model's elevation and URA
+shape, scaled so that a typical satellite of the epoch has ``doppler_sigma_m_s``).
+``gdop_vel = sqrt(trace(J J^T))`` with ``J`` the estimator's gain, as the position DOPs
+(velocity and drift; unitless).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.gnss.doppler import range_rate_system
+from gnss_cli.pipeline.results import EpochData
+from gnss_cli.solvers import solve_batch
+
+F64 = NDArray[np.float64]
+
+__all__ = ["VelocitySolution", "doppler_sigma_m_s", "solve_velocity"]
+
+
+@dataclass(frozen=True)
+class VelocitySolution:
+    """Per-epoch velocity from Doppler (NaN where fewer than 4 range rates were usable).
+
+    Attributes
+    ----------
+    vel_ecef_m_s : ``(T, 3)`` receiver velocity, ECEF, m/s.
+    clock_drift_m_s : ``(T,)`` receiver clock drift times c, m/s.
+    cov : ``(T, 4, 4)`` covariance of ``[v, d]`` for the configured sigmas, (m/s)^2.
+    gdop_vel : ``(T,)`` ``sqrt(trace(J J^T))`` of the velocity estimator, unitless.
+    n_used : ``(T,)`` range rates used.
+    """
+
+    vel_ecef_m_s: F64
+    clock_drift_m_s: F64
+    cov: F64
+    gdop_vel: F64
+    n_used: NDArray[np.int64]
+
+
+def doppler_sigma_m_s(sigma_pr_m: F64, config: ProcessingConfig) -> F64:
+    """``(T, n)`` range-rate sigmas (m/s) from the pseudorange sigmas ``(T, n)`` (module docstring)."""
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # epochs without a used row: NaN
+        median = np.nanmedian(sigma_pr_m, axis=1, keepdims=True)
+    return config.doppler_sigma_m_s * sigma_pr_m / median
+
+
+def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: ProcessingConfig) -> VelocitySolution | None:
+    """Velocity and clock drift of every epoch at the positions ``x_ecef_m`` ``(T, 3)``.
+
+    ``sigma_pr_m`` ``(T, n)``: the pseudorange sigmas of the rows the fix used (NaN = not used).
+    None when the observation file has no Doppler.
+    """
+    if data.range_rate_m_s is None or data.sat_vel_ecef_m_s is None or data.sat_clock_drift_s_s is None:
+        return None
+    T = data.time_gps_s.size
+    have_x = np.isfinite(x_ecef_m).all(axis=1)
+    x = np.where(have_x[:, None], x_ecef_m, 0.0)
+    H, y = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s, data.range_rate_m_s, x)
+    sigma = doppler_sigma_m_s(sigma_pr_m, config)
+    mask = have_x[:, None] & np.isfinite(y) & np.isfinite(sigma) & np.isfinite(H).all(axis=-1)
+    H = np.where(mask[..., None], H, 0.0)
+    res = solve_batch("wls", H, np.where(mask, y, 0.0), mask, weights=np.where(mask, 1.0 / np.where(mask, sigma, 1.0) ** 2, 0.0))
+    ok = res.status > 0
+    nan = np.full(T, np.nan)
+    gain = np.where(mask[:, None, :], res.gain, 0.0)
+    q = np.einsum("tmn,tkn->tmk", gain, gain)
+    return VelocitySolution(
+        vel_ecef_m_s=np.where(ok[:, None], res.x[:, :3], np.nan),
+        clock_drift_m_s=np.where(ok, res.x[:, 3], nan),
+        cov=np.where(ok[:, None, None], res.cov, np.nan),
+        gdop_vel=np.where(ok, np.sqrt(np.clip(np.trace(q, axis1=1, axis2=2), 0.0, None)), nan),
+        n_used=mask.sum(axis=1),
+    )
