@@ -3,7 +3,8 @@
 * Every third-party module imported anywhere in ``gnss_cli/`` (also inside functions) comes
   from a distribution listed in ``[project.dependencies]`` of ``pyproject.toml``, except
   modules imported only by ``gnss_cli/plots/``, which may come from the optional ``plot``
-  extra (matplotlib); the ``test`` extra includes it so that the figure tests run.
+  extra (matplotlib), and by ``gnss_cli/cli/batch_runner.py`` (the ``cluster`` extra, dask
+  and distributed); the ``test`` extra includes both so that their tests run.
 * A wheel built from the source tree, installed (without the editable checkout) into a new
   virtual environment, runs ``gnss-solve`` from an unrelated folder and uses the packaged
   default configuration.
@@ -57,8 +58,10 @@ def declared_extra(name: str) -> set[str]:
     return {requirement_name(r) for r in project["optional-dependencies"][name]}
 
 
-OPTIONAL_FOLDERS = {"plots": "plot"}
-"""Sub-packages of gnss_cli whose imports may come from an optional extra (folder -> extra)."""
+OPTIONAL_FOLDERS = {"plots": "plot", "cli/batch_runner.py": "cluster"}
+"""Sub-packages (folders) or single modules of gnss_cli whose imports may come from an
+optional extra (path -> extra): matplotlib for the figures, dask.distributed for
+``gnss-batch --scheduler``."""
 
 
 def imported_top_level_modules(package_dir: Path) -> dict[str, list[str]]:
@@ -96,8 +99,8 @@ def undeclared_imports(package_dir: Path, declared: set[str],
         dists = {normalize(d) for d in providers.get(module, [module])}
         allowed = set(declared)
         for folder, extra in (optional or {}).items():
-            prefix = f"{package_dir.name}/{folder}/"
-            if all(f.replace(os.sep, "/").startswith(prefix) for f in files):
+            prefix = f"{package_dir.name}/{folder}"
+            if all(f.replace(os.sep, "/") == prefix or f.replace(os.sep, "/").startswith(prefix + "/") for f in files):
                 allowed |= extra
         if not dists & allowed:
             problems[module] = f"imported by {sorted(set(files))}, provided by {sorted(dists)}, not in [project.dependencies]"
@@ -110,6 +113,7 @@ def test_package_imports_are_declared_dependencies() -> None:
     optional = {folder: declared_extra(extra) for folder, extra in OPTIONAL_FOLDERS.items()}
     assert undeclared_imports(PACKAGE, declared_dependencies(), optional) == {}
     assert "matplotlib" in modules and "matplotlib" in declared_extra("test")  # the figure tests can run
+    assert "distributed" in modules and declared_extra("cluster") <= declared_extra("test")  # and the Dask ones
 
 
 def test_an_extra_import_outside_its_folder_is_found(tmp_path: Path) -> None:

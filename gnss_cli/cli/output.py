@@ -8,6 +8,10 @@ is left behind. Renames and the creation of temporary files run with SIGINT and 
 held back (:func:`gnss_cli.cli.signals.deferred`), so a signal cannot land between creating
 a temporary file and recording it, nor between two renames of one set.
 
+A whole folder tree (``gnss-batch``'s Parquet dataset) is staged the same way: a hidden
+temporary folder beside its target, renamed into place with the files; a folder of that
+name from an earlier run is moved aside first and removed once everything is in place.
+
 Files get the permissions of an ordinary ``open()``: ``0o666`` less the user's umask (an
 existing regular file keeps its own mode). A target that exists and is not a regular file
 (``/dev/stdout``, a named pipe, ``/dev/full``) is written directly, since it cannot be
@@ -42,9 +46,13 @@ def _file_mode(target: Path) -> int:
             return stat.S_IMODE(st.st_mode)
     except OSError:
         pass
+    return 0o666 & ~_umask()
+
+
+def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
 
 
 def _message(path: Path, exc: OSError) -> str:
@@ -69,6 +77,7 @@ class OutputSet:
         self._direct: list[Path] = []
         self._created_dirs: list[Path] = []
         self._staging_dirs: list[Path] = []
+        self._folders: list[tuple[Path, Path]] = []
 
     def add(self, path: Path | str, option: str) -> Path:
         """Register an output path (checked against the inputs and for a usable folder)."""
@@ -153,6 +162,55 @@ class OutputSet:
             raise OutputError(_message(final, exc)) from None
         return tmp
 
+    def stage_folder(self, path: Path | str, option: str) -> Path:
+        """Register a whole folder tree as one output; returns the hidden temporary folder to fill.
+
+        The temporary folder sits beside ``path``; :meth:`commit` renames it to ``path``,
+        replacing a folder of that name left by an earlier run (moved aside first, removed
+        once every output is in place)."""
+        target = Path(path)
+        if target.exists() and not target.is_dir():
+            raise OutputError(f"{target}: cannot write output (not a folder)")
+        for source in self._inputs:
+            if source.resolve().is_relative_to(target.resolve()):
+                raise ConfigError(f"{option}: {target} holds the input {source}; refusing to replace it")
+        try:
+            self._make_dirs(target.parent)
+            with deferred():
+                tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent))
+                self._folders.append((tmp, target))
+        except OSError as exc:
+            raise OutputError(_message(target, exc)) from None
+        os.chmod(tmp, 0o777 & ~_umask())
+        return tmp
+
+    def _commit_folders(self) -> list[tuple[Path, Path, Path | None]]:
+        """Rename the staged folders into place; returns ``(staged, target, replaced folder
+        moved aside or None)`` of each, for :meth:`_restore_folders` or the final clean-up."""
+        done: list[tuple[Path, Path, Path | None]] = []
+        try:
+            for tmp, target in self._folders:
+                old = None
+                if target.exists():
+                    old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+                    os.replace(target, old)
+                done.append((tmp, target, old))
+                os.replace(tmp, target)
+        except OSError as exc:
+            self._restore_folders(done)
+            raise OutputError(_message(target, exc)) from None
+        return done
+
+    @staticmethod
+    def _restore_folders(done: list[tuple[Path, Path, Path | None]]) -> None:
+        """Undo :meth:`_commit_folders`: staged folders back to their temporary names, old ones back in place."""
+        for tmp, target, old in reversed(done):
+            with contextlib.suppress(OSError):
+                if not tmp.exists():
+                    os.replace(target, tmp)
+                if old is not None:
+                    os.replace(old, target)
+
     def adopt_staged(self, staging: Path, final_dir: Path | str) -> list[Path]:
         """Record every file written into ``staging`` as output of ``final_dir``; returns the targets."""
         targets = []
@@ -167,19 +225,22 @@ class OutputSet:
         """Rename every staged file into place (all of them, with signals held)."""
         with deferred():
             done: list[Path] = []
+            folders = self._commit_folders()
             try:
                 for tmp, target in self._staged:
                     os.replace(tmp, target)
                     done.append(target)
             except OSError as exc:
-                for target in done:
+                for written in done:
                     with contextlib.suppress(OSError):
-                        target.unlink()
+                        written.unlink()
+                self._restore_folders(folders)
                 self._staged = [(t, g) for t, g in self._staged if g not in done]
                 raise OutputError(_message(target, exc)) from None
             self._staged = []
+            self._folders = []
             self._created_dirs = []
-            for d in self._staging_dirs:
+            for d in [old for _, _, old in folders if old is not None] + self._staging_dirs:
                 shutil.rmtree(d, ignore_errors=True)
             self._staging_dirs = []
 
@@ -190,9 +251,10 @@ class OutputSet:
                 with contextlib.suppress(OSError):
                     tmp.unlink()
             self._staged = []
-            for d in self._staging_dirs:
+            for d in self._staging_dirs + [tmp for tmp, _ in self._folders]:
                 shutil.rmtree(d, ignore_errors=True)
             self._staging_dirs = []
+            self._folders = []
             for d in reversed(self._created_dirs):
                 with contextlib.suppress(OSError):
                     d.rmdir()

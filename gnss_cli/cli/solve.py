@@ -17,115 +17,74 @@ from typing import Any, Optional
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
-from gnss_cli.config import packaged_defaults
+from gnss_cli.cli.options import (
+    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Quiet, Reference,
+    ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
+    check_reference_options, check_smoothing_flags, reference_inputs, run_config,
+)
 from gnss_cli.errors import ConfigError, UsageError
 
-_DEFAULTS = packaged_defaults()
-_PROC = _DEFAULTS.get("processing", {})
-_SMOOTH = _DEFAULTS.get("smoothing", {})
-_KALMAN = _DEFAULTS.get("kalman", {})
-
-
-def _shown(value: Any) -> str:
-    """A packaged default as it is written on the command line."""
-    if isinstance(value, (list, tuple)):
-        return ",".join(str(v) for v in value)
-    return str(value)
-
-
 app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTIONS, rich_markup_mode=None)
-
-
-SMOOTHING_FLAGS = ("--model", "--kernel", "--order", "--window", "--model-out")
 
 
 @app.command()
 def solve(
     files: list[Path] = typer.Argument(..., help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, kf (Kalman filter), a comma list, or all (= ls ... wtls).", show_default=_shown(_PROC.get("methods"))),
-    systems: Optional[str] = typer.Option(None, "--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=_shown(_PROC.get("systems"))),
-    iono: Optional[str] = typer.Option(None, "--iono", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=_shown(_PROC.get("iono"))),
-    tropo: Optional[str] = typer.Option(None, "--tropo", help="saastamoinen | none.", show_default=_shown(_PROC.get("tropo"))),
-    elevation_mask: Optional[float] = typer.Option(None, "--elevation-mask", help="Elevation mask, degrees.", show_default=_shown(_PROC.get("elevation_mask_deg"))),
-    reference: Optional[str] = typer.Option(None, "--reference", help="Reference position X,Y,Z (ECEF, m) for error columns.", show_default="none"),
-    reference_sinex: Optional[Path] = typer.Option(None, "--reference-sinex", help="SINEX file; the station is the RINEX marker name.", show_default="none"),
-    reference_csv: Optional[Path] = typer.Option(None, "--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv).", show_default="none"),
-    reference_pos: Optional[Path] = typer.Option(None, "--reference-pos", help="Moving reference: an RTKLIB .pos solution file (ECEF or lat/lon/height; GPST or UTC).", show_default="none"),
-    config: Optional[Path] = typer.Option(None, "--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults"),
+    method: Method = None,
+    systems: Systems = None,
+    iono: Iono = None,
+    tropo: Tropo = None,
+    elevation_mask: ElevationMask = None,
+    reference: Reference = None,
+    reference_sinex: ReferenceSinex = None,
+    reference_csv: ReferenceCsv = None,
+    reference_pos: ReferencePos = None,
+    config: Config = None,
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: FILE.<method>.pos / .nmea.", show_default="stdout"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions (in --format), errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
     fmt: Optional[str] = typer.Option(None, "--format", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
-    time_system: Optional[str] = typer.Option(None, "--time-system", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=_shown(_PROC.get("time_system"))),
-    lag: Optional[int] = typer.Option(None, "--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=_shown(_SMOOTH.get("lag"))),
-    model: Optional[str] = typer.Option(None, "--model", help="identify | pva | static | kinematic: kernel identified per window, fixed, or positions tied to Doppler velocities (with --lag).", show_default=_shown(_SMOOTH.get("model"))),
-    kernel: Optional[str] = typer.Option(None, "--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=_shown(_SMOOTH.get("kernel"))),
-    order: Optional[int] = typer.Option(None, "--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=_shown(_SMOOTH.get("order"))),
-    window: Optional[int] = typer.Option(None, "--window", help="Window length, epochs; 0 = whole segments (with --lag).", show_default=_shown(_SMOOTH.get("window"))),
-    kf_model: Optional[str] = typer.Option(None, "--kf-model", help="cv | ca: constant-velocity or constant-acceleration motion model of --method kf.", show_default=_shown(_KALMAN.get("model"))),
-    smoother: Optional[str] = typer.Option(None, "--smoother", help="rts | none: Rauch-Tung-Striebel smoothed or filtered kf rows.", show_default=_shown(_KALMAN.get("smoother"))),
-    integrity: Optional[str] = typer.Option(None, "--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=_shown(_PROC.get("integrity"))),
-    robust: Optional[str] = typer.Option(None, "--robust", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=_shown(_PROC.get("robust"))),
-    exclude: Optional[str] = typer.Option(None, "--exclude", help="Satellites never used, comma list (G07,C28).", show_default=_shown(_PROC.get("exclude")) or "none"),
-    snr_mask: Optional[float] = typer.Option(None, "--snr-mask", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=_shown(_PROC.get("snr_mask_dbhz"))),
+    time_system: TimeSystem = None,
+    lag: Lag = None,
+    model: Model = None,
+    kernel: Kernel = None,
+    order: Order = None,
+    window: Window = None,
+    kf_model: KfModel = None,
+    smoother: Smoother = None,
+    integrity: Integrity = None,
+    robust: Robust = None,
+    exclude: Exclude = None,
+    snr_mask: SnrMask = None,
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
     report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress, warnings or summary on stderr."),
-    debug: bool = typer.Option(False, "--debug", help="Show tracebacks of internal errors."),
+    quiet: Quiet = False,
+    debug: Debug = False,
     version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, help="Print the version and exit."),
 ) -> None:
     """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
+    values = dict(locals())
     if len(files) < 2:
         raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
-    if sum(r is not None for r in (reference, reference_sinex, reference_csv, reference_pos)) > 1:
-        raise UsageError("give one of --reference, --reference-sinex, --reference-csv, --reference-pos")
+    check_reference_options(values)
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
     from gnss_cli.cli.output import OutputSet
     from gnss_cli.cli.progress import Progress
 
-    inputs = [*files, *(p for p in (config, reference_sinex, reference_csv, reference_pos) if p is not None)]
-    with OutputSet(inputs) as outputs:
-        overrides: dict[str, object] = {
-            "methods": method,
-            "iono": iono,
-            "tropo": tropo,
-            "elevation_mask_deg": elevation_mask,
-            "systems": systems,
-            "integrity": integrity,
-            "robust": robust,
-            "exclude": exclude,
-            "snr_mask_dbhz": snr_mask,
-            "smoothing.lag": lag,
-            "smoothing.model": model,
-            "smoothing.kernel": kernel,
-            "smoothing.order": order,
-            "smoothing.window": window,
-            "kalman.model": kf_model,
-            "kalman.smoother": smoother,
-            "time_system": time_system,
-        }
-        from gnss_cli.config import load_config
-
-        cfg = load_config(config, overrides)
+    with OutputSet([*files, *reference_inputs(values)]) as outputs:
+        cfg = run_config(config, values)
         fmt = _output_format(fmt, output, out_dir, cfg.methods)
         targets = _register_outputs(outputs, output, out_dir, model_out, fmt, cfg.methods)
         from gnss_cli.cli.figures import register_figures
         from gnss_cli.plots import RUN_FIGURES
 
         figure_targets = register_figures(outputs, plots, report, list(RUN_FIGURES))
-        given = [flag for flag, v in zip(SMOOTHING_FLAGS, (model, kernel, order, window, model_out)) if v is not None]
-        if cfg.smoothing.lag == 0 and given:
-            raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
-        if cfg.smoothing.lag > 0 and "stls" not in cfg.methods:
-            raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
-        kf_given = [flag for flag, v in (("--kf-model", kf_model), ("--smoother", smoother)) if v is not None]
-        if kf_given and "kf" not in cfg.methods:
-            raise UsageError(f"{', '.join(kf_given)}: only with --method kf")
+        check_smoothing_flags(cfg, values)
         progress = Progress("gnss-solve", enabled=not quiet)
         try:
-            tables, models, warnings, (result, ref) = _run(files, cfg, progress, reference, reference_sinex, reference_csv,
-                                                           reference_pos)
+            tables, models, warnings, (result, ref) = solve_tables(files, cfg, progress, reference, reference_sinex,
+                                                                   reference_csv, reference_pos)
             if figure_targets:
                 progress("figures", 0.0)
                 _stage_figures(outputs, figure_targets, files, cfg, result, ref, tables["summary"],
@@ -190,10 +149,15 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
     return targets
 
 
-def _run(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], reference_sinex: Optional[Path],
-         reference_csv: Optional[Path], reference_pos: Optional[Path] = None
-         ) -> tuple[dict[str, Any], str, list[str], tuple[Any, Any]]:
-    """Process the files (one library call) and build the tables; heavy imports happen here."""
+def solve_tables(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], reference_sinex: Optional[Path],
+                 reference_csv: Optional[Path], reference_pos: Optional[Path] = None
+                 ) -> tuple[dict[str, Any], str, list[str], tuple[Any, Any]]:
+    """Process ``files`` (OBS, NAV...; one library call) and build the tables of one gnss-solve run.
+
+    Returns the tables (positions, dop, summary, satellites, errors with a reference), the
+    models JSON, the warnings and ``(result, reference_ecef_m)``. ``gnss-batch`` calls it
+    once per observation file. Heavy imports happen here.
+    """
     from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_pos, reference_from_sinex
     from gnss_cli.pipeline import process
     from gnss_cli.formats import pos_options

@@ -20,7 +20,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_rinex" / "static"
 OBS, NAV, TRUTH = SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", SAMPLE / "truth.csv"
-MODULES = {"solve": "gnss_cli.cli.solve", "simulate": "gnss_cli.cli.simulate", "identify": "gnss_cli.cli.identify"}
+MODULES = {"solve": "gnss_cli.cli.solve", "simulate": "gnss_cli.cli.simulate", "identify": "gnss_cli.cli.identify",
+           "batch": "gnss_cli.cli.batch"}
 
 # (id, command, arguments, exit code, regular expression the stderr must match)
 # Arguments: "{obs}", "{nav}", "{truth}" are the sample files, "{here}/" the working folder.
@@ -62,7 +63,22 @@ CASES = [
     ("identify no arguments", "identify", [], 2, r"Missing argument"),
     ("identify missing file", "identify", ["{here}/nothere.csv"], 4, r"nothere.csv: no such file"),
     ("identify lag 0", "identify", ["{truth}", "--lag", "0"], 3, r"--lag: expected an integer >= 1"),
+    ("batch without --out", "batch", ["{obs}", "--nav", "{nav}"], 2, r"Missing option '--out'"),
+    ("batch without navigation files", "batch", ["{obs}", "--out", "{here}/out"], 2, r"expected navigation files"),
+    ("batch --jobs and --scheduler", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--jobs", "2", "--scheduler", "tcp://127.0.0.1:9"], 2, r"give --jobs or --scheduler, not both"),
+    ("batch --jobs 0", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--jobs", "0"], 3, r"--jobs: expected an integer >= 1; received 0"),
+    ("batch --scheduler without dask", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--scheduler", "tcp://127.0.0.1:9"], 3, r"--scheduler: needs dask.distributed.*pip install 'gnss-solve\[cluster\]'"),
+    ("batch scheduler unreachable", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--scheduler", "tcp://127.0.0.1:9"], 3, r"--scheduler: cannot connect to tcp://127.0.0.1:9"),
+    ("batch pattern matches nothing", "batch", ["{here}/none*.rnx", "--nav", "{nav}", "--out", "{here}/out"], 4, r"none\*.rnx: no observation file matches this pattern"),
+    ("batch missing --nav file", "batch", ["{obs}", "--nav", "{here}/nothere.rnx", "--out", "{here}/out"], 4, r"--nav: .*nothere.rnx: no such file"),
+    ("batch --out is a file", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/obs.rnx"], 6, r"obs.rnx: cannot write output \(not a folder\)"),
+    ("batch, a file fails", "batch", ["{truth}", "{obs}", "--nav", "{nav}", "--out", "{here}/out"], 4, r"truth.csv: failed \(exit 4\): \S*truth.csv: .*1 of 2 files solved, 1 failed"),
 ]
+
+WRITES = {"batch, a file fails": {"out", "out/files.csv", "out/summary.csv", "out/positions", "out/positions/station=SIM",
+                                  "out/positions/station=SIM/day=2024-03-01",
+                                  "out/positions/station=SIM/day=2024-03-01/00001-obs.rnx-0.parquet"}}
+"""Cases that write their outputs (the other files are solved): what they leave."""
 
 
 def _prepare(here: Path) -> set[str]:
@@ -71,15 +87,18 @@ def _prepare(here: Path) -> set[str]:
     return {"obs.rnx", "bad.toml"}
 
 
-WITHOUT_MATPLOTLIB = {"--plots without matplotlib"}
-"""Cases run with a ``matplotlib`` package that cannot be imported ahead on the path."""
+WITHOUT = {"--plots without matplotlib": "matplotlib", "batch --scheduler without dask": "distributed"}
+"""Cases run with a package of that name that cannot be imported ahead on the path."""
+NEEDS = {"batch scheduler unreachable": "distributed"}
+"""Cases that need an optional package (skipped without it)."""
 
 
 @pytest.fixture(scope="session")
-def no_matplotlib_path(tmp_path_factory: pytest.TempPathFactory) -> str:
-    folder = tmp_path_factory.mktemp("no-matplotlib")
-    (folder / "matplotlib").mkdir()
-    (folder / "matplotlib" / "__init__.py").write_text("raise ImportError(\"No module named 'matplotlib'\")\n")
+def hidden_packages_path(tmp_path_factory: pytest.TempPathFactory) -> str:
+    folder = tmp_path_factory.mktemp("hidden-packages")
+    for name in set(WITHOUT.values()):
+        (folder / name).mkdir()
+        (folder / name / "__init__.py").write_text(f"raise ImportError(\"No module named '{name}'\")\n")
     return str(folder)
 
 
@@ -103,14 +122,17 @@ def _all_files(folder: Path) -> set[str]:
 @pytest.mark.parametrize(("command", "args", "code", "pattern"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_exit_code_and_message(request: pytest.FixtureRequest, tmp_path: Path, command: str, args: list[str], code: int,
                                pattern: str) -> None:
+    case = request.node.callspec.id
+    if case in NEEDS:
+        pytest.importorskip(NEEDS[case])
     before = _prepare(tmp_path)
-    hidden = request.getfixturevalue("no_matplotlib_path") if request.node.callspec.id in WITHOUT_MATPLOTLIB else None
+    hidden = request.getfixturevalue("hidden_packages_path") if case in WITHOUT else None
     proc = _run(command, _fill(args, tmp_path), tmp_path, pythonpath=hidden)
     assert proc.returncode == code, proc.stderr
     assert re.search(pattern, proc.stderr, re.S), proc.stderr
     assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr
     assert proc.stdout == ""
-    assert _all_files(tmp_path) == before  # nothing written, no temporary file left
+    assert _all_files(tmp_path) == before | WRITES.get(case, set())  # nothing else written, no temporary file left
     assert (tmp_path / "obs.rnx").read_bytes() == OBS.read_bytes()
 
 
@@ -197,3 +219,28 @@ def test_readme_table_lists_every_case_with_its_exit_code() -> None:
     expected.update({"Ctrl-C during a run": 130, "SIGTERM during a run": 143})
     assert rows == expected
     assert len(rows) >= 15
+
+
+def test_interrupted_batch_ends_its_workers_and_writes_nothing(long_run: Path, tmp_path: Path) -> None:
+    """Ctrl-C after the first two of four files (two workers): exit 130, one line, no output
+    folder, and the run ends at once instead of finishing the two files being solved."""
+    data = tmp_path / "data"
+    data.mkdir()
+    for name in "ABCD":
+        shutil.copy(long_run / "obs.rnx", data / f"{name * 4}00DNK_R_20240610000_01H_01S_MO.rnx")
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", MODULES["batch"], str(data / "*.rnx"), "--nav", str(long_run / "nav.rnx"),
+           "--out", str(out), "--jobs", "2", "--method", "all"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None
+    done = [proc.stderr.readline(), proc.stderr.readline()]  # the first two files finished: the last two just started
+    assert all(re.match(r"gnss-batch: \[ *\d+\.\d s\] [12]/4 .*, (\d+\.\d) s$", ln) for ln in done), done
+    file_s = min(float(ln.rsplit(", ", 1)[1][:-2]) for ln in done)
+    sent = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)  # returns when every holder of the pipes (the workers) is gone
+    assert time.perf_counter() - sent < 0.5 * file_s + 0.5  # not after the running files finish
+    assert proc.returncode == 130, stderr
+    assert stderr.splitlines() == ["gnss-batch: interrupted (SIGINT); no output written"], stderr
+    assert "Traceback" not in stderr and stdout == ""
+    assert not out.exists() and _all_files(tmp_path) == {"data", *(f"data/{p.name}" for p in data.iterdir())}

@@ -162,3 +162,51 @@ def test_progress_off_a_terminal_is_one_line_per_stage_plus_heartbeats() -> None
     q("reading", 0.0)
     q.done()
     assert quiet.getvalue() == ""
+
+
+def test_a_staged_folder_replaces_the_old_one_with_the_files(tmp_path: Path) -> None:
+    old = tmp_path / "out" / "positions" / "station=OLD"
+    old.mkdir(parents=True)
+    (old / "x.parquet").write_text("old")
+    with OutputSet() as out:
+        staged = out.stage_folder(tmp_path / "out" / "positions", "--out")
+        (staged / "station=NEW").mkdir()
+        (staged / "station=NEW" / "y.parquet").write_text("new")
+        out.add(tmp_path / "out" / "files.csv", "--out")
+        out.write_text(tmp_path / "out" / "files.csv", "f\n")
+        assert (old / "x.parquet").exists()  # nothing replaced before the commit
+    assert _files(tmp_path / "out") == {"positions", "positions/station=NEW", "positions/station=NEW/y.parquet",
+                                        "files.csv"}
+
+
+def test_a_failed_set_keeps_the_old_folder_and_leaves_no_staging(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "positions").mkdir()
+    (tmp_path / "positions" / "x").write_text("old")
+    real_replace = os.replace
+
+    def replace(src, dst):  # type: ignore[no-untyped-def]
+        if Path(dst).name == "files.csv":
+            raise OSError(28, "No space left on device")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(output_module.os, "replace", replace)
+    with pytest.raises(OutputError, match="files.csv: cannot write output"):
+        with OutputSet() as out:
+            (out.stage_folder(tmp_path / "positions", "--out") / "y").write_text("new")
+            out.add(tmp_path / "files.csv", "--out")
+            out.write_text(tmp_path / "files.csv", "f\n")
+    assert _files(tmp_path) == {"positions", "positions/x"}
+    assert (tmp_path / "positions" / "x").read_text() == "old"
+
+
+def test_a_folder_holding_an_input_or_that_is_a_file_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "obs.rnx").write_text("x")
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(ConfigError, match="holds the input"):
+        with OutputSet([tmp_path / "d" / "obs.rnx"]) as out:
+            out.stage_folder(tmp_path / "d", "--out")
+    with pytest.raises(OutputError, match="not a folder"):
+        with OutputSet() as out:
+            out.stage_folder(tmp_path / "f", "--out")
+    assert _files(tmp_path) == {"d", "d/obs.rnx", "f"}

@@ -1,0 +1,98 @@
+"""The outputs of ``gnss-batch``: a Parquet dataset of positions, ``files.csv`` and ``summary.csv``.
+
+``OUT/positions/`` is a Hive-partitioned Parquet dataset, ``station=<id>/day=<GPS date>/``,
+one file per observation file and partition (``<n>-<obs file>-0.parquet``), holding
+gnss-solve's positions columns (typed as by ``--format parquet``) plus ``obs_file``. Each
+file's rows are written as soon as it finishes, into a staged folder of the run's
+:class:`~gnss_cli.cli.output.OutputSet`; if the files disagree on their columns (one file
+with several systems has ``tdop_<letter>`` columns, another has not), every file is rewritten
+at the end with the union of the columns, missing ones null, so that a reader that takes the
+schema from one file (``pandas.read_parquet``) sees every column. ``files.csv`` has one row
+per input in the order given, ``summary.csv`` gnss-solve's summary per file and method.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from gnss_cli.cli.batch_task import FileResult
+
+PARTITIONS = ("station", "day")
+FILES_COLUMNS = ["obs_path", "nav_paths", "station", "status", "exit_code", "epochs", "solved", "method", "rms_3d_m",
+                 "seconds", "error", "warnings"]
+"""``files.csv`` columns (README: gnss-batch)."""
+
+
+def _write_options() -> Any:
+    """Parquet format 2.6, the first with nanosecond timestamps (as ``--format parquet``)."""
+    import pyarrow.dataset as ds
+
+    return ds.ParquetFileFormat().make_write_options(version="2.6")
+
+
+class PositionsDataset:
+    """The positions of finished files, appended to a partitioned dataset in ``folder``.
+
+    Parameters
+    ----------
+    folder : Path
+        The (staged) dataset folder.
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.files: list[tuple[int, Path]] = []
+        self.schemas: list[Any] = []
+
+    def add(self, result: FileResult) -> None:
+        """Write the rows of a finished file (nothing for a failed one) and forget them."""
+        if result.positions is None:
+            return
+        import pyarrow as pa
+        import pyarrow.dataset as ds
+
+        table = pa.Table.from_pandas(result.positions, preserve_index=False).replace_schema_metadata(None)
+        name = "".join(c if c.isalnum() or c in "-_." else "_" for c in Path(result.obs_path).name)
+        written: list[Path] = []
+        ds.write_dataset(table, self.folder, format="parquet", partitioning=list(PARTITIONS), partitioning_flavor="hive",
+                         basename_template=f"{result.index:05d}-{name}-{{i}}.parquet", file_options=_write_options(),
+                         existing_data_behavior="overwrite_or_ignore",
+                         file_visitor=lambda f: written.append(Path(f.path)))
+        self.files += [(result.index, p) for p in written]
+        self.schemas += [pa.schema([f for f in table.schema if f.name not in PARTITIONS])] * len(written)
+        result.positions = None
+
+    def finish(self) -> None:
+        """Give every file the union of the columns when they differ (missing columns null).
+
+        The union's column order is that of the inputs' order (not the order they finished in)."""
+        if len({str(s) for s in self.schemas}) <= 1:
+            return
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        order = sorted(range(len(self.files)), key=lambda k: self.files[k][0])
+        union = pa.unify_schemas([self.schemas[k] for k in order])
+        for (_, path), schema in zip(self.files, self.schemas):
+            if schema.equals(union):
+                continue
+            table = pq.read_table(path, partitioning=None)
+            columns = [table[f.name] if f.name in schema.names else pa.nulls(table.num_rows, f.type) for f in union]
+            pq.write_table(pa.Table.from_arrays(columns, schema=union), path, version="2.6")
+
+
+def files_table(results: list[FileResult]) -> Any:
+    """``files.csv``: one row per input, in input order."""
+    import pandas as pd
+
+    rows = [r.row() for r in sorted(results, key=lambda r: r.index)]
+    return pd.DataFrame(rows, columns=FILES_COLUMNS)
+
+
+def summary_table(results: list[FileResult]) -> Any:
+    """``summary.csv``: gnss-solve's summary rows of every finished file (``obs_path``, ``station`` first)."""
+    import pandas as pd
+
+    frames = [r.summary for r in sorted(results, key=lambda r: r.index) if r.summary is not None]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["obs_path", "station", "method"])
