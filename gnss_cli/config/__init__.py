@@ -82,8 +82,8 @@ class ProcessingConfig:
     integrity_pfa: float = 1e-3
     integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
-    alert_limit_h_m: float = 556.0
-    """An ``ok`` ls/wls epoch whose HPL exceeds this gets ``hpl_limit`` (see default.toml)."""
+    alert_limit_h_m: float = float("inf")
+    """An ``ok`` ls/wls epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
     max_exclusions: int = 4
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
