@@ -138,8 +138,12 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
                 content = hatanaka.crx2rnx(content)
         except (hatanaka.HatanakaException, ValueError, UnicodeError) as exc:
             raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({exc})") from exc
-        if caught:  # crx2rnx skipped records it could not restore: data are missing
-            raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({caught[0].message})")
+        # crx2rnx warns (HatanakaWarning, a UserWarning) when it skipped records it could not
+        # restore: data are missing. Deprecation notices of the library itself (hatanaka 2.7 on
+        # Python 3.11: "pathlib.Path.__enter__() is deprecated") say nothing about the file.
+        damage = [w for w in caught if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
+        if damage:
+            raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({damage[0].message})")
     return content
 
 
