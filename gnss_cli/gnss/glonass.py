@@ -48,11 +48,6 @@ DFREQ_G2_HZ = 0.4375e6
 MAX_DTOE_GLO_S = 1800.0
 """Largest |t - tb| at which a record is used, s (RTKLIB MAXDTOE_GLO)."""
 
-def leap_seconds_at(t_utc: np.datetime64) -> float:
-    """GPST - UTC (s) at a UTC instant, from :data:`gnss_cli.gnss.time.GPS_UTC_STEPS`."""
-    return float(gps_minus_utc_s(datetime2gps_s(np.datetime64(t_utc, "ns")), utc=True))
-
-
 @dataclass(frozen=True)
 class GlonassEphemeris:
     """GLONASS broadcast records, one row per record.
@@ -101,7 +96,8 @@ class GlonassEphemeris:
             ``time`` is tb in UTC(SU) as written in RINEX; X.. in m, m/s, m/s^2.
         leap_seconds_s
             GPST - UTC, s. Default: ``nav.attrs['leap_seconds']`` when the reader stored the
-            header's LEAP SECONDS, else the table value at the first record (18 s from 2017).
+            header's LEAP SECONDS, else the table value at each record's own date (18 s from
+            2017; a record dated wrongly must not shift the others).
 
         Raises
         ------
@@ -122,9 +118,11 @@ class GlonassEphemeris:
         t_utc = np.asarray(sub["time"].values, dtype="datetime64[ns]")
         if leap_seconds_s is None:
             leap_seconds_s = nav.attrs.get("leap_seconds")
-        if leap_seconds_s is None:
-            leap_seconds_s = leap_seconds_at(t_utc[ti].min()) if ti.size else 18.0
-        toe = datetime2gps_s(t_utc)[ti] + float(leap_seconds_s)
+        t_rec_s = datetime2gps_s(t_utc)[ti]
+        if leap_seconds_s is None:  # each record its own: one record's date must not shift the others
+            toe = t_rec_s + gps_minus_utc_s(t_rec_s, utc=True)
+        else:
+            toe = t_rec_s + float(leap_seconds_s)
 
         def col(name: str) -> F64:
             return np.asarray(sub[name].values, dtype=np.float64)[ti, si]

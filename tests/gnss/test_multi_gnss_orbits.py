@@ -244,3 +244,29 @@ def test_glonass_orbits_and_clocks_equal_rtklib(nav, rtklib_nav):
           f"max |dclk| {np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S:.2e} m")
     assert np.max(err) <= 0.01, np.max(err)
     assert np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S <= 0.01
+
+
+def test_glonass_record_dated_wrongly_does_not_shift_the_others(rinex_dir, tmp_path):
+    """GPST - UTC comes from each record's own date: one GLONASS record dated 1980 (0 leap
+    seconds then) once set the leap seconds of every record, moving every GLONASS satellite
+    by 18 s of orbit (km) and wrecking every epoch of kms3."""
+    import gzip
+
+    text = gzip.decompress((rinex_dir / "kms3-2022159-rinex4/KMS300DNK_R_20221591000_01H_MN.rnx.gz").read_bytes())
+    lines = text.split(b"\n")
+    first = next(i for i, line in enumerate(lines) if line[:1] == b"R" and line[4:8] == b"2022")
+    lines[first] = lines[first][:4] + b"1980" + lines[first][8:]
+    (tmp_path / "clean.rnx").write_bytes(text)
+    (tmp_path / "dated1980.rnx").write_bytes(b"\n".join(lines))
+    clean = GlonassEphemeris.from_dataset(read_nav(tmp_path / "clean.rnx"))
+    damaged = GlonassEphemeris.from_dataset(read_nav(tmp_path / "dated1980.rnx"))
+    assert len(damaged) == len(clean)
+    late = damaged.toe_gps_s > datetime2gps_s(np.datetime64("2000-01-01"))
+    assert late.sum() == len(clean) - 1  # the 1980 record stays in 1980
+    keep = np.lexsort((clean.toe_gps_s, clean.sv))
+    other = np.lexsort((damaged.toe_gps_s[late], damaged.sv[late]))
+    c = {(s, t) for s, t in zip(clean.sv[keep], clean.toe_gps_s[keep])}
+    d = {(s, t) for s, t in zip(damaged.sv[late][other], damaged.toe_gps_s[late][other])}
+    assert d <= c and len(c - d) == 1
+    # in GPST the 2022 tb (whole quarter hours of UTC(SU) - 3 h) end in 18 s
+    assert np.allclose(np.mod(damaged.toe_gps_s[late], 900.0), 18.0)
