@@ -85,6 +85,8 @@ class ProcessingConfig:
     alert_limit_h_m: float = float("inf")
     """An ``ok`` ls/wls epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
     max_exclusions: int = 4
+    fde_min_dof: int = 3
+    """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
     exclude: tuple[str, ...] = ()
     """Satellite ids never used (``G07``)."""
     snr_mask_dbhz: float = 0.0
@@ -155,6 +157,9 @@ class ProcessingConfig:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
         if self.max_exclusions < 0:
             raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
+        if self.fde_min_dof < 2:
+            raise ConfigError(f"fde_min_dof: expected >= 2 (one degree of freedom must remain to test the rest); "
+                              f"received {self.fde_min_dof}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
         if not self.alert_limit_h_m > 0:
@@ -252,7 +257,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
                     "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s"):
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites", "max_exclusions", "robust_max_iterations"):
+        for key in ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)

@@ -13,8 +13,9 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   protection levels);
 - w-test: ``w_i = |r_i| / sqrt(Qr_ii)``, ``Qr = (I - A K) Sigma (I - A K)^T`` the residual
   covariance. FDE excludes the satellite with the largest ``w_i`` and solves the epoch again
-  (Gauss-Newton from the previous fix) while the test fails, ``dof >= 2`` (one degree of
-  freedom remains after the exclusion) and fewer than ``max_exclusions`` satellites are out;
+  (Gauss-Newton from the previous fix) while the test fails, ``dof >= fde_min_dof`` (default 3:
+  two degrees of freedom remain to test the rest; classic RAIM FDE's 2 leaves one, which
+  cannot tell a second fault) and fewer than ``max_exclusions`` satellites are out;
   several satellites per epoch may go, one per round.
   Each round works on the still-failing epochs only, stacked.
 - protection levels, classic slope-based RAIM (Brown 1992; the weighted form of Walter and
@@ -162,10 +163,6 @@ def merge_epochs(sol: MethodSolution, rows: NDArray[np.intp], sub: MethodSolutio
     return replace(sol, **parts)
 
 
-MIN_DOF = 2
-"""Degrees of freedom an epoch needs for an exclusion (one remains to test the rest). 3 was
-measured on tst2-2020155-urban-static GPS-only: 51 ok epochs at 23 m instead of 157 at 39 m;
-kept at the classic 2 (FDE with six satellites), as in classic RAIM FDE."""
 _BLOCK = 1024  # epochs per stacked test (bounds the memory of the (t, n, 3 + k) arrays)
 
 
@@ -210,7 +207,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
         failed[rows] = ~chk.passed
         if config.integrity != "fde":
             break
-        retry = ~chk.passed & (chk.dof >= MIN_DOF) & (excluded[rows].sum(axis=1) < config.max_exclusions)
+        retry = ~chk.passed & (chk.dof >= config.fde_min_dof) & (excluded[rows].sum(axis=1) < config.max_exclusions)
         rows, worst = rows[retry], chk.worst[retry]
         if not rows.size:
             break

@@ -36,7 +36,7 @@ def test_thresholds_are_the_chi_square_and_noncentral_quantiles():
 
 def test_bad_integrity_settings_are_configuration_errors():
     for overrides in ({"integrity": "maybe"}, {"integrity_pfa": 0.0}, {"max_gdop": -1.0}, {"exclude": "X99"},
-                      {"alert_limit_h_m": 0.0}):
+                      {"alert_limit_h_m": 0.0}, {"fde_min_dof": 1}):
         with pytest.raises(ConfigError):
             load_config(None, overrides)
     assert load_config(None, {"exclude": "g7, C28"}).exclude == ("G07", "C28")
@@ -102,17 +102,27 @@ def test_hpl_limit_keeps_the_position_and_only_protected_epochs_stay_ok(data_075
 
 
 def test_gps_alone_in_the_urban_canyon_is_mostly_unprotected(rinex_dir):
-    """tst2 with the GPS file only: median HPL ~1,500 m. With a 556 m alert limit the ok
-    epochs are the protected minority, and closer to the truth than all of them were."""
+    """tst2 with the GPS file only (5-8 satellites, several reflected at once). Classic FDE
+    (``fde_min_dof = 2``) excludes down to one degree of freedom, where a second fault cannot
+    be seen: every epoch passes, 120 of them 100-200 m off. The default (3) keeps the test
+    two degrees of freedom: fewer ``ok`` epochs, and those much closer to the truth. With a
+    556 m alert limit the ``ok`` epochs are the protected ones."""
     d = rinex_dir / "tst2-2020155-urban-static"
-    res = process(d / "2020_06_03_TST_03.obs.gz", [d / "hksc155d.20n"],
-                  load_config(None, {"methods": "wls", "alert_limit_h_m": 556.0}))
-    sol = res.solutions["wls"]
-    ok, limited = sol.status == "ok", sol.status == "hpl_limit"
-    assert limited.sum() > ok.sum() > 100
-    truth = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
-    err = np.linalg.norm(sol.x_ecef_m - truth, axis=1)
-    assert _rms(err[ok]) < _rms(err[ok | limited])
+    def solve(**overrides):
+        res = process(d / "2020_06_03_TST_03.obs.gz", [d / "hksc155d.20n"], load_config(None, {"methods": "wls", **overrides}))
+        sol = res.solutions["wls"]
+        return sol, np.linalg.norm(sol.x_ecef_m - TST_TRUTH, axis=1)
+
+    classic, err_classic = solve(fde_min_dof=2)
+    default, err = solve()
+    ok_classic, ok = classic.status == "ok", default.status == "ok"
+    assert ok_classic.mean() > 0.95 and (err_classic[ok_classic] > 100.0).sum() > 50
+    assert 0.2 < ok.mean() < 0.7 and (default.status[~ok] == "integrity_fail").all()
+    assert _rms(err[ok]) < 0.7 * _rms(err_classic[ok_classic])
+    assert (default.excluded.sum(axis=1)[ok] <= classic.excluded.sum(axis=1)[ok]).all()
+    limited, _ = solve(alert_limit_h_m=556.0)
+    hl = limited.status == "hpl_limit"
+    assert hl.any() and (limited.hpl_m[hl] > 556.0).all() and (limited.hpl_m[limited.status == "ok"] <= 556.0).all()
 
 
 @pytest.mark.parametrize("trajectory", ["static", "flight"])
