@@ -59,7 +59,7 @@ from gnss_cli.solvers.kalman import kalman_filter, rts_smooth
 
 F64 = NDArray[np.float64]
 
-__all__ = ["run_kalman", "transition"]
+__all__ = ["run_kalman", "transition", "linearized_measurements", "nominal_trajectory"]
 
 _RELINEARIZE_M = 50.0
 _MAX_PASSES = 3
@@ -136,7 +136,7 @@ class _Measurements:
     used_rr: NDArray[np.bool_] | None = None
 
 
-def _measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> _Measurements:
+def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> _Measurements:
     """Linearize every epoch's pseudoranges (and range rates) at the nominal positions."""
     T, n = data.time_gps_s.size, data.sv.size
     unit, y, var = np.zeros((T, n, 3)), np.zeros((T, n)), np.ones((T, n))
@@ -256,7 +256,7 @@ def _prior(init: dict[str, F64], t0: int, lay: _Layout, config: ProcessingConfig
     return m0, P0
 
 
-def _nominal(t: F64, x: F64) -> F64:
+def nominal_trajectory(t: F64, x: F64) -> F64:
     """Positions ``x`` with the missing epochs interpolated in time (nearest at the ends)."""
     ok = np.isfinite(x).all(axis=1)
     return np.stack([np.interp(t, t[ok], x[ok, i]) for i in range(3)], axis=1)
@@ -292,12 +292,12 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
             "drift": vel.clock_drift_m_s if vel else np.full(T, np.nan)}
     segments = _segments(data.time_gps_s, has_fix, config.kalman.gap_s)
     jumps = _clock_jumps(data.time_gps_s, clocks[:, 0], config.kalman.clock_reset_m)
-    nominal = _nominal(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
+    nominal = nominal_trajectory(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
     x = np.full((T, lay.m), np.nan)
     P = np.full((T, lay.m, lay.m), np.nan)
 
     def one_pass(gate: F64 | None) -> _Measurements:
-        meas = _measurements(data, nominal, config)
+        meas = linearized_measurements(data, nominal, config)
         for seg in segments:
             x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config, gate)
         return meas
