@@ -4,7 +4,11 @@ For each data set: 3D RMS, horizontal RMS, 95th percentile and max of the 3D err
 
 - ``wls``: the snapshot fixes;
 - ``kf``: ``--method kf`` (measurement-domain EKF with Doppler, RTS smoother, defaults);
-- ``stls lag 3``: ``--method stls --lag 3`` with the defaults (identified shared kernel, windows);
+- ``stls lag 3``: ``--method stls --lag 3`` with the defaults (``--model auto``: on these files,
+  which have Doppler, the measurement-domain solution of every pseudorange and range rate with
+  positions and velocities tied by the lag-3 kinematic kernel, ``--model doppler``);
+- ``stls lag 3 identify (fixes)``: ``--model identify``, the shared kernel identified on 15-epoch
+  windows of the WLS fixes (the default before ``auto``);
 - ``stls kinematic``: ``--method stls --lag 1 --model kinematic`` (fixes and Doppler velocities
   tied by the kinematic kernel, variance factors from the data);
 - ``kf+rts on fixes (truth-tuned)``: a constant-velocity Kalman filter with an RTS smoother run
@@ -47,6 +51,7 @@ RUNS = {
     "wls": ({"methods": "wls"}, "wls"),
     "kf": ({"methods": "wls,kf"}, "kf"),
     "stls lag 3": ({"methods": "wls,stls", "smoothing.lag": 3}, "stls"),
+    "stls lag 3 identify (fixes)": ({"methods": "wls,stls", "smoothing.lag": 3, "smoothing.model": "identify"}, "stls"),
     "stls kinematic": ({"methods": "wls,stls", "smoothing.lag": 1, "smoothing.model": "kinematic"}, "stls"),
 }
 TST_TRUTH = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
