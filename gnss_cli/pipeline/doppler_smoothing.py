@@ -14,15 +14,26 @@ position comes from the kernel and its neighbours).
 Weights: the configured pseudorange and Doppler sigmas give their shape; each kind is scaled by
 a variance factor estimated from the data -- the misfit per degree of freedom of the epochs
 solved one at a time (free position, velocity, clocks, drift), which does not depend on the
-kernel -- so the balance between pseudoranges and range rates is not tuned per data set. With
-``robust = "huber"`` or ``"cauchy"`` every row is reweighted by the M-estimator of its
-standardized residual (:func:`~gnss_cli.solvers.robust.m_estimator_weights`), as in the snapshot
-solution.
+kernel -- so the balance between pseudoranges and range rates is not tuned per data set.
+
+Fault exclusion, as the snapshot solution's (``integrity`` not ``"off"``): a pseudorange or range
+rate whose standardized residual exceeds the two-sided normal quantile of ``integrity_pfa``
+(3.29 for 1e-3) is excluded -- unless more than half of its epoch's rows do -- and the segment
+solved again, until the excluded set no longer changes (an excluded row comes back when the
+new solution fits it). The variance factors stay those of the first pass (estimated again on
+the kept rows, the gate would tighten itself pass after pass). Excluded pseudoranges are added
+to the ``excluded`` column with the WLS exclusions; ``n_sat`` counts the pseudoranges used.
+Measured on the urban tst2 set (157 truth epochs; kf 2.14 m, WLS 6.81 m): 9.06 m without the
+gate, 2.52 m with it; it costs 1-2 % on the simulated flights (0.313 -> 0.317, 0.774 -> 0.78 x
+the truth-tuned KF+RTS) and on the Yamatogawa walk (2.67 -> 2.72 m). With ``robust = "huber"`` or
+``"cauchy"`` every row is also reweighted by the M-estimator of its standardized residual
+(:func:`~gnss_cli.solvers.robust.m_estimator_weights`), as in the snapshot solution (tst2 with
+Huber: 1.90 m).
 
 Gauss-Newton (with the robust weights: IRLS): linearize at the current trajectory (first the WLS
 fixes, interpolated in time where an epoch has none), solve every segment, repeat until no
-position moves more than 1 mm and no robust weight by more than 1e-3 (at most
-:data:`MAX_PASSES`).
+position moves more than 1 mm, no robust weight by more than 1e-3 and the excluded set is the
+same (at most :data:`MAX_PASSES`).
 
 Output: positions, velocities and re-estimated clocks of every epoch of a segment. Covariance:
 the position blocks of the constrained estimator's covariance (the inverse KKT matrix, with the
@@ -39,6 +50,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import norm
 
 from gnss_cli.behavior import KernelRepresentation
 from gnss_cli.behavior.kinematic_solve import STEP_OFFSETS, kinematic_position_cov, solve_kinematic, step_weights
@@ -76,6 +88,7 @@ class DopplerRun:
     cov_m2 : ``(T, 3 + k, 3 + k)`` covariance of ``[x (ECEF), clocks]`` (m^2; NaN outside the segments).
     var0_m2 : median variance of the used pseudoranges (weights with their factor): the DOPs are
         ``cov_m2 / var0_m2``.
+    gated : ``(T, n)`` pseudoranges the residual gate excluded.
     misfit, dof : per segment, weighted residual square sum and its degrees of freedom.
     factors : variance factors of the pseudoranges and of the range rates.
     passes : Gauss-Newton (IRLS) passes.
@@ -91,6 +104,7 @@ class DopplerRun:
     passes: int
     cov_m2: F64
     var0_m2: float
+    gated: NDArray[np.bool_]
 
 
 def doppler_kernel(dt_s: float, lag: int) -> KernelRepresentation:
@@ -166,15 +180,17 @@ def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: Process
     nominal = nominal_trajectory(t, np.where(fix[:, None], wls.x_ecef_m, np.nan))
     T = t.size
     x, v = np.full((T, 3), np.nan), np.full((T, 3), np.nan)
-    factors: tuple[float, float] | None = None
-    robust = np.ones((2, T, data.sv.size))
+    mult = np.ones((2, T, data.sv.size))  # robust weights times the gate (0: excluded)
+    gated = np.zeros((2, T, data.sv.size), dtype=bool)
     mis, dof = [0.0] * len(segs), [0] * len(segs)
+    gate = float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
     passes = 0
+    factors = (1.0, 1.0)
     for passes in range(1, MAX_PASSES + 1):
         rows = _rows(data, nominal, config)
-        if factors is None:
-            factors = _variance_factors(*_normals(rows, (robust[0], robust[1])))
-        scale = (robust[0] / factors[0], robust[1] / factors[1])
+        if passes == 1:  # before any exclusion: re-estimated on the kept rows, the gate would tighten itself
+            factors = _variance_factors(*_normals(rows, (mult[0], mult[1])))
+        scale = (mult[0] / factors[0], mult[1] / factors[1])
         pr, rr = _normals(rows, scale)
         moved = 0.0
         for i, seg in enumerate(segs):
@@ -184,22 +200,41 @@ def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: Process
             mis[i], dof[i] = sol.misfit, sol.dof
             moved = max(moved, float(np.abs(sol.z).max()))
         have = np.isfinite(x).all(axis=1)
+        u = (_standardized(rows["P"], rows["w"] / factors[0], rows["y"], rows["C"], np.where(have[:, None], x - nominal, 0.0)),
+             _standardized(rows["H"], rows["wd"] / factors[1], rows["yd"], None, np.where(have[:, None], v, 0.0)))
         nominal[have] = x[have]
-        changed = 0.0
-        if config.robust != "off":
-            tuning = config.robust_huber_k if config.robust == "huber" else config.robust_cauchy_c
-            for j, (p, w, y, c, z) in enumerate(((rows["P"], rows["w"] / factors[0], rows["y"], rows["C"], x - nominal),
-                                                 (rows["H"], rows["wd"] / factors[1], rows["yd"], None, v))):
-                new = m_estimator_weights(_standardized(p, w, y, c, np.where(have[:, None], z, 0.0)), config.robust, tuning)
-                changed = max(changed, float(np.abs(new - robust[j]).max()))
-                robust[j] = new
-        if moved < _CONVERGED_M and changed < _WEIGHT_TOL:
+        new_mult, new_gated = _reweight(u, (rows["w"] > 0, rows["wd"] > 0), gate, config)
+        changed = float(np.abs(new_mult - mult).max())
+        same_gate = bool(np.array_equal(new_gated, gated))
+        mult, gated = new_mult, new_gated
+        if moved < _CONVERGED_M and changed < _WEIGHT_TOL and same_gate:
             break
     assert factors is not None
     w_pr = rows["w"] * scale[0]
     cov = _covariance(rows["P"], w_pr, rows["C"], rr.M, segs, t, lag)
     var0 = float(np.median(1.0 / w_pr[w_pr > 0])) if (w_pr > 0).any() else 1.0
-    return DopplerRun(x, v, (rows["w"] > 0).sum(axis=1).astype(np.int64), segs, mis, dof, factors, passes, cov, var0)
+    n_sat = ((rows["w"] > 0) & ~gated[0]).sum(axis=1).astype(np.int64)
+    return DopplerRun(x, v, n_sat, segs, mis, dof, factors, passes, cov, var0, gated[0])
+
+
+def _reweight(u: tuple[F64, F64], used: tuple[NDArray[np.bool_], NDArray[np.bool_]], gate: float,
+              config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
+    """Robust weights (``config.robust``) times the residual gate, from standardized residuals ``u``.
+
+    A row whose ``|u|`` exceeds ``gate`` is excluded, unless more than half of its epoch's rows
+    do (then the fit, not the rows, failed there: all are kept).
+    """
+    mult = np.ones((2, *u[0].shape))
+    gated = np.zeros((2, *u[0].shape), dtype=bool)
+    for j in range(2):
+        if config.robust != "off":
+            tuning = config.robust_huber_k if config.robust == "huber" else config.robust_cauchy_c
+            mult[j] = m_estimator_weights(u[j], config.robust, tuning)
+        out = used[j] & (np.abs(u[j]) > gate)
+        most = out.sum(axis=1) * 2 > used[j].sum(axis=1)
+        gated[j] = out & ~most[:, None]
+        mult[j] = np.where(gated[j], 0.0, mult[j])
+    return mult, gated
 
 
 def _covariance(p_m: F64, w_pr: F64, clock_cols: F64, M_rr: F64, segs: list[NDArray[np.intp]], t: F64,
@@ -244,7 +279,9 @@ def doppler_smooth(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     smoothed = np.isfinite(run.x_ecef_m).all(axis=1)
     status = np.where(smoothed, EpochStatus.OK.value, wls.status.astype("<U24"))
     x_s = np.where(smoothed[:, None], run.x_ecef_m, wls.x_ecef_m)
-    sol = _with_covariance(finish_smoothing(data, wls, config, x_s, status, smoothed, [], method), run, smoothed)
+    kept = replace(data, usable=data.usable & ~run.gated)  # clocks and residuals from the rows used
+    sol = _with_covariance(finish_smoothing(kept, wls, config, x_s, status, smoothed, [], method), run, smoothed)
+    sol = replace(sol, excluded=run.gated if wls.excluded is None else (wls.excluded | run.gated))
     vel = np.where(smoothed[:, None], run.vel_ecef_m_s, sol.vel_ecef_m_s if sol.vel_ecef_m_s is not None else np.nan)
     models = []
     for k, seg in enumerate(run.segments):

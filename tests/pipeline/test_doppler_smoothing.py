@@ -131,3 +131,26 @@ def test_window_ladder_rejects_what_a_fixed_window_cannot_fit(tmp_path: Path) ->
     assert fixed is not None and ladder is not None
     assert _rms(ladder.x_ecef_m, ref) < 0.1 and _rms(fixed.x_ecef_m, ref) > 5 * _rms(ladder.x_ecef_m, ref)
     assert (np.abs(ladder.window) > 15).any() and (np.abs(ladder.window) < 15).any()
+
+
+def test_a_faulty_satellite_is_excluded_by_the_residual_gate(noisy: Path) -> None:
+    """A 30 m ramp on one satellite's pseudoranges over 40 epochs (below what the snapshot FDE
+    always sees at one epoch): the gate excludes those rows (``excluded``), and the track stays
+    as good as without the fault; with ``integrity = "off"`` the fault pulls it."""
+    cfg = load_config(None, BASE)
+    data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
+    ref = reference_from_csv(noisy / "truth.csv", data.time_gps_s)
+    span = np.arange(100, 140)
+    sat = int(np.flatnonzero(data.usable[span].all(axis=0))[0])
+    pr = data.pr_corrected_m.copy()
+    pr[span, sat] += np.linspace(10.0, 30.0, span.size)
+    faulty = replace(data, pr_corrected_m=pr)
+    clean_err = _err(doppler_smooth(data, solve_method(data, "wls", cfg), cfg)[0].x_ecef_m[span], ref[span])
+    wls = solve_method(faulty, "wls", cfg)
+    sol, _ = doppler_smooth(faulty, wls, cfg)
+    assert sol.excluded is not None and sol.excluded[span, sat].mean() > 0.9
+    err = _err(sol.x_ecef_m[span], ref[span])
+    assert np.sqrt(np.mean(err**2)) < 1.2 * np.sqrt(np.mean(clean_err**2)) + 0.05
+    off = load_config(None, {**BASE, "integrity": "off"})
+    pulled = _err(doppler_smooth(faulty, solve_method(faulty, "wls", off), off)[0].x_ecef_m[span], ref[span])
+    assert np.sqrt(np.mean(pulled**2)) > 2 * np.sqrt(np.mean(err**2))
