@@ -3,6 +3,7 @@ rates of whole segments in the measurement domain, positions and velocities tied
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.doppler_smoothing import doppler_smooth
+from gnss_cli.report import models_json
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
 
@@ -53,6 +55,7 @@ def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
                     load_config(None, {**BASE, "smoothing.model": "identify"})).solutions["stls"]
     assert (stls.status == "ok").all()
     assert len(res.models) == 1 and res.models[0].model == "doppler" and "measurement domain" in res.models[0].message
+    assert json.loads(models_json(load_config(None, BASE).smoothing, res.models))["model"] == "doppler"  # not "auto"
     assert _rms(stls.x_ecef_m, ref) < 0.5 * _rms(ident.x_ecef_m, ref)
     assert _rms(stls.x_ecef_m, ref) < 0.2 * _rms(wls.x_ecef_m, ref)
     assert np.all(stls.gdop < wls.gdop)
