@@ -301,8 +301,10 @@ def identification_table(ident: Identification) -> pd.DataFrame:
 
 
 def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> str:
-    """The ``--model-out`` document: the smoothing options and one record per window (JSON text)."""
-    doc = {"lag": smoothing.lag, "model": smoothing.model, "kernel": smoothing.kernel,
+    """The ``--model-out`` document: the smoothing options and one record per window (JSON text);
+    ``model = "auto"`` is written as what it resolved to (the records' model)."""
+    model = models[0].model if smoothing.model == "auto" and models else smoothing.model
+    doc = {"lag": smoothing.lag, "model": model, "kernel": smoothing.kernel,
            "windows": [m.to_dict() for m in models]}
     return json.dumps(doc, indent=1) + "\n"
 

@@ -6,7 +6,7 @@ Re-exported by :mod:`gnss_cli.config`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from gnss_cli.errors import ConfigError
 
@@ -31,7 +31,7 @@ class WeightConfig:
     iono_free_factor: float = 3.0
 
 
-SMOOTHING_MODELS = ("identify", "pva", "static", "kinematic")
+SMOOTHING_MODELS = ("auto", "doppler", "identify", "pva", "static", "kinematic")
 SMOOTHING_KERNELS = ("shared", "full")
 FIXED_MODEL_LAGS = {"static": 1, "pva": 3, "kinematic": 1}
 """Lags of the fixed kernels ``(z-1) I`` and ``(z-1)^3 I`` (they ignore ``lag``)."""
@@ -42,16 +42,26 @@ class SmoothingConfig:
     """Behavioral multi-epoch smoothing of the stls rows (``[smoothing]`` in ``gnss_cli/configs/default.toml``).
 
     ``lag = 0``: no smoothing (the stls rows are single-epoch STLS). ``order = 0``: the
-    default order ``3 lag`` of a full identified kernel. The defaults equal the packaged TOML.
+    default order ``3 lag`` of a full identified kernel. ``model = "auto"``: ``"doppler"`` when the
+    observation file has Doppler (and ``[kalman] doppler``) and no full kernel is asked for, else ``"identify"``
+    (:meth:`resolved`). The defaults equal the packaged TOML.
     """
 
     lag: int = 0
-    model: str = "identify"
+    model: str = "auto"
     kernel: str = "shared"
     order: int = 0
     window: int = 15
     tolerance: float = 1e-6
     max_iterations: int = 200
+
+    def resolved(self, has_doppler: bool) -> "SmoothingConfig":
+        """Self with ``model = "auto"`` replaced by ``"doppler"`` (range rates available, and no full
+        kernel asked for) or ``"identify"``."""
+        if self.model != "auto":
+            return self
+        identify = not has_doppler or self.kernel == "full" or self.order > 0
+        return replace(self, model="identify" if identify else "doppler")
 
     @property
     def effective_lag(self) -> int:
@@ -61,12 +71,12 @@ class SmoothingConfig:
     @property
     def structure(self) -> str:
         """Kernel structure of the fits: ``kernel`` when identified; the fixed kernels are shared."""
-        return self.kernel if self.model == "identify" else "shared"
+        return self.kernel if self.model in ("identify", "auto") else "shared"
 
     @property
     def full_order(self) -> int | None:
         """Order of a full identified kernel (``order``, or ``3 lag`` for 0); None for the other models."""
-        if self.model != "identify" or self.kernel != "full":
+        if self.model not in ("identify", "auto") or self.kernel != "full":
             return None
         return self.order if self.order > 0 else 3 * self.effective_lag
 
@@ -74,7 +84,7 @@ class SmoothingConfig:
         """Shortest window (epochs) the model can be fitted on: static 2, pva 5, shared
         ``2 lag + 2``, full ``3 (lag + 1) + 1``."""
         lag = self.effective_lag
-        need = {"static": 2, "pva": 5, "kinematic": 2}.get(self.model)
+        need = {"static": 2, "pva": 5, "kinematic": 2, "doppler": 2}.get(self.model)
         if need is None:
             need = 2 * lag + 2 if self.kernel == "shared" else 3 * (lag + 1) + 1
         return max(need, 2)
@@ -92,8 +102,11 @@ class SmoothingConfig:
             raise ConfigError(f"smoothing.kernel: expected one of {', '.join(SMOOTHING_KERNELS)}; received {self.kernel!r}")
         if not self.tolerance > 0:
             raise ConfigError(f"smoothing.tolerance: expected > 0; received {self.tolerance}")
+        if self.model == "auto" and self.lag > 0:  # without Doppler it is "identify": check that
+            replace(self, model="identify").validated()
+            return self
         if self.lag == 0:
-            if self.model != "identify" or self.order:
+            if self.model not in ("identify", "auto") or self.order:
                 what = f"model = {self.model!r}" if self.model != "identify" else f"order = {self.order}"
                 raise ConfigError(f"smoothing.{what} needs smoothing.lag >= 1 (lag 0 = no smoothing)")
             return self

@@ -59,7 +59,7 @@ from gnss_cli.solvers.kalman import kalman_filter, rts_smooth
 
 F64 = NDArray[np.float64]
 
-__all__ = ["run_kalman", "transition"]
+__all__ = ["run_kalman", "transition", "linearized_measurements", "nominal_trajectory"]
 
 _RELINEARIZE_M = 50.0
 _MAX_PASSES = 3
@@ -123,7 +123,7 @@ def transition(dt_s: float, layout_n_kin: int, k: int, config: ProcessingConfig)
 
 
 @dataclass
-class _Measurements:
+class Measurements:
     """Linearized pseudoranges and range rates of every epoch (``(T, n)`` arrays)."""
 
     unit: F64  # line of sight, (T, n, 3)
@@ -136,7 +136,7 @@ class _Measurements:
     used_rr: NDArray[np.bool_] | None = None
 
 
-def _measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> _Measurements:
+def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> Measurements:
     """Linearize every epoch's pseudoranges (and range rates) at the nominal positions."""
     T, n = data.time_gps_s.size, data.sv.size
     unit, y, var = np.zeros((T, n, 3)), np.zeros((T, n)), np.ones((T, n))
@@ -151,7 +151,7 @@ def _measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> _M
         y[rows] = np.where(mask, lin.q[:, :n] - np.einsum("tnk,tk->tn", e, nominal[rows]), 0.0)
         var[rows] = np.where(mask, lin.var_m2[:, :n], 1.0)
         used[rows] = mask
-    out = _Measurements(unit, y, var, used)
+    out = Measurements(unit, y, var, used)
     if config.kalman.doppler and data.range_rate_m_s is not None and data.sat_vel_ecef_m_s is not None:
         H, yr = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s,
                                   data.range_rate_m_s, nominal)
@@ -161,7 +161,7 @@ def _measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> _M
     return out
 
 
-def _rows(meas: _Measurements, t: int, lay: _Layout, sysidx: NDArray[np.int64]) -> tuple[F64, F64, F64]:
+def _rows(meas: Measurements, t: int, lay: _Layout, sysidx: NDArray[np.int64]) -> tuple[F64, F64, F64]:
     """Measurement rows, values and variances of epoch ``t`` for the state layout."""
     i = np.flatnonzero(meas.used[t])
     H = np.zeros((i.size, lay.m))
@@ -199,7 +199,7 @@ def _clock_jumps(t: F64, clock_m: F64, threshold_m: float) -> NDArray[np.bool_]:
     return jump
 
 
-def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: _Measurements, init: dict[str, F64],
+def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: Measurements, init: dict[str, F64],
                  lay: _Layout, jumps: NDArray[np.bool_], config: ProcessingConfig,
                  gate: NDArray[np.float64] | None = None) -> tuple[F64, F64]:
     """Filter (and smooth) one segment; returns the state means ``(s, m)`` and covariances.
@@ -256,7 +256,7 @@ def _prior(init: dict[str, F64], t0: int, lay: _Layout, config: ProcessingConfig
     return m0, P0
 
 
-def _nominal(t: F64, x: F64) -> F64:
+def nominal_trajectory(t: F64, x: F64) -> F64:
     """Positions ``x`` with the missing epochs interpolated in time (nearest at the ends)."""
     ok = np.isfinite(x).all(axis=1)
     return np.stack([np.interp(t, t[ok], x[ok, i]) for i in range(3)], axis=1)
@@ -292,12 +292,12 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
             "drift": vel.clock_drift_m_s if vel else np.full(T, np.nan)}
     segments = _segments(data.time_gps_s, has_fix, config.kalman.gap_s)
     jumps = _clock_jumps(data.time_gps_s, clocks[:, 0], config.kalman.clock_reset_m)
-    nominal = _nominal(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
+    nominal = nominal_trajectory(data.time_gps_s, wls.x_ecef_m) if has_fix.any() else np.zeros((T, 3))
     x = np.full((T, lay.m), np.nan)
     P = np.full((T, lay.m, lay.m), np.nan)
 
-    def one_pass(gate: F64 | None) -> _Measurements:
-        meas = _measurements(data, nominal, config)
+    def one_pass(gate: F64 | None) -> Measurements:
+        meas = linearized_measurements(data, nominal, config)
         for seg in segments:
             x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config, gate)
         return meas
@@ -317,7 +317,7 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     return _solution(data, wls, meas, x, P, lay, passes, config)
 
 
-def _solution(data: EpochData, wls: MethodSolution, meas: _Measurements, x: F64, P: F64, lay: _Layout,
+def _solution(data: EpochData, wls: MethodSolution, meas: Measurements, x: F64, P: F64, lay: _Layout,
               passes: int, config: ProcessingConfig) -> MethodSolution:
     """Build the ``kf`` :class:`MethodSolution` from the state means and covariances."""
     k = lay.k

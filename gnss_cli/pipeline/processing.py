@@ -9,6 +9,7 @@ from pathlib import Path
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
+from gnss_cli.pipeline.doppler_smoothing import doppler_smooth
 from gnss_cli.pipeline.kalman import run_kalman
 from gnss_cli.pipeline.results import MethodSolution, Progress, RunResult
 from gnss_cli.pipeline.smoothing import smooth
@@ -29,7 +30,9 @@ def process(
     With ``config.smoothing.lag == 0`` this is :func:`~gnss_cli.pipeline.snapshot.run`.
     With ``lag >= 1`` the other methods (and WLS) are solved epoch by epoch, and the stls
     rows are the behavioral smoothing of the WLS fixes
-    (:func:`~gnss_cli.pipeline.smoothing.smooth`); ``RunResult.models`` then holds one
+    (:func:`~gnss_cli.pipeline.smoothing.smooth`), or with ``model = "doppler"`` (the default
+    ``"auto"`` on a file with Doppler) the measurement-domain solution of
+    :func:`~gnss_cli.pipeline.doppler_smoothing.doppler_smooth`; ``RunResult.models`` then holds one
     :class:`~gnss_cli.pipeline.results.WindowModel` per window.
 
     ``kf`` (:func:`~gnss_cli.pipeline.kalman.run_kalman`) runs on the WLS solution (solved
@@ -87,10 +90,14 @@ def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], con
     result = run(obs_path, nav_paths, snapshot, progress=progress)
     if progress is not None:
         progress(f"stls: smoothing, lag {lag}", 0.0)
+    has_doppler = result.epochs.range_rate_m_s is not None and config.kalman.doppler
+    config = replace(config, smoothing=config.smoothing.resolved(has_doppler))
     if config.smoothing.model == "kinematic":
         from gnss_cli.pipeline.kinematic import kinematic_smooth
 
         sol, models = kinematic_smooth(result.epochs, result.solutions["wls"], config)
+    elif config.smoothing.model == "doppler":
+        sol, models = doppler_smooth(result.epochs, result.solutions["wls"], config)
     else:
         sol, models = smooth(result.epochs, result.solutions["wls"], config)
     solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in config.methods}

@@ -249,7 +249,8 @@ def smooth(
     ``R H_{l+1}(w^) = 0`` with ``w_t = E (x_t - x_origin)`` the ENU position of the fix and
     ``Sigma_t = E C_t E^T`` its rotated WLS covariance.
     """
-    opts = config.smoothing.validated()
+    opts = config.smoothing.resolved(False).validated()  # "auto" smooths the fixes with "identify" here
+    config = replace(config, smoothing=opts)
     if opts.lag < 1:
         raise UsageError(f"smoothing.lag: expected an integer >= 1 to smooth, received {opts.lag}")
     T = data.time_gps_s.size

@@ -192,12 +192,14 @@ def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: i
 
 
 # ------------------------------------------------------------------ simulated flight
-def test_flight_stls_lag3_defaults_beat_ls(flight_dir: Path, tmp_path: Path) -> None:
+def test_flight_stls_lag3_identify_beats_ls(flight_dir: Path, tmp_path: Path) -> None:
+    """The identified shared kernel over windows of the fixes (``--model identify``; the default
+    ``auto`` is ``doppler`` on this file, tests/pipeline/test_doppler_smoothing.py)."""
     d = flight_dir
     model_out = tmp_path / "models.json"
     rows = _cli_positions([str(d / "obs.rnx"), str(d / "nav.rnx"), "--method", "ls,stls", "--lag", "3",
-                           "--reference-csv", str(d / "truth.csv"), "--iono", "none", "--tropo", "none",
-                           "--model-out", str(model_out)])
+                           "--model", "identify", "--reference-csv", str(d / "truth.csv"), "--iono", "none",
+                           "--tropo", "none", "--model-out", str(model_out)])
     err = {m: g["err_3d_m"].to_numpy() for m, g in rows.items()}
     assert (rows["stls"]["status"] == "ok").all()
     rms = {m: float(np.sqrt(np.mean(e**2))) for m, e in err.items()}
