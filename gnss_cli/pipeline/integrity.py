@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.geometry import linearize
+from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
 __all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality"]
@@ -69,20 +70,27 @@ Solver = Callable[[EpochData, F64, F64], MethodSolution]
 
 @lru_cache(maxsize=256)
 def chi2_threshold(dof: int, pfa: float) -> float:
-    """``chi2.isf(pfa, dof)``; infinite for ``dof < 1`` (nothing to test)."""
+    """``chi2.isf(pfa, dof)``; infinite for ``dof < 1`` (nothing to test). The default ``pfa``
+    is tabulated (:mod:`gnss_cli.pipeline.integrity_table`): scipy.stats is imported otherwise only."""
+    if dof < 1:
+        return float("inf")
+    if pfa == TABLE_PFA and dof <= len(CHI2_ISF):
+        return CHI2_ISF[dof - 1]
     from scipy.stats import chi2
 
-    return float(chi2.isf(pfa, dof)) if dof >= 1 else float("inf")
+    return float(chi2.isf(pfa, dof))
 
 
 @lru_cache(maxsize=256)
 def noncentrality(dof: int, pfa: float, pmd: float) -> float:
     """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``; NaN for ``dof < 1``."""
+    if dof < 1:
+        return float("nan")
+    if pfa == TABLE_PFA and pmd == TABLE_PMD and dof <= len(NONCENTRALITY):
+        return NONCENTRALITY[dof - 1]
     from scipy.optimize import brentq
     from scipy.stats import ncx2
 
-    if dof < 1:
-        return float("nan")
     thr = chi2_threshold(dof, pfa)
     return float(brentq(lambda lam: ncx2.cdf(thr, dof, lam) - pmd, 1e-9, 1e4, xtol=1e-9))
 
