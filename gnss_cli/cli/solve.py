@@ -66,6 +66,9 @@ def solve(
     values = dict(locals())
     if len(files) < 2:
         raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
+    from gnss_cli.io.compression import prefetch
+
+    prefetch(*files)  # decompression (crx2rnx, gzip) on another core while the numerical modules import
     check_reference_options(values)
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
