@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import importlib.util
 import io
 import os
 import re
@@ -178,9 +179,10 @@ def _crx2rnx(content: bytes, name: str) -> bytes:
 
 def _crx2rnx_executable() -> Path | None:
     """The ``crx2rnx`` program that the ``hatanaka`` package bundles, or None."""
-    import hatanaka.bin  # the executables' folder; no import of the library itself
-
-    exe = Path(hatanaka.bin.__file__).parent / ("crx2rnx.exe" if os.name == "nt" else "crx2rnx")
+    spec = importlib.util.find_spec("hatanaka")  # the package's folder, without importing it
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    exe = Path(list(spec.submodule_search_locations)[0]) / "bin" / ("crx2rnx.exe" if os.name == "nt" else "crx2rnx")
     return exe if exe.is_file() else None
 
 
