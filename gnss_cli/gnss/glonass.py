@@ -197,6 +197,23 @@ def _derivative(state: F64, acc: F64) -> F64:
     return out
 
 
+def _clock_s(eph: GlonassEphemeris, k: NDArray[np.intp], dt: F64) -> F64:
+    """``-TauN + GammaN (t - tb)`` (s) of the records ``k`` at ``dt = t - tb`` (s)."""
+    return eph.clock_bias_s[k] + eph.gamma_n[k] * dt
+
+
+def glonass_clock_s(eph: GlonassEphemeris, idx: NDArray[np.intp], t_gps_s: F64) -> F64:
+    """The ``clock_s`` of :func:`glonass_states` without the orbit integration (NaN where ``idx < 0``)."""
+    idx = np.asarray(idx)
+    valid = idx >= 0
+    if len(eph) == 0 or not valid.any():
+        return np.full(idx.shape, np.nan)
+    t = np.broadcast_to(np.asarray(t_gps_s, dtype=np.float64), idx.shape)
+    k = np.where(valid, idx, 0)
+    dt = np.where(valid, t - eph.toe_gps_s[k], 0.0)
+    return np.where(valid, _clock_s(eph, k, dt), np.nan)
+
+
 def glonass_states(
     eph: GlonassEphemeris,
     idx: NDArray[np.intp],
@@ -261,7 +278,7 @@ def glonass_states(
         state = state + hh / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         remaining = remaining - h
         remaining = np.where(np.abs(remaining) < 1e-9, 0.0, remaining)
-    clock = eph.clock_bias_s[k] + eph.gamma_n[k] * dt
+    clock = _clock_s(eph, k, dt)
     pos = np.where(valid[..., None], state[..., :3], np.nan)
     vel = np.where(valid[..., None], state[..., 3:], np.nan)
     zero = np.where(valid, 0.0, np.nan)

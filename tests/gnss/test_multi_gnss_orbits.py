@@ -244,3 +244,25 @@ def test_glonass_orbits_and_clocks_equal_rtklib(nav, rtklib_nav):
           f"max |dclk| {np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S:.2e} m")
     assert np.max(err) <= 0.01, np.max(err)
     assert np.max(np.abs(states.clock_s - np.array(ref_clk))) * C_M_S <= 0.01
+
+
+@pytest.mark.parametrize("system", ["G", "E", "C", "J", "R"])
+def test_clock_only_evaluation_gives_the_full_evaluations_clock(nav, system):
+    """The clock-drift path evaluates clocks without orbits: bit for bit the clocks of the full
+    evaluation (BeiDou GEO and MEO, GLONASS without its integration), NaN where no record."""
+    from gnss_cli.gnss.glonass import glonass_clock_s
+
+    t = datetime2gps_s(np.array(["2020-06-25T00:00", "2020-06-25T07:13:31", "2020-06-25T23:59:30"], dtype="datetime64[ns]"))
+    if system == "R":
+        eph = GlonassEphemeris.from_dataset(nav)
+        idx = select_glonass_ephemeris(eph, np.unique(eph.sv), t)
+        full, fast = glonass_states(eph, idx, t[:, None]).clock_s, glonass_clock_s(eph, idx, t[:, None])
+    else:
+        eph = ephemeris_for_system(nav, system)
+        idx = select_system_ephemeris(eph, np.unique(eph.sv), t, system)
+        full = system_states(eph, idx, t[:, None], system).clock_s
+        only = system_states(eph, idx, t[:, None], system, clock_only=True)
+        fast = only.clock_s
+        assert np.isnan(only.pos_ecef_m).all()
+    assert (idx >= 0).sum() >= 3 and np.isnan(full[idx < 0]).all() and np.isfinite(full[idx >= 0]).all()
+    np.testing.assert_array_equal(fast, full)
