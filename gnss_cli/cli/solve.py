@@ -251,7 +251,7 @@ def _without_dask() -> None:
     ``cluster`` extra), only to recognise dask arrays: 0.1-0.2 s of every run. A ``None``
     entry in :data:`sys.modules` makes ``importlib.util.find_spec`` report it missing.
     """
-    if "dask" not in sys.modules:
+    if "dask" not in sys.modules and "xarray" not in sys.modules:  # (xarray caches what it found)
         sys.modules["dask"] = None  # type: ignore[assignment]
 
 

