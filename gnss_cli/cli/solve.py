@@ -69,6 +69,8 @@ def solve(
     from gnss_cli.io.compression import prefetch
 
     prefetch(*files)  # decompression (crx2rnx, gzip) on another core while the numerical modules import
+    if not _writes_parquet(fmt, output):
+        _mark_missing("pyarrow")  # pandas imports it (~50 ms) for its string storage; only Parquet needs it
     check_reference_options(values)
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
@@ -248,11 +250,24 @@ def _without_dask() -> None:
 
     One ``gnss-solve`` run never uses dask (``gnss-batch --scheduler`` does, in its own
     processes), but xarray imports ``dask`` and ``dask.array`` when they are installed (the
-    ``cluster`` extra), only to recognise dask arrays: 0.1-0.2 s of every run. A ``None``
-    entry in :data:`sys.modules` makes ``importlib.util.find_spec`` report it missing.
+    ``cluster`` extra), only to recognise dask arrays: 0.1-0.2 s of every run.
     """
-    if "dask" not in sys.modules and "xarray" not in sys.modules:  # (xarray caches what it found)
-        sys.modules["dask"] = None  # type: ignore[assignment]
+    _mark_missing("dask")
+
+
+def _mark_missing(module: str) -> None:
+    """Make ``module`` look not installed to this process, unless it, pandas or xarray is already
+    imported (they note at import what they found). A ``None`` entry in :data:`sys.modules`
+    makes ``importlib.util.find_spec`` report it missing and ``import`` raise ImportError."""
+    if not {module, "pandas", "xarray"} & set(sys.modules):
+        sys.modules[module] = None  # type: ignore[assignment]
+
+
+def _writes_parquet(fmt: Optional[str], output: Optional[str]) -> bool:
+    """Whether the positions may be written as Parquet (``--format parquet`` or ``-o *.parquet``)."""
+    if fmt is not None:
+        return fmt.lower() == "parquet"
+    return output not in (None, "-") and Path(str(output)).suffix.lower() == ".parquet"
 
 
 if __name__ == "__main__":
