@@ -85,8 +85,7 @@ def broadcast_states(
     gm_m3_s2, omega_e_rad_s
         The system's constants (GPS defaults).
     clock_only
-        Compute the clocks only (positions and velocities NaN): the clock drift's second
-        evaluation needs no orbit.
+        Clocks only (positions and velocities NaN): the clock drift needs no second orbit.
 
     Notes
     -----
