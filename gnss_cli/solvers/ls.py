@@ -60,9 +60,12 @@ def _solve(method: str, problem: Problem, rank_rtol: float) -> BatchResult:
     scr = screen(problem, rank_rtol, r=factors[1])
     work = scr.work
     qw = work.qw
-    gain_w, _ = ls_gain(Aw, factors) if work is problem else ls_gain(work.Aw)
+    if work is not problem:  # stand-ins replaced the unsolvable epochs
+        Aw = work.Aw
+        factors = np.linalg.qr(Aw, mode="reduced")
+    gain_w, _ = ls_gain(Aw, factors)
     x = np.einsum("tmn,tn->tm", gain_w, qw)
-    rw = qw - np.einsum("tnm,tm->tn", work.Aw, x)
+    rw = qw - np.einsum("tnm,tm->tn", Aw, x)
     cost = np.sum(rw * rw, axis=1)
     return finish_batch(method, problem, scr, x=x, gain_w=gain_w, cost=cost, status=scr.status)
 
