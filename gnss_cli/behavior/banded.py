@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import lapack
 
 from gnss_cli.behavior.covariance import EpochCovariance
 from gnss_cli.behavior.hankel import hankel_rows
@@ -81,6 +80,8 @@ class BandedGram:
 
 def solve_lower(cb: NDArray[np.float64], rhs: NDArray[np.float64], transpose: bool = False) -> NDArray[np.float64]:
     """Solve ``L x = rhs`` (or ``L^T x = rhs``) with the banded factor; ``rhs`` ``(N,)`` or ``(N, k)``."""
+    from scipy.linalg import lapack  # scipy.linalg: imported by the multi-epoch methods only
+
     vec = rhs.ndim == 1
     b = rhs[:, None] if vec else rhs
     x, info = lapack.dtbtrs(cb, b, uplo="L", trans="T" if transpose else "N", diag="N")
@@ -113,6 +114,8 @@ def factor_gram(ab_t: NDArray[np.float64], cond_max: float | None = None) -> NDA
     if not 0.0 < diag_max < np.inf:
         raise SingularGramError(f"G(R) Sigma G(R)^T is singular for this kernel (largest diagonal entry {diag_max:.3g})")
     lam_max = _gershgorin_bound(ab_t) if cond_max is not None else 0.0
+    from scipy.linalg import lapack
+
     cb, info = lapack.dpbtrf(ab_t.T, lower=1, overwrite_ab=1)
     if info != 0:
         raise SingularGramError("G(R) Sigma G(R)^T is singular for this kernel (Cholesky failed)")

@@ -17,7 +17,6 @@ Both provide ``(dG/dtheta_k) w_hat`` for the pseudo-Jacobian of the whitened res
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from gnss_cli.behavior.hankel import hankel_rows
@@ -40,6 +39,8 @@ class FullChart:
         self.g, n_col = R.shape
         self.q = q
         self.n_blk = n_col // q
+        import scipy.linalg  # imported by the multi-epoch methods only
+
         _, _, piv = scipy.linalg.qr(R, mode="economic", pivoting=True)
         self.ident = np.sort(piv[: self.g])
         self.free = np.setdiff1d(np.arange(n_col), self.ident)

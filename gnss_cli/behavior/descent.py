@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import lapack
 
 from gnss_cli.behavior.banded import BandedGram, InnerProblem, SingularGramError, solve_lower
 from gnss_cli.behavior.chart import FullChart, SharedChart
@@ -81,6 +80,8 @@ def _derivatives(
 
 def _cholesky_solve(a_mat: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64] | None:
     """``a_mat^{-1} rhs`` for a symmetric positive definite ``a_mat``; None when the Cholesky factorization fails."""
+    from scipy.linalg import lapack  # scipy.linalg: imported by the multi-epoch methods only
+
     fac, info = lapack.dpotrf(a_mat, lower=1)
     if info != 0:
         return None

@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.behavior.hankel import as_series, hankel
@@ -261,6 +260,8 @@ class KernelRepresentation:
         a[: n - q, q:] = np.eye(n - q)
         a[n - q :, :] = -self.R[:, :n]
         b[n - q :, n - q :] = self.blocks[-1]
+        import scipy.linalg  # imported by the multi-epoch methods only
+
         ev = scipy.linalg.eigvals(a, b)
         return np.sort_complex(ev[np.isfinite(ev)])
 

@@ -156,31 +156,25 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
     var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
-    mask = np.zeros((t_n, n), dtype=bool)
+    # the k clock-constraint rows (several systems) follow the n satellite rows in the same arrays
+    rows_n = n + (k if k > 1 else 0)
+    mask = np.zeros((t_n, rows_n), dtype=bool)
     mask[ti, si] = mask_u
-    q = np.zeros((t_n, n))
+    q = np.zeros((t_n, rows_n))
     q[ti, si] = np.where(mask_u, q_u, 0.0)
-    var = np.ones((t_n, n))
+    var = np.ones((t_n, rows_n))
     var[ti, si] = np.where(mask_u, var_u, 1.0)
-    A = np.zeros((t_n, n, 3 + k))
+    A = np.zeros((t_n, rows_n, 3 + k))
     A[ti, si, :3] = np.where(mask_u[:, None], -unit_u, 0.0)
     A[ti, si, 3 + sysidx[si]] = np.where(mask_u, 1.0, 0.0)
-    unit = np.zeros((t_n, n, 3))
-    unit[ti, si] = unit_u
-    rng = np.ones((t_n, n))
-    rng[ti, si] = rng_u
-    unit_c = unit
-    rng_c = rng
+    unit_c = np.zeros((t_n, rows_n, 3))
+    unit_c[ti, si] = unit_u
+    rng_c = np.ones((t_n, rows_n))
+    rng_c[ti, si] = rng_u
     if k > 1:
-        present = (mask[:, :, None] & (onehot[None, :, :] > 0)).any(axis=1)  # (t, k)
-        t_n = rows.size
-        a_c = np.zeros((t_n, k, 3 + k))
-        a_c[:, np.arange(k), 3 + np.arange(k)] = 1.0
-        q_c = -b
-        A = np.concatenate([A, np.where(~present[..., None], a_c, 0.0)], axis=1)
-        q = np.concatenate([q, np.where(~present, q_c, 0.0)], axis=1)
-        mask = np.concatenate([mask, ~present], axis=1)
-        var = np.concatenate([var, np.full((t_n, k), ISB_CONSTRAINT_VAR_M2)], axis=1)
-        unit_c = np.concatenate([unit, np.zeros((t_n, k, 3))], axis=1)
-        rng_c = np.concatenate([rng, np.full((t_n, k), 1.0)], axis=1)
+        present = (mask[:, :n, None] & (onehot[None, :, :] > 0)).any(axis=1)  # (t, k)
+        A[:, n + np.arange(k), 3 + np.arange(k)] = np.where(~present, 1.0, 0.0)
+        q[:, n:] = np.where(~present, -b, 0.0)
+        mask[:, n:] = ~present
+        var[:, n:] = ISB_CONSTRAINT_VAR_M2
     return Linearization(A, q, mask, var, unit_c, rng_c, rot)

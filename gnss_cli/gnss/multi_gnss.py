@@ -253,6 +253,7 @@ def system_states(
     idx: NDArray[np.intp],
     t_gps_s: F64,
     system: str,
+    clock_only: bool = False,
 ) -> SatelliteStates:
     """Positions, velocities and clocks of one Keplerian system at GPS times ``t_gps_s``.
 
@@ -266,6 +267,8 @@ def system_states(
         Times (shape of ``idx``), s since the GPS epoch (GPST).
     system
         ``'G' 'J' 'E' 'C'``.
+    clock_only
+        Clocks only; positions and velocities NaN (:func:`~gnss_cli.gnss.orbits.broadcast_states`).
 
     Returns
     -------
@@ -292,7 +295,7 @@ def system_states(
     except ValueError:
         raise UsageError(f"t_gps_s shape {np.shape(t_gps_s)} does not broadcast to idx shape {idx.shape}") from None
     if system != "C":
-        return broadcast_states(eph, idx, t, gm_m3_s2=gm, omega_e_rad_s=we)
+        return broadcast_states(eph, idx, t, gm_m3_s2=gm, omega_e_rad_s=we, clock_only=clock_only)
     # BeiDou: evaluate in BDT (Omega0 refers to the BDT week).
     d = BDT_MINUS_GPST_S
     eph_bdt = replace(eph, toc_gps_s=eph.toc_gps_s + d, toe_gps_s=eph.toe_gps_s + d)
@@ -300,14 +303,14 @@ def system_states(
     geo_rec = is_bds_geo(eph.sv) if len(eph) else np.zeros(0, dtype=bool)
     valid = idx >= 0
     geo = valid & (geo_rec[np.where(valid, idx, 0)] if len(eph) else False)
-    meo = broadcast_states(eph_bdt, np.where(geo, -1, idx), t_bdt, gm_m3_s2=gm, omega_e_rad_s=we)
+    meo = broadcast_states(eph_bdt, np.where(geo, -1, idx), t_bdt, gm_m3_s2=gm, omega_e_rad_s=we, clock_only=clock_only)
     if not geo.any():
         return meo
     # GEO: node not rotating with the Earth -> evaluate with omega_E = 0 and the
     # -wE toe_sow term folded into Omega0, then rotate.
     toe_sow = np.mod(eph_bdt.toe_gps_s, SECONDS_PER_WEEK)
     eph_geo = replace(eph_bdt, omega0_rad=eph_bdt.omega0_rad - we * toe_sow)
-    gk = broadcast_states(eph_geo, np.where(geo, idx, -1), t_bdt, gm_m3_s2=gm, omega_e_rad_s=0.0)
+    gk = broadcast_states(eph_geo, np.where(geo, idx, -1), t_bdt, gm_m3_s2=gm, omega_e_rad_s=0.0, clock_only=clock_only)
     k = np.where(geo, idx, 0)
     tk = t_bdt - eph_bdt.toe_gps_s[k]
     so, co = np.sin(we * tk), np.cos(we * tk)

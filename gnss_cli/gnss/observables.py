@@ -100,11 +100,11 @@ def select_pseudoranges(
         cols = np.flatnonzero(sys_of == system)
         if cols.size == 0:
             continue
-        sub = obs.isel(sv=np.flatnonzero(keep)[cols])
+        sv_idx = np.flatnonzero(keep)[cols]
         for c in prio.get(system, ()):
-            if c not in sub:
+            if c not in obs:
                 continue
-            vals = np.asarray(sub[c].values, dtype=np.float64)
+            vals = np.asarray(obs[c].values, dtype=np.float64)[:, sv_idx]  # the one variable, not an isel of all
             vals = np.where(vals > 1e6, vals, np.nan)  # zero/blank fields are missing
             take = np.isnan(pr[:, cols]) & np.isfinite(vals)
             block = pr[:, cols]

@@ -70,6 +70,7 @@ def broadcast_states(
     *,
     gm_m3_s2: float = GM_GPS_M3_S2,
     omega_e_rad_s: float = OMEGA_E_RAD_S,
+    clock_only: bool = False,
 ) -> SatelliteStates:
     """Positions, velocities and clocks of satellites at times ``t_gps_s`` (GPS seconds).
 
@@ -83,6 +84,8 @@ def broadcast_states(
         Times (same shape as ``idx``), s since the GPS epoch: the signal transmit times.
     gm_m3_s2, omega_e_rad_s
         The system's constants (GPS defaults).
+    clock_only
+        Clocks only (positions and velocities NaN): the clock drift needs no second orbit.
 
     Notes
     -----
@@ -111,7 +114,13 @@ def broadcast_states(
     n = n0 + g(eph.delta_n_rad_s)
     mk = g(eph.m0_rad) + n * tk
     ek = solve_kepler(mk, ecc)
-    sin_e, cos_e = np.sin(ek), np.cos(ek)
+    sin_e = np.sin(ek)
+    if clock_only:
+        clock, rel = _clock_s(eph, k, t, ecc, sin_e)
+        nan3 = np.full((*idx.shape, 3), np.nan)
+        return SatelliteStates(nan3, nan3.copy(), np.where(valid, clock, np.nan), np.where(valid, g(eph.tgd_s), np.nan),
+                               np.where(valid, rel, np.nan), valid)
+    cos_e = np.cos(ek)
     denom = 1.0 - ecc * cos_e
     nu = np.arctan2(np.sqrt(1.0 - ecc**2) * sin_e, cos_e - ecc)
     phi = nu + g(eph.omega_rad)
@@ -144,11 +153,7 @@ def broadcast_states(
     vy = xp_dot * sn + yp_dot * ci * cn - yp * si * cn * i_dot + x * node_dot
     vz = yp_dot * si + yp * ci * i_dot
 
-    dtc = t - g(eph.toc_gps_s)
-    clock = g(eph.af0_s) + g(eph.af1_s_s) * dtc + g(eph.af2_s_s2) * dtc**2
-    rel = F_REL_S_SQRT_M * ecc * g(eph.sqrt_a_sqrt_m) * sin_e
-    clock = clock + rel
-
+    clock, rel = _clock_s(eph, k, t, ecc, sin_e)
     pos = np.stack([x, y, z], axis=-1)
     vel = np.stack([vx, vy, vz], axis=-1)
     nan_mask = ~valid
@@ -158,3 +163,11 @@ def broadcast_states(
     tgd = np.where(valid, g(eph.tgd_s), np.nan)
     rel = np.where(valid, rel, np.nan)
     return SatelliteStates(pos, vel, clock, tgd, rel, valid)
+
+
+def _clock_s(eph: KeplerEphemeris, k: NDArray[np.intp], t: F64, ecc: F64, sin_e: F64) -> tuple[F64, F64]:
+    """Clock ``af0 + af1 (t - toc) + af2 (t - toc)^2 + rel`` and the relativistic term ``rel = F e sqrt(A) sin E`` (s)."""
+    dtc = t - eph.toc_gps_s[k]
+    clock = eph.af0_s[k] + eph.af1_s_s[k] * dtc + eph.af2_s_s2[k] * dtc**2
+    rel = F_REL_S_SQRT_M * ecc * eph.sqrt_a_sqrt_m[k] * sin_e
+    return clock + rel, rel

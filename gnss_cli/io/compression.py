@@ -23,16 +23,22 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import importlib.util
 import io
 import os
+import re
+import subprocess
+import tempfile
+import threading
 import warnings
 import zipfile
 import zlib
 from pathlib import Path
+from typing import Any
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
 
-__all__ = ["open_bytes", "open_text", "is_hatanaka"]
+__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "is_hatanaka"]
 
 _GZIP_MAGIC = b"\x1f\x8b"
 _LZW_MAGIC = b"\x1f\x9d"
@@ -124,27 +130,167 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
     usually dominates the reading time.
     """
     p = _check_path(path)
+    job = _PENDING.pop(_file_key(p), None)
+    if job is not None:
+        return job.result()
+    return _read(p)
+
+
+def _read(p: Path) -> bytes:
+    """:func:`open_bytes` of a checked path."""
     try:
         raw = p.read_bytes()
     except OSError as exc:
         raise InputFileNotFoundError(f"{p}: cannot read file ({exc})") from exc
     content = _unpack(raw, p.name)
     if is_hatanaka(content):
-        import hatanaka  # import cost only for Compact RINEX input
-
-        try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                content = hatanaka.crx2rnx(content)
-        except (hatanaka.HatanakaException, ValueError, UnicodeError) as exc:
-            raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({exc})") from exc
-        # crx2rnx warns (HatanakaWarning, a UserWarning) when it skipped records it could not
-        # restore: data are missing. Deprecation notices of the library itself (hatanaka 2.7 on
-        # Python 3.11: "pathlib.Path.__enter__() is deprecated") say nothing about the file.
-        damage = [w for w in caught if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
-        if damage:
-            raise RinexFormatError(f"{p.name}: corrupt Compact RINEX (Hatanaka) file ({damage[0].message})")
+        content = _crx2rnx(content, p.name)
     return content
+
+
+def _crx2rnx(content: bytes, name: str) -> bytes:
+    """Plain RINEX from Compact RINEX with the ``hatanaka`` package's C ``crx2rnx``.
+
+    The program reads a temporary file and writes one, so that no Python thread pumps the
+    33 MB of a 24 h file through a pipe (which also lets :func:`prefetch` run it beside the
+    main thread without competing for the interpreter lock). Its warnings (records it
+    skipped: data are missing) are errors here, as its errors are.
+    """
+    exe = _crx2rnx_executable()
+    if exe is None:  # a hatanaka build without the bundled executable: its own pipe
+        return _crx2rnx_library(content, name)
+    with tempfile.TemporaryFile() as src, tempfile.TemporaryFile() as dst:
+        src.write(content)
+        src.seek(0)
+        proc = subprocess.run([str(exe), "-"], stdin=src, stdout=dst, stderr=subprocess.PIPE, check=False)
+        stderr = proc.stderr.decode("ascii", errors="backslashreplace").strip()
+        if proc.returncode not in (0, 2):
+            message = re.sub("^ +", "", stderr, flags=re.M)
+            message = re.sub("\n(?!WARNING|ERROR)", " ", message)
+            message = re.sub("^ERROR *: *", "", message, flags=re.M)
+            raise RinexFormatError(f"{name}: corrupt Compact RINEX (Hatanaka) file ({message})")
+        if proc.returncode == 2 or stderr:
+            message = re.sub("^ +", "", stderr, flags=re.M).replace("\n", " ")
+            message = re.sub("^ *WARNING *:? *", "", message) or "exited with an unspecified warning"
+            raise RinexFormatError(f"{name}: corrupt Compact RINEX (Hatanaka) file (crx2rnx: {message})")
+        dst.seek(0)
+        return dst.read()
+
+
+def _crx2rnx_executable() -> Path | None:
+    """The ``crx2rnx`` program that the ``hatanaka`` package bundles, or None."""
+    spec = importlib.util.find_spec("hatanaka")  # the package's folder, without importing it
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    exe = Path(list(spec.submodule_search_locations)[0]) / "bin" / ("crx2rnx.exe" if os.name == "nt" else "crx2rnx")
+    return exe if exe.is_file() else None
+
+
+def _crx2rnx_library(content: bytes, name: str) -> bytes:
+    """Plain RINEX from Compact RINEX through ``hatanaka.crx2rnx`` (warnings are errors)."""
+    import hatanaka
+
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            content = hatanaka.crx2rnx(content)
+    except (hatanaka.HatanakaException, ValueError, UnicodeError) as exc:
+        raise RinexFormatError(f"{name}: corrupt Compact RINEX (Hatanaka) file ({exc})") from exc
+    # crx2rnx warns (HatanakaWarning, a UserWarning) when it skipped records it could not
+    # restore: data are missing. Deprecation notices of the library itself (hatanaka 2.7 on
+    # Python 3.11: "pathlib.Path.__enter__() is deprecated") say nothing about the file.
+    damage = [w for w in caught if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
+    if damage:
+        raise RinexFormatError(f"{name}: corrupt Compact RINEX (Hatanaka) file ({damage[0].message})")
+    return content
+
+
+class _Prefetch(threading.Thread):
+    """:func:`open_bytes` of one file on a background thread; :meth:`result` waits for it."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(name=f"prefetch {path.name}", daemon=True)  # never delays the exit of a failed run
+        self.path = path
+        self.content: bytes | None = None
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            self.content = _read(self.path)
+        except BaseException as exc:  # noqa: BLE001 - handed to the reader, which raises it
+            self.error = exc
+
+    def result(self) -> bytes:
+        self.join()
+        if self.error is not None:
+            raise self.error
+        assert self.content is not None
+        return self.content
+
+
+_PENDING: dict[tuple[str, int, int], _Prefetch] = {}
+"""Prefetched files by :func:`_file_key`, until :func:`open_bytes` takes them."""
+
+
+def _file_key(path: str | os.PathLike[str]) -> tuple[str, int, int] | None:
+    """The real path, modification time (ns) and size of a file; None when it cannot be stat'ed."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return os.path.realpath(path), st.st_mtime_ns, st.st_size
+
+
+def prefetch(*paths: str | os.PathLike[str]) -> None:
+    """Start reading and decompressing ``paths`` on background threads.
+
+    The next :func:`open_bytes` of each file (unchanged since) takes the result instead of
+    reading it again. The work happens outside the interpreter lock (file reads, zlib and
+    bzip2 inflation, the ``crx2rnx`` program on temporary files), so on a second core it
+    overlaps the imports and the parsing of the other files: ``gnss-solve`` calls this for
+    its inputs before it imports the numerical modules. Files that cannot be stat'ed are
+    left to :func:`open_bytes` and its error messages.
+    """
+    for path in paths:
+        key = _file_key(path)
+        if key is None or key in _PENDING or not os.path.isfile(path):
+            continue
+        job = _Prefetch(Path(path))
+        _PENDING[key] = job
+        job.start()
+
+
+def open_header_lines(path: str | os.PathLike[str], max_lines: int = 2000) -> list[str]:
+    """The lines of a RINEX file up to its ``END OF HEADER`` line (at most ``max_lines``).
+
+    Gzip and bzip2 files are inflated only as far as the header; a Compact RINEX header is
+    plain RINEX after its two ``CRINEX`` lines, which are returned too. Lines keep their
+    line ends; bytes that are not ASCII are dropped.
+
+    Raises
+    ------
+    OSError, EOFError, zlib.error, zipfile.BadZipFile, ImportError
+        The file cannot be read or inflated (the caller names the file).
+    """
+    p = Path(path)
+    with p.open("rb") as raw:
+        magic = raw.read(4)
+        raw.seek(0)
+        if magic.startswith(_GZIP_MAGIC) or magic.startswith(_BZ2_MAGIC):
+            stream: Any = gzip.GzipFile(fileobj=raw) if magic.startswith(_GZIP_MAGIC) else bz2.BZ2File(raw)
+            return _header_of(stream, max_lines)
+        if magic.startswith(_LZW_MAGIC) or magic.startswith(_ZIP_MAGIC):
+            return _header_of(io.BytesIO(_unpack(raw.read(), p.name)), max_lines)
+        return _header_of(raw, max_lines)
+
+
+def _header_of(stream: Any, max_lines: int) -> list[str]:
+    lines: list[str] = []
+    for line in stream:
+        lines.append(line.decode("ascii", errors="ignore"))
+        if "END OF HEADER" in lines[-1] or len(lines) > max_lines:
+            break
+    return lines
 
 
 def open_text(path: str | os.PathLike[str]) -> str:

@@ -44,23 +44,13 @@ class RinexInfo:
     system: str
 
 
-def _open_lines(path: Path, header_only: bool = False) -> list[str]:
-    """Lines of a plain or compressed RINEX file (georinex's opener handles gz/Z/zip/Hatanaka)."""
-    from georinex.rio import opener
+def _open_lines(path: Path) -> list[str]:
+    """The header lines of a plain or compressed RINEX file (:func:`~gnss_cli.io.compression.open_header_lines`)."""
+    from gnss_cli.io.compression import open_header_lines
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            with opener(path, header=header_only) as f:
-                if header_only:
-                    lines = []
-                    for line in f:
-                        lines.append(line)
-                        if "END OF HEADER" in line or len(lines) > 2000:
-                            break
-                    return lines
-                return f.read().splitlines()
-    except (OSError, EOFError, ValueError, LookupError, RuntimeError, zlib.error) as exc:
+        return open_header_lines(path)
+    except (OSError, EOFError, ValueError, LookupError, RuntimeError, zlib.error, ImportError) as exc:
         raise RinexFormatError(f"{path}: cannot read file ({type(exc).__name__}: {exc})") from exc
 
 
@@ -81,7 +71,7 @@ def rinex_info(path: str | Path) -> RinexInfo:
         raise InputFileNotFoundError(f"{p}: not a regular file")
     if p.stat().st_size == 0:
         raise RinexFormatError(f"{p}: empty file")
-    lines = _open_lines(p, header_only=True)
+    lines = _open_lines(p)
     if lines and "CRINEX VERS" in lines[0]:
         lines = lines[2:]  # Hatanaka: two CRINEX lines precede the RINEX header
     if not lines or "RINEX VERSION / TYPE" not in lines[0]:
@@ -181,7 +171,7 @@ def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequ
 
 
 def _header_value(path: Path, label: str) -> str:
-    for line in _open_lines(path, header_only=True):
+    for line in _open_lines(path):
         if label in line[60:]:
             return line[:60].strip()
     return ""

@@ -22,7 +22,7 @@ from gnss_cli.errors import RinexFormatError
 from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
 from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
-from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_states, select_glonass_ephemeris
+from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_clock_s, glonass_states, select_glonass_ephemeris
 from gnss_cli.gnss.multi_gnss import ephemeris_for_system, select_system_ephemeris, system_states
 from gnss_cli.gnss.observables import (
     DEFAULT_SECOND_SIGNAL_PRIORITY,
@@ -60,6 +60,9 @@ class _GlonassRecords:
     def states(self, i: NDArray[np.intp], t: F64) -> SatelliteStates:
         return glonass_states(self.eph, i, t)
 
+    def clock_s(self, i: NDArray[np.intp], t: F64) -> F64:
+        return glonass_clock_s(self.eph, i, t)
+
     def iono_scale(self, i: NDArray[np.intp]) -> F64:
         return (FREQ_L1_HZ / self.freq[np.where(i >= 0, i, 0)]) ** 2
 
@@ -83,6 +86,9 @@ class _KeplerRecords:
 
     def states(self, i: NDArray[np.intp], t: F64) -> SatelliteStates:
         return system_states(self.eph, i, t, self.system)
+
+    def clock_s(self, i: NDArray[np.intp], t: F64) -> F64:
+        return system_states(self.eph, i, t, self.system, clock_only=True).clock_s
 
     def iono_scale(self, i: NDArray[np.intp]) -> F64:
         return np.full(i.shape, self.factor)
@@ -170,7 +176,7 @@ def _fill_rates(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecords
     assert out.vel is not None and out.drift is not None and out.freq is not None
     ii, cc, kk = where
     out.vel[ii, cc] = st.vel_ecef_m_s
-    out.drift[ii, cc] = (records.states(kk, t_tx + _DRIFT_STEP_S).clock_s - st.clock_s) / _DRIFT_STEP_S
+    out.drift[ii, cc] = (records.clock_s(kk, t_tx + _DRIFT_STEP_S) - st.clock_s) / _DRIFT_STEP_S
     channel = np.asarray(records.delays(kk).get("glonass_channel", np.zeros(kk.shape)), dtype=np.float64)
     freq = np.full(kk.shape, np.nan)
     for c in np.unique(code):

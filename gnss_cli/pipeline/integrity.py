@@ -59,6 +59,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.geometry import linearize
+from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
 __all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality"]
@@ -70,20 +71,27 @@ Solver = Callable[[EpochData, F64, F64], MethodSolution]
 
 @lru_cache(maxsize=256)
 def chi2_threshold(dof: int, pfa: float) -> float:
-    """``chi2.isf(pfa, dof)``; infinite for ``dof < 1`` (nothing to test)."""
+    """``chi2.isf(pfa, dof)``; infinite for ``dof < 1`` (nothing to test). The default ``pfa``
+    is tabulated (:mod:`gnss_cli.pipeline.integrity_table`): scipy.stats is imported otherwise only."""
+    if dof < 1:
+        return float("inf")
+    if pfa == TABLE_PFA and dof <= len(CHI2_ISF):
+        return CHI2_ISF[dof - 1]
     from scipy.stats import chi2
 
-    return float(chi2.isf(pfa, dof)) if dof >= 1 else float("inf")
+    return float(chi2.isf(pfa, dof))
 
 
 @lru_cache(maxsize=256)
 def noncentrality(dof: int, pfa: float, pmd: float) -> float:
     """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``; NaN for ``dof < 1``."""
+    if dof < 1:
+        return float("nan")
+    if pfa == TABLE_PFA and pmd == TABLE_PMD and dof <= len(NONCENTRALITY):
+        return NONCENTRALITY[dof - 1]
     from scipy.optimize import brentq
     from scipy.stats import ncx2
 
-    if dof < 1:
-        return float("nan")
     thr = chi2_threshold(dof, pfa)
     return float(brentq(lambda lam: ncx2.cdf(thr, dof, lam) - pmd, 1e-9, 1e4, xtol=1e-9))
 
@@ -124,10 +132,10 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     q = np.where(mask, lin.q, 0.0)
     r = np.where(mask, q - np.einsum("tnm,tm->tn", A, np.einsum("tmn,tn->tm", K, q)), 0.0)
     h = np.einsum("tnm,tmn->tn", A, K)  # diag(A K)
-    C = np.einsum("tmn,tn,tkn->tmk", K, var * mask, K)  # K Sigma K^T
-    qr = var - 2.0 * h * var + np.einsum("tnm,tmk,tnk->tn", A, C, A)
+    C = (K * (var * mask)[:, None, :]) @ np.swapaxes(K, 1, 2)  # K Sigma K^T (matmul: 5-20x faster than einsum)
+    qr = var - 2.0 * h * var + np.sum((A @ C) * A, axis=2)
     nw = np.swapaxes(A * w[..., None], 1, 2) @ A  # A^T W A
-    mii = w - 2.0 * h * w + np.einsum("tmn,tmk,tkn->tn", K, nw, K)
+    mii = w - 2.0 * h * w + np.sum((nw @ K) * K, axis=1)
     sat = mask[:, :n]
     stat = np.sum(np.where(sat, r[:, :n] ** 2 * w[:, :n], 0.0), axis=1)
     n_clocks = k - mask[:, n:].sum(axis=1) if k > 1 else np.ones(rows.size, dtype=np.int64)

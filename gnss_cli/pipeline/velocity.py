@@ -80,11 +80,11 @@ def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: Proc
     ok = res.status > 0
     nan = np.full(T, np.nan)
     gain = np.where(mask[:, None, :], res.gain, 0.0)
-    q = np.einsum("tmn,tkn->tmk", gain, gain)
+    q_diag = np.einsum("tmn,tmn->tm", gain, gain)  # the diagonal of gain gain^T: the GDOP needs its trace only
     return VelocitySolution(
         vel_ecef_m_s=np.where(ok[:, None], res.x[:, :3], np.nan),
         clock_drift_m_s=np.where(ok, res.x[:, 3], nan),
         cov=np.where(ok[:, None, None], res.cov, np.nan),
-        gdop_vel=np.where(ok, np.sqrt(np.clip(np.trace(q, axis1=1, axis2=2), 0.0, None)), nan),
+        gdop_vel=np.where(ok, np.sqrt(np.clip(q_diag.sum(axis=1), 0.0, None)), nan),
         n_used=mask.sum(axis=1),
     )

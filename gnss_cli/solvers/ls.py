@@ -30,13 +30,15 @@ from gnss_cli.solvers.result import BatchResult
 __all__ = ["solve_ls_batch", "solve_wls_batch", "ls_gain"]
 
 
-def ls_gain(Aw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ls_gain(Aw: np.ndarray, qr: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Stacked QR-based least-squares gain of whitened systems.
 
     Parameters
     ----------
     Aw : ndarray, shape (T, n, m)
         Whitened design matrices of full column rank (masked rows zero).
+    qr : (Q, R), optional
+        Their reduced QR factors, when already computed.
 
     Returns
     -------
@@ -45,7 +47,7 @@ def ls_gain(Aw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     r_inv : ndarray, shape (T, m, m)
         ``R⁻¹``, with ``R⁻¹ R⁻ᵀ = (Awᵀ Aw)⁻¹``.
     """
-    Q, R = np.linalg.qr(Aw, mode="reduced")
+    Q, R = np.linalg.qr(Aw, mode="reduced") if qr is None else qr
     m = Aw.shape[-1]
     r_inv = np.linalg.solve(R, np.broadcast_to(np.eye(m), R.shape))
     gain_w = r_inv @ np.swapaxes(Q, -1, -2)
@@ -53,12 +55,17 @@ def ls_gain(Aw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _solve(method: str, problem: Problem, rank_rtol: float) -> BatchResult:
-    scr = screen(problem, rank_rtol)
+    Aw = problem.Aw
+    factors = np.linalg.qr(Aw, mode="reduced")  # one QR for the screen and the gain
+    scr = screen(problem, rank_rtol, r=factors[1])
     work = scr.work
     qw = work.qw
-    gain_w, _ = ls_gain(work.Aw)
+    if work is not problem:  # stand-ins replaced the unsolvable epochs
+        Aw = work.Aw
+        factors = np.linalg.qr(Aw, mode="reduced")
+    gain_w, _ = ls_gain(Aw, factors)
     x = np.einsum("tmn,tn->tm", gain_w, qw)
-    rw = qw - np.einsum("tnm,tm->tn", work.Aw, x)
+    rw = qw - np.einsum("tnm,tm->tn", Aw, x)
     cost = np.sum(rw * rw, axis=1)
     return finish_batch(method, problem, scr, x=x, gain_w=gain_w, cost=cost, status=scr.status)
 

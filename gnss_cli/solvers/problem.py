@@ -105,7 +105,7 @@ class Screen:
     sv: NDArray[np.float64]
 
 
-def screen(problem: Problem, rank_rtol: float = DEFAULT_RANK_RTOL) -> Screen:
+def screen(problem: Problem, rank_rtol: float = DEFAULT_RANK_RTOL, r: NDArray[np.float64] | None = None) -> Screen:
     """Rank, condition number and solvability of every epoch.
 
     Parameters
@@ -114,6 +114,8 @@ def screen(problem: Problem, rank_rtol: float = DEFAULT_RANK_RTOL) -> Screen:
         Validated problem with ``n >= m``.
     rank_rtol : float, optional
         Relative threshold on the singular values of ``W^{1/2} A`` (default 1e-12).
+    r : ndarray, shape (T, min(n, m), m), optional
+        The ``R`` factor of ``W^{1/2} A`` when the caller has it (its reduced QR).
 
     Returns
     -------
@@ -127,7 +129,8 @@ def screen(problem: Problem, rank_rtol: float = DEFAULT_RANK_RTOL) -> Screen:
     T, n, m = problem.shape
     n_used = problem.used.sum(axis=1)
     too_few = n_used < m
-    r = np.linalg.qr(problem.Aw, mode="r")
+    if r is None:
+        r = np.linalg.qr(problem.Aw, mode="r")
     if r.shape[1] < m:
         r = np.concatenate([r, np.zeros((T, m - r.shape[1], m))], axis=1)
     s = np.linalg.svd(r, compute_uv=False)

@@ -205,11 +205,12 @@ def assemble_batch(
     cov = gain_w @ np.swapaxes(gain_w, -1, -2)
     cov = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     residuals = np.where(used, q - np.einsum("tnm,tm->tn", A, x), 0.0)
-    x = np.where(bad[:, None], np.nan, x)
-    cov = np.where(bad[:, None, None], np.nan, cov)
-    gain = np.where(bad[:, None, None], np.nan, gain)
-    residuals = np.where(bad[:, None], np.nan, residuals)
-    cost = np.where(bad, np.nan, cost)
+    if bad.any():  # (the copies cost more than the solve of small epochs)
+        x = np.where(bad[:, None], np.nan, x)
+        cov = np.where(bad[:, None, None], np.nan, cov)
+        gain = np.where(bad[:, None, None], np.nan, gain)
+        residuals = np.where(bad[:, None], np.nan, residuals)
+        cost = np.where(bad, np.nan, cost)
     return BatchResult(
         method=method,
         x=x,

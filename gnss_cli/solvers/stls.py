@@ -49,7 +49,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from gnss_cli.errors import UsageError
 from gnss_cli.solvers.ls import ls_gain
@@ -245,6 +244,8 @@ def _scipy_loop(
             r, gamma, gg = _terms(xx[None], At[None], qt[None], np.ones((1, At.shape[0])), St[None], S)
             sq = np.sqrt(gamma)[0]
             return At / sq[:, None] - (r[0] / (2.0 * sq**3))[:, None] * gg[0]
+
+        from scipy.optimize import least_squares  # imported by stls only
 
         method = "lm" if At.shape[0] >= m else "trf"
         sol = least_squares(

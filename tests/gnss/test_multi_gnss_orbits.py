@@ -270,3 +270,63 @@ def test_glonass_record_dated_wrongly_does_not_shift_the_others(rinex_dir, tmp_p
     assert d <= c and len(c - d) == 1
     # in GPST the 2022 tb (whole quarter hours of UTC(SU) - 3 h) end in 18 s
     assert np.allclose(np.mod(damaged.toe_gps_s[late], 900.0), 18.0)
+
+
+@pytest.mark.parametrize("system", ["G", "E", "C", "J", "R"])
+def test_clock_only_evaluation_gives_the_full_evaluations_clock(nav, system):
+    """The clock-drift path evaluates clocks without orbits: bit for bit the clocks of the full
+    evaluation (BeiDou GEO and MEO, GLONASS without its integration), NaN where no record."""
+    from gnss_cli.gnss.glonass import glonass_clock_s
+
+    t = datetime2gps_s(np.array(["2020-06-25T00:00", "2020-06-25T07:13:31", "2020-06-25T23:59:30"], dtype="datetime64[ns]"))
+    if system == "R":
+        eph = GlonassEphemeris.from_dataset(nav)
+        idx = select_glonass_ephemeris(eph, np.unique(eph.sv), t)
+        full, fast = glonass_states(eph, idx, t[:, None]).clock_s, glonass_clock_s(eph, idx, t[:, None])
+    else:
+        eph = ephemeris_for_system(nav, system)
+        idx = select_system_ephemeris(eph, np.unique(eph.sv), t, system)
+        full = system_states(eph, idx, t[:, None], system).clock_s
+        only = system_states(eph, idx, t[:, None], system, clock_only=True)
+        fast = only.clock_s
+        assert np.isnan(only.pos_ecef_m).all()
+    assert (idx >= 0).sum() >= 3 and np.isnan(full[idx < 0]).all() and np.isfinite(full[idx >= 0]).all()
+    np.testing.assert_array_equal(fast, full)
+
+
+def _stepped_each(eph, idx, t, step_s):
+    """Reference: every element stepped on its own (full steps, then the shorter last one)."""
+    from gnss_cli.gnss.glonass import _derivative
+
+    k = idx
+    dt = t - eph.toe_gps_s[k]
+    state = np.concatenate([eph.pos_m[k], eph.vel_m_s[k]], axis=-1)
+    acc = eph.acc_m_s2[k]
+    remaining = dt.copy()
+    for _ in range(int(np.ceil(np.max(np.abs(remaining)) / step_s - 1e-12))):
+        hh = (np.sign(remaining) * np.minimum(np.abs(remaining), step_s))[..., None]
+        k1 = _derivative(state, acc)
+        k2 = _derivative(state + 0.5 * hh * k1, acc)
+        k3 = _derivative(state + 0.5 * hh * k2, acc)
+        k4 = _derivative(state + hh * k3, acc)
+        state = state + hh / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        remaining = remaining - hh[..., 0]
+        remaining = np.where(np.abs(remaining) < 1e-9, 0.0, remaining)
+    return state
+
+
+@pytest.mark.parametrize("step_s", [60.0, 17.0])
+def test_glonass_shared_full_steps_equal_stepping_each_time(nav, step_s):
+    """The full steps are integrated once per record and direction; the states equal those
+    of stepping every (record, time) on its own bit for bit, at toe, at exact multiples of
+    the step, a hair after toe and anywhere in +-30 min."""
+    eph = GlonassEphemeris.from_dataset(nav)
+    rng = np.random.default_rng(5)
+    k = rng.integers(0, len(eph), 3000)
+    offsets = np.concatenate([rng.uniform(-1800.0, 1800.0, 2990), [0.0, 60.0, -120.0, 1e-10, -3e-11, 59.99999999999,
+                                                                  1799.9999999999, -step_s, 2 * step_s, 1e-9]])
+    t = eph.toe_gps_s[k] + offsets
+    got = glonass_states(eph, k, t, step_s=step_s)
+    want = _stepped_each(eph, k, t, step_s)
+    np.testing.assert_array_equal(got.pos_ecef_m, want[:, :3])
+    np.testing.assert_array_equal(got.vel_ecef_m_s, want[:, 3:])
