@@ -90,10 +90,9 @@ def init_worker() -> None:
 
 
 def warm_up() -> None:
-    """Import what a task needs (run in each new worker while the parent reads the navigation files);
-    ``scipy.stats`` (the chi-square thresholds of the integrity test, imported on first use) alone takes ~2 s."""
-    import scipy.stats  # noqa: F401
-
+    """Import what a task needs (run in each new worker while the parent reads the navigation files).
+    scipy is not among them: the default run does not use it (the integrity thresholds of the
+    default probabilities are tabulated)."""
     import gnss_cli.cli.solve  # noqa: F401
     import gnss_cli.formats  # noqa: F401
     import gnss_cli.io.catalog  # noqa: F401

@@ -9,7 +9,6 @@ from pathlib import Path
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
-from gnss_cli.pipeline.doppler_smoothing import doppler_smooth
 from gnss_cli.pipeline.kalman import run_kalman
 from gnss_cli.pipeline.results import MethodSolution, Progress, RunResult
 from gnss_cli.pipeline.smoothing import smooth
@@ -97,6 +96,8 @@ def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], con
 
         sol, models = kinematic_smooth(result.epochs, result.solutions["wls"], config)
     elif config.smoothing.model == "doppler":
+        from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
+
         sol, models = doppler_smooth(result.epochs, result.solutions["wls"], config)
     else:
         sol, models = smooth(result.epochs, result.solutions["wls"], config)
