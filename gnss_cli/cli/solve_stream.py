@@ -102,23 +102,25 @@ class _Summary:
     """The per-epoch columns of ``summary.csv``, collected over the parts."""
 
     def __init__(self) -> None:
-        self.parts: dict[str, list[Any]] = {}
+        self.parts: dict[str, list[dict[str, Any]]] = {}
         self.refs: list[Any] = []
 
     def add(self, part: Any, ref: Any) -> None:
-        for m, s in part.solutions.items():
-            self.parts.setdefault(m, []).append({f: getattr(s, f) for f in _SUMMARY_FIELDS if getattr(s, f) is not None} | {"_": s})
-        self.refs.append(ref)
+        for m, s in part.solutions.items():  # copies: a view would keep the part's arrays alive
+            self.parts.setdefault(m, []).append({f: getattr(s, f).copy() for f in _SUMMARY_FIELDS
+                                                 if getattr(s, f) is not None})
+        self.refs.append(ref if ref is None or np.ndim(ref) == 1 else ref.copy())
 
     def table(self, last: Any) -> Any:
+        """``summary_table`` of the whole run (``last``: the last part, for the other fields)."""
         from dataclasses import replace
 
         from gnss_cli.report import summary_table
 
         solutions = {}
         for m, parts in self.parts.items():
-            joined = {f: np.concatenate([p[f] for p in parts]) for f in parts[0] if f != "_"}
-            solutions[m] = replace(parts[-1]["_"], **joined)
+            joined = {f: np.concatenate([p[f] for p in parts]) for f in parts[0]}
+            solutions[m] = replace(last.solutions[m], **joined)
         ref = self.refs[0] if self.refs and (self.refs[0] is None or np.ndim(self.refs[0]) == 1) \
             else np.concatenate(self.refs)
         return summary_table(replace(last, solutions=solutions), ref)
