@@ -126,6 +126,23 @@ class _Summary:
         return summary_table(replace(last, solutions=solutions), ref)
 
 
+_M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
+
+
+def _map_large_blocks() -> None:
+    """Have glibc serve blocks of 256 KiB and more from their own mappings (returned to the
+    system when freed) for the rest of the process. Its default threshold rises with the
+    largest block freed, up to 32 MiB, after which the parts' arrays come from the heap, whose
+    freed pages stay resident and fragment: the peak then creeps up part after part. Elsewhere
+    than glibc, nothing."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(_M_MMAP_THRESHOLD, 256 * 1024)
+    except (OSError, AttributeError):
+        pass
+
+
 def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targets: dict[str, Path],
                   references: tuple[Optional[str], Optional[Path], Optional[Path], Optional[Path]]
                   ) -> tuple[Any, list[str], bool]:
@@ -134,6 +151,7 @@ def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targ
     from gnss_cli.pipeline.stream import RESTART, ChunkedRun
     from gnss_cli.report import dop_table, errors_table, models_json, positions_table, satellites_table, to_csv_text
 
+    _map_large_blocks()
     refs = _References(*references)
     spools, summary, models = _Spools(), _Summary(), []
     run = ChunkedRun(files[0], files[1:], cfg, cfg.chunk_epochs, progress)
@@ -157,13 +175,21 @@ def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targ
                 spools.write("satellites", "", to_csv_text(satellites_table(part, cfg)))
             summary.add(part, ref)
             models += part.models
-            last = part
+            last = _slim(part)
+            del part, positions, tables  # before the next part is computed
         assert last is not None
         summary_df = summary.table(last)
         _stage(outputs, targets, spools, tuple(last.solutions), summary_df, models_json(cfg.smoothing, models))
     finally:
         spools.close()
     return summary_df, list(run.warnings), refs.given
+
+
+def _slim(part: Any) -> Any:
+    """``part`` without its epochs (the systems, leap seconds, and one solution object per method remain)."""
+    from gnss_cli.pipeline.smoothing_stream import take_result
+
+    return take_result(part, slice(0, 0), copy=True)
 
 
 def _stage(outputs: Any, targets: dict[str, Path], spools: _Spools, methods: tuple[str, ...], summary_df: Any,

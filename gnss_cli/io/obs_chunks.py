@@ -18,7 +18,7 @@ chunk, whose parser then reports the line.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +89,59 @@ class _Cut2:
         return pos
 
 
+class _Runs:
+    """Parse the runs of epoch records in order; check that epochs increase across runs. The
+    last run is parsed together with the one before when it holds a single epoch: numpy takes
+    another summation order over an axis of length one, and a part of one epoch would get
+    other last bits than the same epoch in the whole file."""
+
+    def __init__(self, name: str, info: object, parse: Callable[[bytes, int], xr.Dataset], before: int) -> None:
+        self.name, self.info, self.parse = name, info, parse
+        self.before = before  # file lines before the next run
+        self.last: np.datetime64 | None = None
+        self.yielded = 0
+        self.held: tuple[bytes, int] | None = None  # a parsed run not yet handed out (body, first line)
+
+    def _parse(self, body: bytes, before: int) -> xr.Dataset | None:
+        try:
+            return self.parse(body, before)
+        except RinexFormatError as exc:
+            if "no observation records" in str(exc):  # none of the chosen systems in this run
+                return None
+            raise
+
+    def add(self, body: bytes, final: bool = False) -> Iterator[xr.Dataset]:
+        """Take the next run (``final``: the rest of the file) and hand out what is settled."""
+        before = self.before
+        self.before += body.count(b"\n")
+        if not final:
+            if self.held is not None:
+                yield from self._out(self._parse(*self.held), self.held[1])
+            self.held = (body, before)
+            return
+        ds = self._parse(body, before) if body.strip() else None
+        if self.held is not None:
+            held_body, held_before = self.held
+            self.held = None
+            if ds is not None and ds.sizes["time"] == 1:  # join the last epoch to the run before
+                yield from self._out(self._parse(held_body + body, held_before), held_before)
+                return
+            yield from self._out(self._parse(held_body, held_before), held_before)
+        yield from self._out(ds, before)
+
+    def _out(self, ds: xr.Dataset | None, before: int) -> Iterator[xr.Dataset]:
+        if ds is None or ds.sizes["time"] == 0:
+            return
+        t = ds["time"].values
+        if self.last is not None and t[0] <= self.last:
+            raise RinexFormatError(f"{self.name}: the epoch after line {before} is not later than the one before it "
+                                   f"({np.datetime_as_string(t[0], 's')})")
+        self.last, self.yielded = t[-1], self.yielded + 1
+        ds.attrs["filename"] = self.info.path.name  # type: ignore[attr-defined]
+        ds.attrs["rinex_version"] = self.info.version  # type: ignore[attr-defined]
+        yield ds
+
+
 def iter_obs_chunks(
     path: str | os.PathLike[str],
     systems: Sequence[str] | None = None,
@@ -142,40 +195,18 @@ def iter_obs_chunks(
             return parse_obs3(name, header, body, list(systems) if systems else None,
                               list(codes) if codes else None, lines_before=before)
 
-    state = {"before": header.count("\n"), "last": None, "yielded": 0}
-
-    def emit(body: bytes) -> Iterator[xr.Dataset]:
-        before = state["before"]
-        state["before"] = before + body.count(b"\n")
-        try:
-            ds = parse(body, before)
-        except RinexFormatError as exc:
-            if "no observation records" in str(exc):  # none of the chosen systems in this run
-                return
-            raise
-        t = ds["time"].values
-        if state["last"] is not None and t.size and t[0] <= state["last"]:
-            raise RinexFormatError(f"{name}: the epoch after line {before} is not later than the one before it "
-                                   f"({np.datetime_as_string(t[0], 's')})")
-        if t.size:
-            state["last"], state["yielded"] = t[-1], state["yielded"] + 1
-            ds.attrs["filename"] = info.path.name
-            ds.attrs["rinex_version"] = info.version
-            yield ds
-
-    exhausted = False
-    while not exhausted:
+    runs = _Runs(name, info, parse, header.count("\n"))
+    while True:
         at = cut(buf, max_epochs)
-        if at is None:
-            block = next(blocks, None)
-            if block is not None:
-                buf += block
-                continue
-            exhausted = True
-            at = len(buf)
-        body = bytes(buf[:at])
-        del buf[:at]
-        if body.strip():
-            yield from emit(body)
-    if not state["yielded"]:
+        if at is not None:
+            body = bytes(buf[:at])
+            del buf[:at]
+            yield from runs.add(body)
+            continue
+        block = next(blocks, None)
+        if block is None:
+            yield from runs.add(bytes(buf), final=True)
+            break
+        buf += block
+    if not runs.yielded:
         raise RinexFormatError(f"{info.path}: no observation records" + (f" for systems {','.join(systems)}" if systems else ""))

@@ -27,7 +27,6 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.windows import segments, windows
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochStatus, MethodSolution, RunResult
 from gnss_cli.pipeline.smoothing import Segment, WindowJob, segment_frame, smooth_windows
 
@@ -56,10 +55,17 @@ def concat_results(a: RunResult, b: RunResult) -> RunResult:
     return RunResult(replace(a.epochs, **parts), sols, a.models + b.models)
 
 
-def take_result(result: RunResult, rows: slice) -> RunResult:
-    """The epochs ``rows`` of ``result`` (no window models)."""
-    idx = np.arange(result.epochs.time_gps_s.size)[rows]
-    return RunResult(take_epochs(result.epochs, idx), {m: take_solution(s, rows) for m, s in result.solutions.items()})
+def take_result(result: RunResult, rows: slice, copy: bool = False) -> RunResult:
+    """The epochs ``rows`` of ``result`` (no window models): views, or copies with ``copy``
+    (that do not keep the whole of ``result``'s arrays alive)."""
+    def cut(a: np.ndarray) -> np.ndarray:
+        return a[rows].copy() if copy else a[rows]
+
+    epochs = replace(result.epochs, **{f: cut(getattr(result.epochs, f)) for f in EPOCH_AXIS_FIELDS
+                                       if getattr(result.epochs, f) is not None})
+    sols = {m: replace(s, **{f.name: cut(getattr(s, f.name)) for f in fields(MethodSolution)
+                             if isinstance(getattr(s, f.name), np.ndarray)}) for m, s in result.solutions.items()}
+    return RunResult(epochs, sols)
 
 
 @dataclass
@@ -112,10 +118,13 @@ class StreamSmoother:
         self.open: _Open | None = None
         self.next_segment = 0
 
-    def push(self, part: RunResult, last: bool) -> RunResult | None:
-        """Add the next part (snapshot solutions with ``wls``); returns the epochs now final,
-        with the smoothed ``stls`` solution and the window models finished, or None."""
+    def push(self, parts: list[RunResult], last: bool) -> RunResult | None:
+        """Add the next part (snapshot solutions with ``wls``), taken out of the one-element list
+        ``parts`` (so that it is freed once joined to the kept epochs); returns the epochs now
+        final, with the smoothed ``stls`` solution and the window models finished, or None."""
+        part = parts.pop()
         buf = part if self.kept is None else concat_results(self.kept, part)
+        del part
         wls = buf.solutions["wls"]
         T = buf.epochs.time_gps_s.size
         solved = (wls.status == _OK) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
@@ -144,7 +153,7 @@ class StreamSmoother:
         models = tuple(m for m, out in zip(models, handed) if out)
         start = self.kept_emitted
         full = replace(buf, solutions={m: (sol if m == "stls" else buf.solutions[m]) for m in self.config.methods})
-        self.kept = take_result(buf, slice(keep_from, None)) if keep_from < T else None
+        self.kept = take_result(buf, slice(keep_from, None), copy=True) if keep_from < T else None
         self.kept_emitted = emit_end - keep_from if keep_from < T else 0
         self.open = new_open
         if emit_end <= start and not models:

@@ -59,6 +59,26 @@ def streamable(config: ProcessingConfig) -> bool:
     return lag.lag == 0 or (lag.model != "kinematic" and lag.window > 0)
 
 
+def release_memory() -> None:
+    """Hand the heap's free pages back to the system (glibc ``malloc_trim``; elsewhere nothing).
+
+    The parts' arrays are freed when a part is done, but the C heap keeps the pages of freed
+    blocks below its top, so the resident size would creep up part after part."""
+    global _TRIM
+    if _TRIM is None:
+        try:
+            import ctypes
+
+            _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _TRIM = False
+    if _TRIM:
+        _TRIM(0)
+
+
+_TRIM = None
+
+
 class _Survey:
     """What the whole observation file decides: satellites, systems, epoch times, parts."""
 
@@ -113,6 +133,8 @@ class ChunkedRun:
         del first, second, obs
         for obs in chunks:
             survey.add(obs, setup)
+            del obs
+        release_memory()
         yield from self._solve(setup, survey)
 
     def _axes(self, setup: EpochSetup, survey: _Survey) -> tuple[list[str], np.ndarray]:
@@ -173,9 +195,13 @@ class ChunkedRun:
                 for w, n in c.items():
                     counts.setdefault(m, {})[w] = counts.get(m, {}).get(w, 0) + n
             done += data.time_gps_s.size
-            part = RunResult(data, solutions)
-            out = smoother.push(part, last=k == n_parts - 1) if smoother is not None else part
+            parts = [RunResult(data, solutions)]
+            del data, solutions, prs, obs
+            out = smoother.push(parts, last=k == n_parts - 1) if smoother is not None else parts.pop()
             if out is not None:
-                yield with_velocity(out, config)
+                out = with_velocity(out, config)
+                yield out
+            del out  # before the next part is read: one part in memory at a time
+            release_memory()
         assert cov is not None
         return cov, counts

@@ -148,7 +148,7 @@ def test_chunks_of_a_file_are_its_epochs(rinex_dir: Path, flight: Path, tmp_path
     assert _concat_equal(rinex_dir / "rtklib-0759" / "07590920.05o", ["C1", "P2"]) == 3
     gz = tmp_path / "obs.rnx.gz"
     gz.write_bytes(gzip.compress((flight / "obs.rnx").read_bytes()))
-    assert _concat_equal(gz, ["C1C", "D1C"]) == 13
+    assert _concat_equal(gz, ["C1C", "D1C"]) == 12  # 601 epochs: the last one joins the 12th part
 
 
 def test_a_bad_line_in_a_later_part_names_the_file_line(flight: Path, tmp_path: Path) -> None:
@@ -162,3 +162,18 @@ def test_a_bad_line_in_a_later_part_names_the_file_line(flight: Path, tmp_path: 
     with pytest.raises(RinexFormatError) as parts:
         list(iter_obs_chunks(bad, None, None, CHUNK))
     assert str(parts.value) == str(whole.value) and f"line {k + 1}" in str(whole.value)
+
+
+def test_a_file_of_one_part_and_stdout_are_the_whole_run(rinex_dir: Path, tmp_path: Path, capsys) -> None:
+    d = rinex_dir / "rtklib-0759"
+    args = [d / "07590920.05o", d / "07590920.05n", "--method", "ls,wls"]
+    assert _solve(args, tmp_path / "one", 3600, capsys) == _solve(args, tmp_path / "whole", 0, capsys)
+    printed = {}
+    for chunk in (0, CHUNK):
+        cfg = tmp_path / f"stdout{chunk}.toml"
+        cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\n")
+        with pytest.raises(SystemExit) as exc:
+            run_app(app, "gnss-solve", [str(a) for a in [*args, "--config", cfg, "-q"]])
+        printed[chunk], _ = capsys.readouterr()
+        assert exc.value.code == 0
+    assert printed[CHUNK] == printed[0] and printed[0].count("\n") == 241
