@@ -149,18 +149,21 @@ def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targ
     """Run ``files`` part by part and stage (or print) the tables; returns the summary table, the
     warnings and whether there was a reference (the ``errors`` table)."""
     from gnss_cli.pipeline.stream import RESTART, ChunkedRun
-    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, satellites_table, to_csv_text
+    from gnss_cli.report import dop_table, errors_table, positions_table, satellites_table, to_csv_text
 
     _map_large_blocks()
     refs = _References(*references)
-    spools, summary, models = _Spools(), _Summary(), []
-    run = ChunkedRun(files[0], files[1:], cfg, cfg.chunk_epochs, progress)
+    spools, summary, models = _Spools(), _Summary(), _Models(cfg.smoothing, "models" in targets)
+    run = ChunkedRun(files[0], files[1:], cfg, cfg.chunk_epochs, progress,
+                     whole_epochs=max(cfg.stream_above_epochs, cfg.chunk_epochs))
     last = None
     try:
         for part in run.parts():
             if part is RESTART:
                 spools.close()
-                summary, models, last = _Summary(), [], None
+                summary, last = _Summary(), None
+                models.close()
+                models = _Models(cfg.smoothing, "models" in targets)
                 continue
             ref = refs.of(part, Path(files[0]).name)
             positions = positions_table(part, ref, cfg.time_system)
@@ -174,15 +177,56 @@ def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targ
             if "satellites" in targets:
                 spools.write("satellites", "", to_csv_text(satellites_table(part, cfg)))
             summary.add(part, ref)
-            models += part.models
+            models.add(part.models)
             last = _slim(part)
             del part, positions, tables  # before the next part is computed
         assert last is not None
         summary_df = summary.table(last)
-        _stage(outputs, targets, spools, tuple(last.solutions), summary_df, models_json(cfg.smoothing, models))
+        _stage(outputs, targets, spools, tuple(last.solutions), summary_df, models)
     finally:
         spools.close()
+        models.close()
     return summary_df, list(run.warnings), refs.given
+
+
+class _Models:
+    """The ``--model-out`` document written window by window into a spool: the text of
+    :func:`gnss_cli.report.models_json` (``json.dumps(doc, indent=1)``) without holding the
+    day's thousands of window records (only when ``wanted``)."""
+
+    def __init__(self, smoothing: Any, wanted: bool) -> None:
+        import json
+
+        self.json, self.wanted, self.count = json, wanted, 0
+        self.head = json.dumps({"lag": smoothing.lag, "model": smoothing.model, "kernel": smoothing.kernel,
+                                "windows": []}, indent=1)
+        self.spool: IO[str] | None = tempfile.TemporaryFile("w+", encoding="utf-8", newline="") if wanted else None
+
+    def add(self, models: Any) -> None:
+        import textwrap
+
+        if self.spool is None:
+            return
+        for m in models:
+            self.spool.write((",\n" if self.count else "") + textwrap.indent(self.json.dumps(m.to_dict(), indent=1), "  "))
+            self.count += 1
+
+    def write(self, tmp: Path) -> None:
+        assert self.spool is not None and self.head.endswith("[]\n}")
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            if not self.count:
+                f.write(self.head + "\n")
+                return
+            f.write(self.head[: -len("]\n}")] + "\n")
+            self.spool.seek(0)
+            while block := self.spool.read(1 << 20):
+                f.write(block)
+            f.write("\n ]\n}\n")
+
+    def close(self) -> None:
+        if self.spool is not None:
+            self.spool.close()
+            self.spool = None
 
 
 def _slim(part: Any) -> Any:
@@ -193,13 +237,13 @@ def _slim(part: Any) -> Any:
 
 
 def _stage(outputs: Any, targets: dict[str, Path], spools: _Spools, methods: tuple[str, ...], summary_df: Any,
-           models_text: str) -> None:
+           models: _Models) -> None:
     """Stage every target (committed together when the ``OutputSet`` closes), or print the positions."""
     from gnss_cli.report import to_csv_text
 
     for name, path in targets.items():
         if name == "models":
-            outputs.write_text(path, models_text)
+            outputs.write_with(path, models.write)
         elif name == "summary":
             outputs.write_text(path, to_csv_text(summary_df))
         elif name in _TABLES and name in spools.header:  # errors: only with a reference

@@ -118,12 +118,15 @@ class StreamSmoother:
         self.open: _Open | None = None
         self.next_segment = 0
 
-    def push(self, parts: list[RunResult], last: bool) -> RunResult | None:
+    def push(self, parts: list[RunResult], last: bool = False) -> RunResult | None:
         """Add the next part (snapshot solutions with ``wls``), taken out of the one-element list
         ``parts`` (so that it is freed once joined to the kept epochs); returns the epochs now
-        final, with the smoothed ``stls`` solution and the window models finished, or None."""
-        part = parts.pop()
-        buf = part if self.kept is None else concat_results(self.kept, part)
+        final, with the smoothed ``stls`` solution and the window models finished, or None.
+        ``last``: the file ends here (``parts`` may then be empty): every segment is closed."""
+        part = parts.pop() if parts else None
+        if part is None and self.kept is None:
+            return None
+        buf = (self.kept if part is None else part if self.kept is None else concat_results(self.kept, part))
         del part
         wls = buf.solutions["wls"]
         T = buf.epochs.time_gps_s.size

@@ -86,18 +86,17 @@ class _Survey:
         self.obs_sv: set[str] = set()
         self.pr_sv: set[str] = set()
         self.times: list[np.ndarray] = []
-        self.parts = 0
 
     def add(self, obs: xr.Dataset, setup: EpochSetup) -> None:
         self.obs_sv.update(np.asarray(obs["sv"].values).astype(str).tolist())
         prs = select_pseudoranges(obs, setup.systems, setup.priority)
         self.pr_sv.update(prs.sv.tolist())
         self.times.append(prs.time_gps_s)
-        self.parts += 1
 
 
 class ChunkedRun:
-    """``process(obs_path, nav_paths, config)`` in parts of at most ``chunk_epochs`` epochs.
+    """``process(obs_path, nav_paths, config)`` in parts of at most ``chunk_epochs`` epochs;
+    a file of at most ``whole_epochs`` epochs (default ``chunk_epochs``) is run whole.
 
     Iterate :meth:`parts`: each item is a :class:`RunResult` of consecutive epochs (the
     smoothing's window models finished with them in ``models``), or :data:`RESTART`. After
@@ -107,17 +106,18 @@ class ChunkedRun:
     """
 
     def __init__(self, obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
-                 chunk_epochs: int, progress: Progress | None = None) -> None:
+                 chunk_epochs: int, progress: Progress | None = None, whole_epochs: int | None = None) -> None:
         if not streamable(config):
             raise ValueError("ChunkedRun: this configuration needs the whole file (see streamable)")
         self.obs_path, self.nav_paths, self.config = obs_path, list(nav_paths), config
         self.chunk_epochs = int(chunk_epochs)
+        self.whole_epochs = max(int(whole_epochs if whole_epochs is not None else chunk_epochs), 1)
         self.progress = progress
         self.warnings: tuple[str, ...] = ()
 
     def parts(self) -> Iterator[RunResult | _Restart]:
         setup = signal_setup(self.obs_path, self.nav_paths, self.config)
-        chunks = iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.chunk_epochs)
+        chunks = iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs)
         if self.progress:
             self.progress("reading", 0.0)
         first = next(chunks)
@@ -160,7 +160,7 @@ class ChunkedRun:
         sys_of = np.array([s[0] for s in sv])
         used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
         while True:
-            cov, counts = yield from self._pass(setup, systems, sv, used, nominal, survey.parts, t.size)
+            cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size)
             warnings = file_warnings(setup, sv, systems, cov)
             actual = used_systems(sv, systems, cov)
             if actual == used:
@@ -172,7 +172,7 @@ class ChunkedRun:
         self.warnings = tuple(warnings)
 
     def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], nominal: float,
-              n_parts: int, n_epochs: int):  # type: ignore[no-untyped-def]
+              n_epochs: int):  # type: ignore[no-untyped-def]
         """One pass of reading, solving and handing out; returns the coverage and the status counts."""
         config = self.config
         lag = config.smoothing.lag
@@ -189,7 +189,7 @@ class ChunkedRun:
             cov = part_cov if cov is None else cov.merge(part_cov)
             data = finish_epochs(data, used)
             if self.progress:
-                self.progress(f"part {k + 1}/{n_parts}: solving", done / max(n_epochs, 1))
+                self.progress(f"part {k + 1}: solving", done / max(n_epochs, 1))
             solutions = solve_methods(data, snapshot)
             for m, c in status_counts(solutions).items():
                 for w, n in c.items():
@@ -197,11 +197,14 @@ class ChunkedRun:
             done += data.time_gps_s.size
             parts = [RunResult(data, solutions)]
             del data, solutions, prs, obs
-            out = smoother.push(parts, last=k == n_parts - 1) if smoother is not None else parts.pop()
+            out = smoother.push(parts) if smoother is not None else parts.pop()
             if out is not None:
                 out = with_velocity(out, config)
                 yield out
             del out  # before the next part is read: one part in memory at a time
             release_memory()
+        out = smoother.push([], last=True) if smoother is not None else None  # the last segment ends
+        if out is not None:
+            yield with_velocity(out, config)
         assert cov is not None
         return cov, counts

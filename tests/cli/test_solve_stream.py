@@ -1,7 +1,8 @@
 """A long file solved part by part (``[processing] chunk_epochs``) writes the bytes of the whole-file run.
 
 Every case runs ``gnss-solve`` twice into ``--out-dir`` (with ``--model-out`` when smoothing):
-once with ``chunk_epochs = 0`` (the whole file at once) and once in parts of 50 epochs, and
+once with ``chunk_epochs = 0`` (the whole file at once) and once in parts of 50 epochs
+(``stream_above_epochs = 50``), and
 compares every output file byte for byte. The parts really are parts: :class:`ChunkedRun`
 yields several of them for the same configuration.
 """
@@ -56,7 +57,7 @@ def gapped(flight: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _solve(args: list[object], out: Path, chunk: int, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
     cfg = out.parent / f"{out.name}.toml"
-    cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\n")
+    cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\nstream_above_epochs = {chunk}\n")
     extra = ["--model-out", out / "models.json"] if "--lag" in args else []
     with pytest.raises(SystemExit) as exc:
         run_app(app, "gnss-solve", [str(a) for a in [*args, "--out-dir", out, "--config", cfg, "-q", *extra]])
@@ -103,7 +104,9 @@ def test_simulated_flight_with_doppler_in_parts_is_the_whole_run(flight: Path, e
     velocity = [rows[0].decode().split(",")[header.index(c)] for c in VELOCITY_COLUMNS]
     assert all(velocity), "the simulated file has Doppler: the velocity columns are filled"
     assert {"errors.csv", "satellites.csv", "summary.csv"} <= set(out)
-    assert _n_parts(flight / "obs.rnx", flight / "nav.rnx") >= 12
+    assert _n_parts(flight / "obs.rnx", flight / "nav.rnx") == 12
+    one = list(ChunkedRun(flight / "obs.rnx", [flight / "nav.rnx"], load_config(), CHUNK, whole_epochs=601).parts())
+    assert len(one) == 1 and one[0].epochs.time_gps_s.size == 601  # not above the threshold: whole
 
 
 @pytest.mark.parametrize("model", ["identify", "pva"])
@@ -171,7 +174,7 @@ def test_a_file_of_one_part_and_stdout_are_the_whole_run(rinex_dir: Path, tmp_pa
     printed = {}
     for chunk in (0, CHUNK):
         cfg = tmp_path / f"stdout{chunk}.toml"
-        cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\n")
+        cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\nstream_above_epochs = {chunk}\n")
         with pytest.raises(SystemExit) as exc:
             run_app(app, "gnss-solve", [str(a) for a in [*args, "--config", cfg, "-q"]])
         printed[chunk], _ = capsys.readouterr()
