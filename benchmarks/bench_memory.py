@@ -8,7 +8,8 @@ takes a minute or two). Each case runs ``gnss-solve OBS NAV --method ... --out-d
 size from ``os.wait4`` (``ru_maxrss``); no third-party package is needed.
 
 Cases: ``--method wls`` and ``--method stls --lag 3``, each on the 1 h and the 24 h file,
-with the packaged ``chunk_epochs`` (3600: the 1 h file is one part, the day 24 parts).
+with the packaged ``chunk_epochs`` / ``stream_above_epochs`` (1200 / 3600: the 1 h file of
+3601 epochs is one part, the day 72 parts). ``--chunk-epochs N`` sets both to N.
 Targets (issue 16): the 24 h peak <= 1.3 x the 1 h peak, and <= 400 MiB, for both methods.
 Prints a table and writes ``benchmarks/results/bench_memory.json``.
 
@@ -69,7 +70,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, default=REPO / "benchmarks" / "results" / "sim-cache")
     ap.add_argument("--hours", type=int, nargs="+", default=[1, 24])
-    ap.add_argument("--chunk-epochs", type=int, default=None, help="[processing] chunk_epochs (default: packaged)")
+    ap.add_argument("--chunk-epochs", type=int, default=None,
+                    help="[processing] chunk_epochs and stream_above_epochs (default: packaged)")
     args = ap.parse_args()
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     rows = []
@@ -77,7 +79,7 @@ def main() -> None:
         extra: list[str] = []
         if args.chunk_epochs is not None:
             cfg = Path(tmp) / "chunk.toml"
-            cfg.write_text(f"[processing]\nchunk_epochs = {args.chunk_epochs}\n")
+            cfg.write_text(f"[processing]\nchunk_epochs = {args.chunk_epochs}\nstream_above_epochs = {args.chunk_epochs}\n")
             extra = ["--config", str(cfg)]
         for hours in args.hours:
             d = simulated(args.cache, hours)
