@@ -236,6 +236,18 @@ def _slim(part: Any) -> Any:
     return take_result(part, slice(0, 0), copy=True)
 
 
+def _write_from(outputs: Any, path: Path, writer: Any) -> None:
+    """Stage ``path`` by ``writer(temporary path)``; a device or a pipe (``/dev/stdout``,
+    ``/dev/full``) cannot be renamed over and gets the text written into it, as
+    :meth:`~gnss_cli.cli.output.OutputSet.write_text` does."""
+    if path.exists() and not path.is_file() and not path.is_dir():
+        with tempfile.TemporaryDirectory() as tmp:
+            writer(Path(tmp) / "text")
+            outputs.write_text(path, (Path(tmp) / "text").read_text(encoding="utf-8"))
+        return
+    outputs.write_with(path, writer)
+
+
 def _stage(outputs: Any, targets: dict[str, Path], spools: _Spools, methods: tuple[str, ...], summary_df: Any,
            models: _Models) -> None:
     """Stage every target (committed together when the ``OutputSet`` closes), or print the positions."""
@@ -243,7 +255,7 @@ def _stage(outputs: Any, targets: dict[str, Path], spools: _Spools, methods: tup
 
     for name, path in targets.items():
         if name == "models":
-            outputs.write_with(path, models.write)
+            _write_from(outputs, path, models.write)
         elif name == "summary":
             outputs.write_text(path, to_csv_text(summary_df))
         elif name in _TABLES and name in spools.header:  # errors: only with a reference
@@ -253,7 +265,7 @@ def _stage(outputs: Any, targets: dict[str, Path], spools: _Spools, methods: tup
                 with open(tmp, "w", encoding="ascii", newline="") as f:
                     spools.copy(name, order, f)
 
-            outputs.write_with(path, write)
+            _write_from(outputs, path, write)
     if "positions" not in targets:
         spools.copy("positions", methods, write_stdout)
 
