@@ -126,23 +126,6 @@ class _Summary:
         return summary_table(replace(last, solutions=solutions), ref)
 
 
-_M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
-
-
-def _map_large_blocks() -> None:
-    """Have glibc serve blocks of 256 KiB and more from their own mappings (returned to the
-    system when freed) for the rest of the process. Its default threshold rises with the
-    largest block freed, up to 32 MiB, after which the parts' arrays come from the heap, whose
-    freed pages stay resident and fragment: the peak then creeps up part after part. Elsewhere
-    than glibc, nothing."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6").mallopt(_M_MMAP_THRESHOLD, 256 * 1024)
-    except (OSError, AttributeError):
-        pass
-
-
 def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targets: dict[str, Path],
                   references: tuple[Optional[str], Optional[Path], Optional[Path], Optional[Path]]
                   ) -> tuple[Any, list[str], bool]:
@@ -151,7 +134,6 @@ def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targ
     from gnss_cli.pipeline.stream import RESTART, ChunkedRun
     from gnss_cli.report import dop_table, errors_table, positions_table, satellites_table, to_csv_text
 
-    _map_large_blocks()
     refs = _References(*references)
     spools, summary, models = _Spools(), _Summary(), _Models(cfg.smoothing, "models" in targets)
     run = ChunkedRun(files[0], files[1:], cfg, cfg.chunk_epochs, progress,

@@ -356,7 +356,7 @@ def load_epochs(
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     timings: dict[str, float] | None = None,
-    obs: xr.Dataset | None = None,
+    given: list[xr.Dataset] | None = None,
 ) -> EpochData:
     """Read and validate the files, select pseudoranges, and compute satellite states.
 
@@ -371,8 +371,9 @@ def load_epochs(
     neglected acceleration term is below 1e-6 m).
 
     ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
-    ``obs``: the observation file already read (``read_obs(obs_path, systems, codes)`` with
-    :func:`signal_setup`'s systems and codes), else it is read here.
+    ``given``: the observation file already read (``read_obs(obs_path, systems, codes)`` with
+    :func:`signal_setup`'s systems and codes) as a one-element list, emptied here so that the
+    dataset is freed once used; else the file is read here.
 
     Raises
     ------
@@ -382,8 +383,7 @@ def load_epochs(
     """
     clock = time.perf_counter()
     setup = signal_setup(obs_path, nav_paths, config)
-    if obs is None:
-        obs = read_obs(obs_path, systems=setup.systems, codes=setup.codes)
+    obs = read_obs(obs_path, systems=setup.systems, codes=setup.codes) if not given else given.pop()
     setup.read_navigation()
     assert setup.nav is not None
     systems = setup.systems if setup.explicit else _systems_with_data(obs, setup.nav, obs_path, setup.nav_name)

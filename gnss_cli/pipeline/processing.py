@@ -25,7 +25,7 @@ def process(
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     progress: Progress | None = None,
-    obs: xr.Dataset | None = None,
+    obs: list[xr.Dataset] | None = None,
 ) -> RunResult:
     """Read, validate and solve every epoch with every configured method.
 
@@ -35,7 +35,8 @@ def process(
     (:func:`~gnss_cli.pipeline.smoothing.smooth`); ``RunResult.models`` then holds one
     :class:`~gnss_cli.pipeline.results.WindowModel` per window.
 
-    ``obs``: the observation file already read (:func:`~gnss_cli.io.rinex.read_obs`), else it is read here.
+    ``obs``: the observation file already read (:func:`~gnss_cli.io.rinex.read_obs`) in a
+    one-element list, emptied when it is used (the dataset is then freed); else it is read here.
 
     ``kf`` (:func:`~gnss_cli.pipeline.kalman.run_kalman`) runs on the WLS solution (solved
     for it when not asked for). With Doppler in the observation file, every other method's
@@ -79,7 +80,7 @@ def with_velocity(result: RunResult, config: ProcessingConfig) -> RunResult:
 
 
 def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
-                      progress: Progress | None, obs: xr.Dataset | None = None) -> RunResult:
+                      progress: Progress | None, obs: list[xr.Dataset] | None = None) -> RunResult:
     """The snapshot methods, and the stls smoothing with ``lag >= 1``."""
     lag = config.smoothing.lag
     if lag == 0:

@@ -320,10 +320,11 @@ def run(
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     progress: Progress | None = None,
-    obs: xr.Dataset | None = None,
+    obs: list[xr.Dataset] | None = None,
 ) -> RunResult:
     """Read, validate and solve every epoch with every configured method (``obs``: the
-    observation file already read, else it is read here).
+    observation file already read, a one-element list :func:`~gnss_cli.pipeline.epochs.load_epochs`
+    empties; else it is read here).
 
     Raises
     ------
@@ -334,7 +335,7 @@ def run(
     """
     if progress:
         progress("reading", 0.0)
-    data = load_epochs(obs_path, nav_paths, config, obs=obs)
+    data = load_epochs(obs_path, nav_paths, config, given=obs)
     solutions = solve_methods(data, config, progress)
     if not any((s.status == EpochStatus.OK).any() for s in solutions.values()):
         raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({status_summary(solutions)})")

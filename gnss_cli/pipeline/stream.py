@@ -77,6 +77,22 @@ def release_memory() -> None:
 
 
 _TRIM = None
+_M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
+
+
+def map_large_blocks() -> None:
+    """Have glibc serve blocks of 256 KiB and more from their own mappings, returned to the
+    system when freed, for the rest of the process (elsewhere than glibc: nothing). Its default
+    threshold rises with the largest block freed, up to 32 MiB; the parts' arrays then come
+    from the heap, whose freed pages stay resident and fragment, and the peak creeps up part
+    after part. Set only when a file is run in parts: the mappings cost page faults (a whole
+    24 h 30 s file ran 25 % slower with it)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(_M_MMAP_THRESHOLD, 256 * 1024)
+    except (OSError, AttributeError):
+        pass
 
 
 class _Survey:
@@ -120,17 +136,18 @@ class ChunkedRun:
         chunks = iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs)
         if self.progress:
             self.progress("reading", 0.0)
-        first = next(chunks)
+        held = [next(chunks)]
         second = next(chunks, None)
         if second is None:  # one part: the whole file
-            result = process(self.obs_path, self.nav_paths, self.config, self.progress, obs=first)
+            result = process(self.obs_path, self.nav_paths, self.config, self.progress, obs=held)
             self.warnings = result.warnings
             yield result
             return
+        map_large_blocks()
         survey = _Survey()
-        for obs in (first, second):
+        for obs in (held.pop(), second):
             survey.add(obs, setup)
-        del first, second, obs
+        del second, obs
         for obs in chunks:
             survey.add(obs, setup)
             del obs
