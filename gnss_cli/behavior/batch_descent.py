@@ -13,7 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.behavior.batch_projection import F64, Proj, Windows, merge, project_batch, put, solve_lower_batch, take
+from gnss_cli.behavior.batch_projection import (
+    F64, Proj, Windows, einsum_windows, merge, project_batch, put, solve_lower_batch, take,
+)
 from gnss_cli.behavior.result import StlsStatus
 
 __all__ = ["identify_chunk"]
@@ -53,6 +55,12 @@ class Charts:
         np.put_along_axis(rt, self.free_of[pin], theta, axis=1)
         return rt
 
+    def r(self, pin: NDArray[np.intp], theta: F64) -> F64:
+        """``r = f * r~`` of every window ``(K, l+1)``. An einsum, not ``r_tilde @ conv.T``: a
+        (K, n) @ (n, m) matmul rounds a row differently with K (BLAS blocking), and a window must
+        get the same kernel in any batch."""
+        return einsum_windows("bp,kp->bk", self.r_tilde(pin, theta), self.conv)
+
     def conv_free(self, pin: NDArray[np.intp]) -> F64:
         """``dr/dtheta`` ``(K, l+1, n_p)``."""
         return np.transpose(self.conv[:, self.free_of[pin]], (1, 0, 2))
@@ -65,7 +73,7 @@ def wtls_tilde(win: Windows, fixed: F64, deg: int) -> F64:
     n_f = fixed.size - 1
     if n_f > 0:
         idx = np.arange(v.shape[1] - n_f)[:, None] + np.arange(n_f + 1)[None, :]
-        v = np.einsum("btja,j->bta", v[:, idx], fixed)
+        v = einsum_windows("btja,j->bta", v[:, idx], fixed)
     idx = np.arange(v.shape[1] - deg)[:, None] + np.arange(deg + 1)[None, :]
     stacked = np.swapaxes(v[:, idx], 2, 3).reshape(v.shape[0], -1, deg + 1)  # rows (t, a), columns shift
     return np.linalg.svd(stacked)[2][:, -1, :]
@@ -74,17 +82,17 @@ def wtls_tilde(win: Windows, fixed: F64, deg: int) -> F64:
 def derivatives_batch(win: Windows, r: F64, conv_free: F64, proj: Proj) -> tuple[F64, F64, F64]:
     """Half gradient, exact half Hessian and Gauss--Newton matrix (see ``descent.derivatives_batch``)."""
     n_b, n_p = conv_free.shape[0], conv_free.shape[2]
-    d_mat = np.einsum("bip,bjia->bjap", conv_free, proj.w_hat[:, win.idx]).reshape(n_b, win.m, n_p)
+    d_mat = einsum_windows("bip,bjia->bjap", conv_free, proj.w_hat[:, win.idx]).reshape(n_b, win.m, n_p)
     jac = solve_lower_batch(proj.chol, d_mat, win.kd)
-    grad = np.einsum("bmp,bm->bp", jac, proj.f)
+    grad = einsum_windows("bmp,bm->bp", jac, proj.f)
     gn = np.matmul(np.swapaxes(jac, 1, 2), jac)
     u = np.zeros((n_b, win.n + win.lag, win.q, n_p))
     for i in range(win.lag + 1):
         u[:, i : i + win.n] += proj.lam[..., None] * conv_free[:, i, None, None, :]
     s = np.matmul(win.sig, u)  # Sigma_t u_t
-    gs = np.einsum("bk,bjkap->bjap", r, s[:, win.idx]).reshape(n_b, win.m, n_p)
+    gs = einsum_windows("bk,bjkap->bjap", r, s[:, win.idx]).reshape(n_b, win.m, n_p)
     a = solve_lower_batch(proj.chol, d_mat - gs, win.kd)
-    hess = np.matmul(np.swapaxes(a, 1, 2), a) - np.einsum("btap,btaq->bpq", u, s)
+    hess = np.matmul(np.swapaxes(a, 1, 2), a) - einsum_windows("btap,btaq->bpq", u, s)
     return grad, 0.5 * (hess + np.swapaxes(hess, 1, 2)), gn
 
 
@@ -134,7 +142,7 @@ def identify_chunk(win: Windows, fixed: F64, deg: int, tol: float, max_iter: int
     limit = (ls.status == int(StlsStatus.ITERATION_LIMIT)) & (ls.state.misfit <= ls.exact_level)
     ls.status[limit] = int(StlsStatus.EXACT)
 
-    r_out = ls.charts.r_tilde(ls.pin, ls.theta) @ ls.charts.conv.T
+    r_out = ls.charts.r(ls.pin, ls.theta)
     lead = np.abs(r_out[:, -1]) > 1e-8 * np.abs(r_out).max(axis=1)
     scale = np.where(lead, r_out[:, -1], np.linalg.norm(r_out, axis=1))
     r_out = r_out / scale[:, None]
@@ -148,14 +156,14 @@ def _start(win: Windows, fixed: F64, deg: int, mu_initial: float) -> _Lockstep:
     n_b = win.w.shape[0]
     charts = Charts(fixed, deg)
     n_eval = np.zeros(n_b, dtype=np.int64)
-    data_norm2 = np.einsum("bta,bta->b", win.w, np.linalg.solve(win.sig, win.w[..., None])[..., 0])
+    data_norm2 = einsum_windows("bta,bta->b", win.w, np.linalg.solve(win.sig, win.w[..., None])[..., 0])
     exact_level = (64.0 * np.finfo(float).eps) ** 2 * np.maximum(data_norm2, np.finfo(float).tiny)
     starts = [wtls_tilde(win, fixed, deg),
               np.broadcast_to(np.polynomial.polynomial.polypow([-1.0, 1.0], deg)[: deg + 1], (n_b, deg + 1))]
     best: tuple[NDArray[np.intp], F64, Proj] | None = None
     for rt in starts:
         pin, theta = charts.coordinates(np.asarray(rt, dtype=np.float64))
-        proj = project_batch(win, charts.r_tilde(pin, theta) @ charts.conv.T)
+        proj = project_batch(win, charts.r(pin, theta))
         n_eval += 1
         if best is None:
             best = (pin, theta, proj)
@@ -187,20 +195,20 @@ def _new_iteration(ls: _Lockstep, tol: float, max_iter: int) -> None:
         return
     charts, pin, theta = ls.charts, ls.pin, ls.theta
     sub = ls.win.take(dv)
-    r_dv = charts.r_tilde(pin[dv], theta[dv]) @ charts.conv.T
+    r_dv = charts.r(pin[dv], theta[dv])
     g_dv, h_dv, gn_dv = derivatives_batch(sub, r_dv, charts.conv_free(pin[dv]), take(ls.state, dv))
     ls.iterations[dv] += 1
     zero = np.abs(g_dv).max(axis=1) == 0.0
     newton, pd = spd_solve(h_dv, g_dv)
-    decrement = np.einsum("bp,bp->b", g_dv, newton)
+    decrement = einsum_windows("bp,bp->b", g_dv, newton)
     conv = zero | (pd & (decrement <= 0.1 * tol * ls.state.misfit[dv]))
     ls.status[dv[conv]] = int(StlsStatus.CONVERGED)
     ls.active[dv[conv]] = False
     h_dv = np.where(pd[:, None, None], h_dv, gn_dv)
     ls.grad[dv], ls.a_mat[dv] = g_dv, h_dv
-    dg = np.abs(np.einsum("bpp->bp", h_dv))
+    dg = np.abs(einsum_windows("bpp->bp", h_dv))
     ls.diag[dv] = np.maximum(dg, 1e-12 * np.maximum(dg.max(axis=1), np.finfo(float).tiny)[:, None])
-    ls.theta_norm[dv] = np.sqrt(np.einsum("bp,bp->b", theta[dv], theta[dv]))
+    ls.theta_norm[dv] = np.sqrt(einsum_windows("bp,bp->b", theta[dv], theta[dv]))
     ls.need[dv] = False
 
 
@@ -213,15 +221,15 @@ def _damped_steps(ls: _Lockstep, tol: float, rechart_threshold: float, mu_reject
     damped = ls.a_mat[sv] + ls.mu[sv, None, None] * (ls.diag[sv][:, :, None] * np.eye(n_p))
     sol, solved = spd_solve(damped, ls.grad[sv])
     step = -sol
-    predicted = np.where(solved, -2.0 * np.einsum("bp,bp->b", ls.grad[sv], step)
-                         - np.einsum("bp,bpq,bq->b", step, ls.a_mat[sv], step), -1.0)
+    predicted = np.where(solved, -2.0 * einsum_windows("bp,bp->b", ls.grad[sv], step)
+                         - einsum_windows("bp,bpq,bq->b", step, ls.a_mat[sv], step), -1.0)
     tried = predicted > 0.0
     accept = np.zeros(sv.size, dtype=bool)
     trial: Proj | None = None
     tv = sv[tried]
     if tv.size:
         new_theta = ls.theta[tv] + step[tried]
-        trial = project_batch(ls.win.take(tv), ls.charts.r_tilde(ls.pin[tv], new_theta) @ ls.charts.conv.T)
+        trial = project_batch(ls.win.take(tv), ls.charts.r(ls.pin[tv], new_theta))
         ls.n_eval[tv] += 1
         accept[tried] = trial.ok & (trial.misfit < ls.state.misfit[tv])
     if sv[accept].size:
@@ -233,7 +241,7 @@ def _damped_steps(ls: _Lockstep, tol: float, rechart_threshold: float, mu_reject
         ls.mu[rv] = np.maximum(ls.mu[rv] * ls.nu[rv], mu_rejected)
         ls.nu[rv] *= 2.0
         s_rej = step[~accept]
-        tiny_step = solved[~accept] & (np.sqrt(np.einsum("bp,bp->b", s_rej, s_rej))
+        tiny_step = solved[~accept] & (np.sqrt(einsum_windows("bp,bp->b", s_rej, s_rej))
                                        <= 1e-15 * (ls.theta_norm[rv] + 1e-15))
         stuck = (ls.mu[rv] > 1e16) | tiny_step
         ls.status[rv[stuck]] = int(StlsStatus.NO_FURTHER_DECREASE)
@@ -251,8 +259,8 @@ def _accept(ls: _Lockstep, av: NDArray[np.intp], acc_trial: Proj, s_acc: F64, pr
     theta = ls.theta
     theta[av] = theta[av] + s_acc
     put(ls.state, av, acc_trial)
-    step_norm = np.sqrt(np.einsum("bp,bp->b", s_acc, s_acc))
-    small = step_norm <= tol * (np.sqrt(np.einsum("bp,bp->b", theta[av], theta[av])) + tol)
+    step_norm = np.sqrt(einsum_windows("bp,bp->b", s_acc, s_acc))
+    small = step_norm <= tol * (np.sqrt(einsum_windows("bp,bp->b", theta[av], theta[av])) + tol)
     conv = ((decrease <= tol * ls.state.misfit[av]) & (rho > 0.25)) | small
     ls.status[av[conv]] = int(StlsStatus.CONVERGED)
     ls.active[av[conv]] = False

@@ -15,7 +15,19 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.banded import SINGULAR_RTOL
 
-__all__ = ["F64", "Windows", "Proj", "project_batch", "solve_lower_batch", "take", "put", "merge"]
+__all__ = ["F64", "Windows", "Proj", "project_batch", "solve_lower_batch", "take", "put", "merge", "einsum_windows"]
+
+
+def einsum_windows(spec: str, *operands: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.einsum(spec, *operands)`` for operands whose subscripts start with the window axis
+    ``b``, computed with at least two windows: numpy drops an axis of length 1 and then sums
+    in another order, so one window alone would get other last bits than the same window in a
+    batch (a file's windows are batched differently whole and in parts)."""
+    subs = spec.split("->")[0].split(",")
+    if any(sub.startswith("b") and op.shape[0] == 1 for sub, op in zip(subs, operands)):
+        doubled = [np.concatenate((op, op)) if sub.startswith("b") else op for sub, op in zip(subs, operands)]
+        return np.einsum(spec, *doubled)[:1]
+    return np.einsum(spec, *operands)
 
 F64 = NDArray[np.float64]
 
@@ -70,12 +82,12 @@ def _cholesky(gam: F64, kd: int) -> tuple[F64, NDArray[np.bool_]]:
     """
     n_b, m, _ = gam.shape
     chol = np.zeros_like(gam)
-    diag_max = np.einsum("bii->bi", gam).max(axis=1)
+    diag_max = einsum_windows("bii->bi", gam).max(axis=1)
     ok = (diag_max > 0.0) & (diag_max < np.inf)
     floor = SINGULAR_RTOL * np.where(ok, diag_max, 1.0)
     for j in range(m):
         lo, hi = max(0, j - kd), min(m, j + kd + 1)
-        v = gam[:, j:hi, j] - np.einsum("bik,bk->bi", chol[:, j:hi, lo:j], chol[:, j, lo:j])
+        v = gam[:, j:hi, j] - np.matmul(chol[:, j:hi, lo:j], chol[:, j, lo:j, None])[..., 0]
         piv = v[:, 0]
         good = piv > floor
         ok &= good
@@ -88,15 +100,15 @@ def solve_lower_batch(chol: F64, rhs: F64, kd: int, transpose: bool = False) -> 
     """``L x = rhs`` (or ``L^T x = rhs``) for banded lower factors ``(B, m, m)``; ``rhs`` ``(B, m, r)``."""
     m = chol.shape[1]
     x = np.empty_like(rhs)
-    diag = np.einsum("bii->bi", chol)
+    diag = einsum_windows("bii->bi", chol)
     if not transpose:
         for j in range(m):
             lo = max(0, j - kd)
-            x[:, j] = (rhs[:, j] - np.einsum("bk,bkr->br", chol[:, j, lo:j], x[:, lo:j])) / diag[:, j, None]
+            x[:, j] = (rhs[:, j] - np.matmul(chol[:, j, None, lo:j], x[:, lo:j])[:, 0]) / diag[:, j, None]
     else:
         for j in range(m - 1, -1, -1):
             hi = min(m, j + kd + 1)
-            x[:, j] = (rhs[:, j] - np.einsum("bk,bkr->br", chol[:, j + 1 : hi, j], x[:, j + 1 : hi])) / diag[:, j, None]
+            x[:, j] = (rhs[:, j] - np.matmul(chol[:, None, j + 1 : hi, j], x[:, j + 1 : hi])[:, 0]) / diag[:, j, None]
     return x
 
 
@@ -107,19 +119,19 @@ def project_batch(win: Windows, r: F64) -> Proj:
     coef = np.zeros((n_b, n_blk, n_blk))  # [i, d] = r_{i-d} r_i
     for d in range(n_blk):
         coef[:, d:, d] = r[:, : n_blk - d] * r[:, d:]
-    bands = np.einsum("bid,bjiac->bjdac", coef, win.sig_rows)  # (B, n, l+1, q, q): Gamma_{j+d, j}
+    bands = einsum_windows("bid,bjiac->bjdac", coef, win.sig_rows)  # (B, n, l+1, q, q): Gamma_{j+d, j}
     gam = np.zeros((n_b, win.m * win.m))
     gam[:, win.dst] = bands.reshape(n_b, -1)[:, win.src]
     gam = gam.reshape(n_b, win.m, win.m)
     chol, ok = _cholesky(gam, win.kd)
-    e = np.einsum("bk,bjka->bja", r, win.w_rows).reshape(n_b, win.m)
+    e = einsum_windows("bk,bjka->bja", r, win.w_rows).reshape(n_b, win.m)
     f = solve_lower_batch(chol, e[..., None], win.kd)[..., 0]
     lam = solve_lower_batch(chol, f[..., None], win.kd, transpose=True).reshape(n_b, win.n, win.q)
     u = np.zeros(win.w.shape)
     for k in range(n_blk):
         u[:, k : k + win.n] += r[:, k, None, None] * lam
     w_hat = win.w - np.matmul(win.sig, u[..., None])[..., 0]
-    misfit = np.where(ok, np.einsum("bm,bm->b", f, f), np.inf)
+    misfit = np.where(ok, einsum_windows("bm,bm->b", f, f), np.inf)
     return Proj(ok, misfit, f, chol, lam, w_hat)
 
 

@@ -15,7 +15,8 @@ __all__ = ["segments", "windows"]
 F64 = NDArray[np.float64]
 
 
-def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5) -> list[NDArray[np.intp]]:
+def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5,
+             nominal_s: float | None = None) -> list[NDArray[np.intp]]:
     """Split epochs into runs of consecutive solved epochs at a uniform sampling interval.
 
     Parameters
@@ -27,6 +28,9 @@ def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5
     gap_factor : float
         A time step larger than ``gap_factor`` times the median step (or not positive) starts
         a new segment.
+    nominal_s : float, optional
+        The nominal step (s) instead of the median step of ``time_gps_s`` (a part of a longer
+        series is split as the whole series is).
 
     Returns
     -------
@@ -38,7 +42,10 @@ def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5
     if ok.size == 0:
         return []
     dt = np.diff(t)
-    nominal = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
+    if nominal_s is not None:
+        nominal = float(nominal_s)
+    else:
+        nominal = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
     out: list[NDArray[np.intp]] = []
     start = 0
     for k in range(1, ok.size):

@@ -88,20 +88,28 @@ def solve(
         figure_targets = register_figures(outputs, plots, report, list(RUN_FIGURES))
         check_smoothing_flags(cfg, values)
         progress = Progress("gnss-solve", enabled=not quiet)
+        from gnss_cli.cli.solve_stream import can_stream, stream_tables
+
         try:
-            tables, models, warnings, (result, ref) = solve_tables(files, cfg, progress, reference, reference_sinex,
-                                                                   reference_csv, reference_pos)
-            if figure_targets:
-                progress("figures", 0.0)
-                _stage_figures(outputs, figure_targets, files, cfg, result, ref, tables["summary"],
-                               reference or reference_sinex or reference_csv or reference_pos)
+            if can_stream(cfg, fmt, bool(figure_targets)):  # long files part by part, in bounded memory
+                summary, warnings, with_errors = stream_tables(files, cfg, progress, outputs, targets,
+                                                               (reference, reference_sinex, reference_csv, reference_pos))
+            else:
+                tables, models, warnings, (result, ref) = solve_tables(files, cfg, progress, reference, reference_sinex,
+                                                                       reference_csv, reference_pos)
+                summary, with_errors = tables["summary"], "errors" in tables
+                if figure_targets:
+                    progress("figures", 0.0)
+                    _stage_figures(outputs, figure_targets, files, cfg, result, ref, tables["summary"],
+                                   reference or reference_sinex or reference_csv or reference_pos)
         finally:
             progress.done()
-        _write(outputs, targets, tables, models, fmt, cfg.time_system, [str(f) for f in files])
+        if not can_stream(cfg, fmt, bool(figure_targets)):
+            _write(outputs, targets, tables, models, fmt, cfg.time_system, [str(f) for f in files])
     if not quiet:
         for w in warnings:
             sys.stderr.write(f"gnss-solve: warning: {w}\n")
-        _print_summary(tables["summary"], "errors" in tables)
+        _print_summary(summary, with_errors)
 
 
 FORMAT_NAMES = ("csv", "pos", "geojson", "kml", "nmea", "parquet")

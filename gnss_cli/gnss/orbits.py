@@ -55,10 +55,14 @@ def solve_kepler(
     m = np.asarray(mean_anomaly_rad, dtype=np.float64)
     ecc = np.asarray(e, dtype=np.float64)
     ea = m.copy()
+    active = np.ones(ea.shape, dtype=bool)
     for _ in range(max_iter):
         step = (ea - ecc * np.sin(ea) - m) / (1.0 - ecc * np.cos(ea))
-        ea = ea - step
-        if np.all(np.abs(step) <= tol_rad):
+        # each anomaly stops at its own convergence: the same input gives the same bits in any
+        # batch (a long file's parts batch other observations than the whole file)
+        ea = np.where(active, ea - step, ea)
+        active &= ~(np.abs(step) <= tol_rad)
+        if not active.any():
             return ea
     raise UsageError(f"Kepler's equation did not converge in {max_iter} iterations (max |step| {np.nanmax(np.abs(step)):.3g} rad)")
 

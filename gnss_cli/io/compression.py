@@ -33,12 +33,13 @@ import threading
 import warnings
 import zipfile
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
 
-__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "is_hatanaka"]
+__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "is_hatanaka", "iter_bytes"]
 
 _GZIP_MAGIC = b"\x1f\x8b"
 _LZW_MAGIC = b"\x1f\x9d"
@@ -321,3 +322,64 @@ def open_text(path: str | os.PathLike[str]) -> str:
     'RINEX VERSION / TYPE'
     """
     return open_bytes(path).decode("ascii", errors="replace")
+
+
+BLOCK_BYTES = 1 << 22
+"""Bytes per block of :func:`iter_bytes` (4 MiB)."""
+
+
+def _stream(p: Path, raw_head: bytes) -> IO[bytes] | None:
+    """A decompressing reader of ``p`` for the packagings that stream (plain, gzip, bzip2,
+    zip), None for Unix compress (decompressed whole)."""
+    if raw_head.startswith(_GZIP_MAGIC):
+        return gzip.open(p, "rb")
+    if raw_head.startswith(_BZ2_MAGIC):
+        return bz2.open(p, "rb")
+    if raw_head.startswith(_ZIP_MAGIC):
+        archive = zipfile.ZipFile(p)
+        members = [m for m in archive.infolist() if not m.is_dir()]
+        if not members:
+            raise RinexFormatError(f"{p.name}: zip archive holds no file")
+        return archive.open(members[0])
+    if raw_head.startswith(_LZW_MAGIC):
+        return None
+    return open(p, "rb")
+
+
+def iter_bytes(path: str | os.PathLike[str], block_bytes: int = BLOCK_BYTES) -> Iterator[bytes]:
+    """The decompressed plain-RINEX content of ``path`` in blocks of about ``block_bytes``.
+
+    Plain, gzip, bzip2 and zip files are decompressed as they are read, so memory does not
+    grow with the file. Unix-compressed (``.Z``) and Compact RINEX (Hatanaka) content is
+    restored whole first (``crx2rnx`` takes the whole text) and then handed out in blocks.
+    The errors are those of :func:`open_bytes`.
+    """
+    p = _check_path(path)
+    try:
+        with open(p, "rb") as f:
+            raw_head = f.read(4)
+        reader = _stream(p, raw_head)
+        if reader is None:
+            content = open_bytes(p)
+            for k in range(0, len(content), block_bytes):
+                yield content[k : k + block_bytes]
+            return
+        with reader:
+            first = reader.read(block_bytes)
+            if is_hatanaka(first):
+                content = open_bytes(p)
+                for k in range(0, len(content), block_bytes):
+                    yield content[k : k + block_bytes]
+                return
+            block = first
+            while block:
+                yield block
+                block = reader.read(block_bytes)
+    except RinexFormatError:
+        raise
+    except OSError as exc:
+        if not isinstance(exc, (FileNotFoundError, PermissionError)):  # gzip.BadGzipFile is an OSError
+            raise RinexFormatError(f"{p.name}: corrupt or truncated compressed file ({exc})") from exc
+        raise InputFileNotFoundError(f"{p}: cannot read file ({exc})") from exc
+    except (EOFError, ValueError, zlib.error, zipfile.BadZipFile) as exc:
+        raise RinexFormatError(f"{p.name}: corrupt or truncated compressed file ({exc})") from exc

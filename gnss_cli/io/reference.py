@@ -16,7 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 from gnss_cli.constants import GPS_EPOCH_ISO
 from gnss_cli.errors import ConfigError, InputFileNotFoundError
 
-__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "reference_from_pos", "read_pos", "timestamps_gps_s"]
+__all__ = ["parse_reference", "reference_from_sinex", "reference_from_csv", "reference_from_pos", "read_pos", "timestamps_gps_s",
+           "read_reference_csv", "match_reference"]
 
 F64 = NDArray[np.float64]
 
@@ -77,6 +78,12 @@ def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
     positions CSV of ``gnss-solve``); epochs are matched to 1 ms. Epochs without a reference
     row get NaN (their error cells stay empty).
     """
+    t_ref, xyz = read_reference_csv(path)
+    return match_reference(t_ref, xyz, time_gps_s)
+
+
+def read_reference_csv(path: str | Path) -> tuple[F64, F64]:
+    """The rows of a reference CSV (:func:`reference_from_csv`): ``(t_s (n,) GPS, ECEF (n, 3) m)``."""
     p = Path(path)
     if not p.is_file():
         raise InputFileNotFoundError(f"{p}: no such reference file")
@@ -91,11 +98,10 @@ def reference_from_csv(path: str | Path, time_gps_s: F64) -> F64:
         t_ref = timestamps_gps_s(pd.to_datetime(df["time"]).to_numpy(dtype="datetime64[ns]"))
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{p}: bad time column ({exc})") from None
-    xyz = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
-    return _match(t_ref, xyz, time_gps_s)
+    return t_ref, df[["x_m", "y_m", "z_m"]].to_numpy(dtype=np.float64)
 
 
-def _match(t_ref: F64, xyz: F64, time_gps_s: F64) -> F64:
+def match_reference(t_ref: F64, xyz: F64, time_gps_s: F64) -> F64:
     """Reference rows nearest to each epoch, NaN where none is within 1 ms."""
     order = np.argsort(t_ref)
     t_ref, xyz = t_ref[order], xyz[order]
@@ -172,4 +178,4 @@ def reference_from_pos(path: str | Path, time_gps_s: F64, gps_minus_utc_s: F64 |
     t = np.asarray(time_gps_s, dtype=np.float64)
     if scale == "UTC":
         t = t - np.broadcast_to(np.asarray(gps_minus_utc_s, dtype=np.float64), t.shape)
-    return _match(t_ref, xyz, t)
+    return match_reference(t_ref, xyz, t)

@@ -35,7 +35,7 @@ from gnss_cli.io.fixed_width import DIGIT0, SPACE, gather_columns, parse_f14_3, 
 from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import read_header
 
-__all__ = ["read_obs2", "parse_seconds_ns"]
+__all__ = ["read_obs2", "parse_obs2", "parse_seconds_ns", "record_line_count", "obs_type_count"]
 
 _FIELD_WIDTH = 16
 _VALUE_WIDTH = 14
@@ -161,6 +161,27 @@ def _epoch_time_ns(line: str) -> int | None:
     return ((day * 24 + hh) * 60 + mi) * 60 * 1_000_000_000 + ns
 
 
+def obs_type_count(header: str, name: str) -> int:
+    """Number of observation types of the header's ``# / TYPES OF OBSERV`` lines."""
+    return len(_obs_header(header, name)[1])
+
+
+def record_line_count(line: str, n_types: int) -> int | None:
+    """Lines of the epoch record that starts with ``line`` (the epoch line, its satellite-id
+    continuation lines and the observation lines; an event's special records), 1 for a blank
+    line, None when ``line`` is not an epoch line (the readers then report it)."""
+    if not line.strip():
+        return 1
+    flag_text, nsat_text = line[26:29].strip(), line[29:32].strip()
+    if not flag_text.isdigit() or int(flag_text) > 6 or not (nsat_text.isdigit() or not nsat_text):
+        return None
+    flag, nsat = int(flag_text), int(nsat_text or 0)
+    if 2 <= flag <= 5:
+        return 1 + nsat
+    lines_per_sat = (n_types + _PER_LINE - 1) // _PER_LINE
+    return max(1, (nsat + _SATS_PER_LINE - 1) // _SATS_PER_LINE) + nsat * lines_per_sat
+
+
 def _walk(text_lines: list[str], n_types: int, name: str, offset: int) -> _Walk:
     """Find the epoch records; ``offset`` is the file line number of ``text_lines[0]`` minus one."""
     lines_per_sat = (n_types + _PER_LINE - 1) // _PER_LINE
@@ -276,15 +297,23 @@ def read_obs2(
         written twice), no records; the message names the file and the line.
     """
     name, content, hdr_end, header = read_header(path)
+    return parse_obs2(name, header, content[hdr_end:], systems, codes)
+
+
+def parse_obs2(name: str, header: str, body: bytes, systems: Sequence[str] | None = None,
+               codes: Sequence[str] | None = None, lines_before: int | None = None) -> xarray.Dataset:
+    """:func:`read_obs2` of a header text and a body of whole epoch records (the file, or a run
+    of its epochs: :mod:`gnss_cli.io.obs_chunks`). ``lines_before``: file lines before
+    ``body`` (default: the header's), so that error messages name the file's line numbers."""
     attrs, types, file_system = _obs_header(header, name)
-    offset = header.count("\n")
-    buf, starts, lengths = split_lines(content[hdr_end:])
-    text_lines = content[hdr_end:].decode("ascii", errors="replace").replace("\r", "").split("\n")
+    offset = header.count("\n") if lines_before is None else lines_before
+    buf, starts, lengths = split_lines(body)
+    text_lines = body.decode("ascii", errors="replace").replace("\r", "").split("\n")
     if text_lines and text_lines[-1] == "":
         text_lines.pop()
     walk = _walk(text_lines, len(types), name, offset)
     check_epochs_increasing(np.asarray(walk.times_ns, dtype=np.int64), offset + np.asarray(walk.epoch_line) + 1, name)
-    if not content.endswith(b"\n") and walk.first_line and len(text_lines) > walk.first_line[-1] and text_lines[-1].strip():
+    if not body.endswith(b"\n") and walk.first_line and len(text_lines) > walk.first_line[-1] and text_lines[-1].strip():
         check_last_value_complete(len(text_lines[-1]), 0, offset + len(text_lines), name)
     first, sv, epoch = _records(walk, len(types), file_system, name, offset)
     if first.size:

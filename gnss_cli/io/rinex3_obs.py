@@ -44,7 +44,7 @@ from gnss_cli.io.fixed_width import (
 from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_obs_header, validate_systems
 
-__all__ = ["read_obs3"]
+__all__ = ["read_obs3", "parse_obs3"]
 
 _FIELD_WIDTH = 16
 """Width of one observation (F14.3 value + LLI + SSI), characters."""
@@ -196,15 +196,32 @@ def read_obs3(
     >>> float(obs["C1C"].sel(sv="G02").values[0])
     21534747.83
     """
-    systems, codes = _validate_selection(systems, codes)
+    _validate_selection(systems, codes)
     name, content, hdr_end, header = read_header(path)
+    return parse_obs3(name, header, content[hdr_end:], systems, codes, pseudorange_only=pseudorange_only)
+
+
+def parse_obs3(
+    name: str,
+    header: str,
+    body: bytes,
+    systems: Sequence[str] | None = None,
+    codes: Sequence[str] | None = None,
+    *,
+    pseudorange_only: bool = False,
+    lines_before: int | None = None,
+) -> xarray.Dataset:
+    """:func:`read_obs3` of a header text and a body of whole epoch records (the file, or a run
+    of its epochs: :mod:`gnss_cli.io.obs_chunks`). ``lines_before``: file lines before
+    ``body`` (default: the header's), so that error messages name the file's line numbers."""
+    systems, codes = _validate_selection(systems, codes)
     attrs, obs_types = read_obs_header(header, name)
     chosen = _select_codes(obs_types, systems, codes, pseudorange_only)
     if not chosen:
         raise RinexFormatError(
             f"{name}: none of the systems {systems} in the file (it has {''.join(obs_types)})"
         )
-    lines = _body_lines(content[hdr_end:], header.count("\n"))
+    lines = _body_lines(body, header.count("\n") if lines_before is None else lines_before)
     owner, times = _epochs(lines, name)
     data_idx, sv_code, sys_code = _data_lines(lines, owner, times.flag, chosen, name)
     _check_record_lengths(lines, data_idx, sys_code, obs_types, name)

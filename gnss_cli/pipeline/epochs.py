@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,13 +17,10 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
-from gnss_cli.constants import C_M_S, FREQ_B1I_HZ, FREQ_L1_HZ
+from gnss_cli.constants import C_M_S
 from gnss_cli.errors import RinexFormatError
 from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
-from gnss_cli.gnss.ephemeris import KeplerEphemeris
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
-from gnss_cli.gnss.glonass import GlonassEphemeris, glonass_clock_s, glonass_states, select_glonass_ephemeris
-from gnss_cli.gnss.multi_gnss import ephemeris_for_system, select_system_ephemeris, system_states
 from gnss_cli.gnss.observables import (
     DEFAULT_SECOND_SIGNAL_PRIORITY,
     DEFAULT_SIGNAL_PRIORITY,
@@ -37,82 +34,15 @@ from gnss_cli.gnss.observables import (
 from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
 from gnss_cli.gnss.time import gps_s2datetime
-from gnss_cli.gnss.weights import ephemeris_sigma_m
 from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
+from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
 from gnss_cli.pipeline.results import EpochData
 
-__all__ = ["load_epochs"]
+__all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
+           "EpochSetup", "Coverage"]
 
 F64 = NDArray[np.float64]
 _COMMON_SPAN_MARGIN_S = 4 * 3600.0  # observations this far outside the ephemerides' toe span share no time
-
-
-class _GlonassRecords:
-    """GLONASS broadcast records of the run: state-vector integration, FDMA frequencies."""
-
-    def __init__(self, eph: GlonassEphemeris) -> None:
-        self.eph = eph
-        self.freq = eph.g1_frequency_hz()
-
-    def select(self, sv: NDArray[np.str_], t: F64, healthy_only: bool) -> NDArray[np.intp]:
-        return select_glonass_ephemeris(self.eph, sv, t, healthy_only=healthy_only)
-
-    def states(self, i: NDArray[np.intp], t: F64) -> SatelliteStates:
-        return glonass_states(self.eph, i, t)
-
-    def clock_s(self, i: NDArray[np.intp], t: F64) -> F64:
-        return glonass_clock_s(self.eph, i, t)
-
-    def iono_scale(self, i: NDArray[np.intp]) -> F64:
-        return (FREQ_L1_HZ / self.freq[np.where(i >= 0, i, 0)]) ** 2
-
-    def sigma_m(self, i: NDArray[np.intp]) -> F64:
-        return ephemeris_sigma_m("R", np.full(i.shape, np.nan))
-
-    def delays(self, i: NDArray[np.intp]) -> dict[str, object]:
-        return {"tgd_s": np.zeros(i.shape), "glonass_channel": self.eph.freq_num[i]}
-
-
-class _KeplerRecords:
-    """Keplerian broadcast records of one system (G, E, C, J)."""
-
-    def __init__(self, eph: KeplerEphemeris, system: str) -> None:
-        self.eph = eph
-        self.system = system
-        self.factor = (FREQ_L1_HZ / FREQ_B1I_HZ) ** 2 if system == "C" else 1.0
-
-    def select(self, sv: NDArray[np.str_], t: F64, healthy_only: bool) -> NDArray[np.intp]:
-        return select_system_ephemeris(self.eph, sv, t, self.system, healthy_only=healthy_only)
-
-    def states(self, i: NDArray[np.intp], t: F64) -> SatelliteStates:
-        return system_states(self.eph, i, t, self.system)
-
-    def clock_s(self, i: NDArray[np.intp], t: F64) -> F64:
-        return system_states(self.eph, i, t, self.system, clock_only=True).clock_s
-
-    def iono_scale(self, i: NDArray[np.intp]) -> F64:
-        return np.full(i.shape, self.factor)
-
-    def sigma_m(self, i: NDArray[np.intp]) -> F64:
-        e = self.eph
-        return ephemeris_sigma_m(self.system, e.ura_m[np.where(i >= 0, i, 0)] if e.ura_m is not None else np.full(i.shape, np.nan))
-
-    def delays(self, i: NDArray[np.intp]) -> dict[str, object]:
-        e = self.eph
-        return {
-            "tgd_s": e.tgd_s[i],
-            "tgd2_s": None if e.tgd2_s is None else e.tgd2_s[i],
-            "fnav": None if e.fnav is None else e.fnav[i],
-        }
-
-
-def _system_records(nav: xr.Dataset, system: str) -> tuple[_GlonassRecords | _KeplerRecords | None, F64]:
-    """The broadcast records of ``system`` (None when there are none) and their ``toe`` (s, GPS)."""
-    if system == "R":
-        geph = GlonassEphemeris.from_dataset(nav)
-        return (_GlonassRecords(geph) if len(geph) else None), geph.toe_gps_s
-    keph = ephemeris_for_system(nav, system)
-    return (_KeplerRecords(keph, system) if len(keph) else None), keph.toe_gps_s
 
 
 @dataclass
@@ -142,7 +72,7 @@ class _SatelliteArrays:
         )
 
 
-def _fill_system(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecords, system: str,
+def _fill_system(out: _SatelliteArrays, records: GlonassRecords | KeplerRecords, system: str,
                  prs: Pseudoranges, prs2: Pseudoranges | None, cols: NDArray[np.intp],
                  have_obs: NDArray[np.bool_], healthy_only: bool) -> None:
     """Satellite states of one system's observations, at ``t - P/c`` moved by ``-dt_sv`` along the velocity."""
@@ -169,7 +99,7 @@ def _fill_system(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecord
 _DRIFT_STEP_S = 1.0  # forward difference of the broadcast clock: af2 and relativistic curvature < 1e-15 s/s
 
 
-def _fill_rates(out: _SatelliteArrays, records: _GlonassRecords | _KeplerRecords, system: str, code: NDArray[np.str_],
+def _fill_rates(out: _SatelliteArrays, records: GlonassRecords | KeplerRecords, system: str, code: NDArray[np.str_],
                 where: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]], t_tx: F64, st: SatelliteStates) -> None:
     """Satellite velocity (m/s), clock drift (s/s, forward difference of the broadcast clock with its
     relativistic term) and the carrier frequency (Hz; GLONASS per channel) of each chosen code."""
@@ -202,42 +132,6 @@ def _systems_with_data(obs: xr.Dataset, nav: xr.Dataset, obs_path: str | Path, n
             f"(has {','.join(sorted(in_obs)) or 'none'}) and in the navigation files (have {','.join(sorted(in_nav)) or 'none'})"
         )
     return systems
-
-
-def _check_coverage(arrays: _SatelliteArrays, prs: Pseudoranges, have_obs: NDArray[np.bool_], toe_span: tuple[float, float],
-                    systems: list[str], obs_path: str | Path, nav_name: str, warnings: list[str]) -> None:
-    """Raise when the ephemerides do not cover the observations; warn about satellites without one."""
-    t = prs.time_gps_s
-    toe_lo, toe_hi = toe_span
-    if not np.isfinite(toe_lo):
-        raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
-    if t.max() < toe_lo - _COMMON_SPAN_MARGIN_S or t.min() > toe_hi + _COMMON_SPAN_MARGIN_S:
-        raise RinexFormatError(
-            f"{nav_name}: no common time span with {Path(obs_path).name} "
-            f"(observations {_span_text(t.min(), t.max())}, ephemerides {_span_text(toe_lo, toe_hi)} GPST)"
-        )
-    if not arrays.usable.any():
-        raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {Path(obs_path).name}")
-    missing = sorted(set(prs.sv[have_obs.any(axis=0) & ~arrays.usable.any(axis=0)]))
-    if missing:
-        warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
-
-
-def _iono_free_usable(arrays: _SatelliteArrays, prs: Pseudoranges, systems: list[str],
-                      priority2: dict[str, tuple[str, ...]], obs_path: str | Path, warnings: list[str]) -> NDArray[np.bool_]:
-    """Usable observations with a second-frequency pseudorange; raises when there is none."""
-    usable = arrays.usable
-    dual = usable & np.isfinite(arrays.p_if)
-    if not dual.any():
-        second = ", ".join(c for c in codes_for(systems, priority2))
-        raise RinexFormatError(
-            f"{Path(obs_path).name}: no satellite has a second-frequency pseudorange for the iono-free combination "
-            f"(codes {second}); use --iono klobuchar"
-        )
-    dropped = sorted(set(prs.sv[usable.any(axis=0) & ~dual.any(axis=0)]))
-    if dropped:
-        warnings.append(f"iono-free: {len(dropped)} satellite(s) without a usable second frequency not used: {' '.join(dropped)}")
-    return dual
 
 
 def snr_code(code: str) -> str:
@@ -298,11 +192,171 @@ def _klobuchar(nav, config: ProcessingConfig, nav_name: str, warnings: list[str]
     return klob
 
 
+@dataclass
+class EpochSetup:
+    """What every part of a run shares: the signal choice and the navigation data
+    (:func:`signal_setup`, then :meth:`read_navigation`)."""
+
+    obs_path: str
+    nav_paths: tuple[str, ...]
+    config: ProcessingConfig
+    explicit: bool
+    systems: list[str]
+    priority: dict[str, tuple[str, ...]]
+    priority2: dict[str, tuple[str, ...]]
+    codes: list[str]
+    nav: xr.Dataset | None = None
+    nav_name: str = ""
+    klobuchar: tuple[F64, F64] | None = None
+    klobuchar_warnings: tuple[str, ...] = ()
+    leap_seconds: float | None = None
+    _records: dict[str, tuple[GlonassRecords | KeplerRecords | None, F64]] = field(default_factory=dict)
+
+    @property
+    def iono_free(self) -> bool:
+        return self.config.iono == "iono-free"
+
+    def read_navigation(self) -> None:
+        """Read the navigation files (records, Klobuchar coefficients, leap seconds)."""
+        self.nav = read_nav(list(self.nav_paths), systems=self.systems)
+        self.nav_name = ",".join(Path(p).name for p in self.nav_paths)
+        warnings: list[str] = []
+        self.klobuchar = _klobuchar(self.nav, self.config, self.nav_name, warnings)
+        self.klobuchar_warnings = tuple(warnings)
+        self.leap_seconds = nav_leap_seconds(self.nav_paths)
+
+    def records(self, system: str) -> tuple[GlonassRecords | KeplerRecords | None, F64]:
+        if system not in self._records:
+            assert self.nav is not None
+            self._records[system] = system_records(self.nav, system)
+        return self._records[system]
+
+
+def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig) -> EpochSetup:
+    """The systems and the observation codes to read (pseudoranges, C/N0, Doppler, second frequency)."""
+    explicit = bool(config.systems)
+    systems = list(config.systems) if explicit else list(SYSTEM_LETTERS)
+    priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
+    priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
+    codes = codes_for(systems, priority)
+    codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
+    if config.iono == "iono-free":
+        codes += [c for c in codes_for(systems, priority2) if c not in codes]
+    return EpochSetup(str(obs_path), tuple(str(p) for p in nav_paths), config, explicit, systems, priority, priority2, codes)
+
+
+@dataclass
+class Coverage:
+    """Per satellite of a part of the file: observed, with a usable ephemeris, usable after the
+    selection, usable in the end (iono-free: with a second frequency); and the time span.
+    Parts of one file on one satellite axis combine with :meth:`merge`."""
+
+    have_obs: NDArray[np.bool_]
+    eph_usable: NDArray[np.bool_]
+    selected: NDArray[np.bool_]
+    usable: NDArray[np.bool_]
+    t_min_s: float
+    t_max_s: float
+
+    def merge(self, other: Coverage) -> Coverage:
+        return Coverage(self.have_obs | other.have_obs, self.eph_usable | other.eph_usable,
+                        self.selected | other.selected, self.usable | other.usable,
+                        min(self.t_min_s, other.t_min_s), max(self.t_max_s, other.t_max_s))
+
+
+def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems: Sequence[str]) -> tuple[EpochData, Coverage]:
+    """The :class:`EpochData` of ``obs`` on the satellite axis of ``prs`` (without systems and
+    warnings: :func:`finish_epochs`), and its :class:`Coverage`."""
+    config = setup.config
+    prs2 = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority2), prs.sv) if setup.iono_free else None
+    t = prs.time_gps_s
+    sys_of = np.array([sv[0] for sv in prs.sv])
+    doppler_hz = select_dopplers(obs, prs)
+    arrays = _SatelliteArrays.empty(t.size, prs.sv.size, rates=doppler_hz is not None)
+    have_obs = np.isfinite(prs.pr_m)
+    for system in systems:
+        cols = np.flatnonzero(sys_of == system)
+        records = setup.records(system)[0] if cols.size else None
+        if records is not None:
+            _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
+    selected, snr, unused = _selection(obs, prs, arrays.usable, config)
+    usable = selected & np.isfinite(arrays.p_if) if setup.iono_free else selected
+    if setup.iono_free:
+        pr_corr = np.where(usable, arrays.p_if + C_M_S * arrays.clk, np.nan)
+    else:
+        pr_corr = np.where(usable, prs.pr_m + C_M_S * (arrays.clk - arrays.tgd), np.nan)
+    data = EpochData(
+        time_gps_s=t, sv=prs.sv, pr_corrected_m=pr_corr, sat_ecef_m=arrays.sat, ura_m=arrays.ura, usable=usable,
+        klobuchar=setup.klobuchar, approx_ecef_m=_approx_position(obs),
+        marker_name=str(obs.attrs.get("marker_name", "") or ""), obs_path=setup.obs_path, nav_paths=setup.nav_paths,
+        iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused, leap_seconds=setup.leap_seconds,
+        **_rates(arrays, doppler_hz, usable),
+    )
+    cov = Coverage(have_obs.any(axis=0), arrays.usable.any(axis=0), selected.any(axis=0), usable.any(axis=0),
+                   float(t.min()), float(t.max()))
+    return data, cov
+
+
+def file_warnings(setup: EpochSetup, sv: NDArray[np.str_], systems: Sequence[str], cov: Coverage) -> list[str]:
+    """The run's warnings for the whole file's :class:`Coverage`; raises when the ephemerides
+    do not cover the observations or (iono-free) no satellite has a second frequency."""
+    assert setup.nav is not None
+    warnings: list[str] = list(setup.nav.attrs.get("rejected_records", []))
+    nav_name, obs_name = setup.nav_name, Path(setup.obs_path).name
+    sys_of = np.array([s[0] for s in sv])
+    toe_lo, toe_hi = np.inf, -np.inf
+    for system in systems:
+        if not (sys_of == system).any():
+            continue
+        records, toe = setup.records(system)
+        if records is None:
+            name, what = ("GLONASS", "GLONASS") if system == "R" else (system, f"system {system}")
+            warnings.append(f"{nav_name}: no {name} ephemeris; {what} not used")
+            continue
+        toe_lo, toe_hi = min(toe_lo, toe.min()), max(toe_hi, toe.max())
+    if not np.isfinite(toe_lo):
+        raise RinexFormatError(f"{nav_name}: no ephemeris records for {','.join(systems)}")
+    if cov.t_max_s < toe_lo - _COMMON_SPAN_MARGIN_S or cov.t_min_s > toe_hi + _COMMON_SPAN_MARGIN_S:
+        raise RinexFormatError(
+            f"{nav_name}: no common time span with {obs_name} "
+            f"(observations {_span_text(cov.t_min_s, cov.t_max_s)}, ephemerides {_span_text(toe_lo, toe_hi)} GPST)"
+        )
+    if not cov.eph_usable.any():
+        raise RinexFormatError(f"{nav_name}: no usable ephemeris for any satellite observed in {obs_name}")
+    missing = sorted(set(sv[cov.have_obs & ~cov.eph_usable]))
+    if missing:
+        warnings.append(f"no usable ephemeris for {len(missing)} observed satellite(s): {' '.join(missing)}")
+    if setup.iono_free:
+        if not cov.usable.any():
+            second = ", ".join(c for c in codes_for(systems, setup.priority2))
+            raise RinexFormatError(
+                f"{obs_name}: no satellite has a second-frequency pseudorange for the iono-free combination "
+                f"(codes {second}); use --iono klobuchar"
+            )
+        dropped = sorted(set(sv[cov.selected & ~cov.usable]))
+        if dropped:
+            warnings.append(f"iono-free: {len(dropped)} satellite(s) without a usable second frequency not used: {' '.join(dropped)}")
+    return warnings + list(setup.klobuchar_warnings)
+
+
+def used_systems(sv: NDArray[np.str_], systems: Sequence[str], cov: Coverage) -> tuple[str, ...]:
+    """The systems with a usable observation, in clock-column order."""
+    sys_of = np.array([s[0] for s in sv])
+    return tuple(sy for sy in systems if cov.usable[sys_of == sy].any())
+
+
+def finish_epochs(data: EpochData, used: tuple[str, ...], warnings: Sequence[str] = ()) -> EpochData:
+    """``data`` with its systems (clock columns), every satellite's system index, and the warnings."""
+    index = np.array([used.index(s[0]) if s[0] in used else 0 for s in data.sv], dtype=np.int64)
+    return replace(data, systems=used, system_index=index, warnings=tuple(warnings))
+
+
 def load_epochs(
     obs_path: str | Path,
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     timings: dict[str, float] | None = None,
+    given: list[xr.Dataset] | None = None,
 ) -> EpochData:
     """Read and validate the files, select pseudoranges, and compute satellite states.
 
@@ -317,6 +371,9 @@ def load_epochs(
     neglected acceleration term is below 1e-6 m).
 
     ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
+    ``given``: the observation file already read (``read_obs(obs_path, systems, codes)`` with
+    :func:`signal_setup`'s systems and codes) as a one-element list, emptied here so that the
+    dataset is freed once used; else the file is read here.
 
     Raises
     ------
@@ -325,79 +382,22 @@ def load_epochs(
         system in both files, no dual-frequency pseudorange in iono-free mode).
     """
     clock = time.perf_counter()
-    explicit = bool(config.systems)
-    systems = list(config.systems) if explicit else list(SYSTEM_LETTERS)
-    iono_free = config.iono == "iono-free"
-    priority = {**DEFAULT_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals.items()}}
-    priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
-    codes = codes_for(systems, priority)
-    codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
-    if iono_free:
-        codes += [c for c in codes_for(systems, priority2) if c not in codes]
-    obs = read_obs(obs_path, systems=systems, codes=codes)
-    nav = read_nav(list(nav_paths), systems=systems)
-    nav_name = ",".join(Path(p).name for p in nav_paths)
-    warnings: list[str] = list(nav.attrs.get("rejected_records", []))
-    if not explicit:
-        systems = _systems_with_data(obs, nav, obs_path, nav_name)
+    setup = signal_setup(obs_path, nav_paths, config)
+    obs = read_obs(obs_path, systems=setup.systems, codes=setup.codes) if not given else given.pop()
+    setup.read_navigation()
+    assert setup.nav is not None
+    systems = setup.systems if setup.explicit else _systems_with_data(obs, setup.nav, obs_path, setup.nav_name)
     if timings is not None:
         timings["read"] = time.perf_counter() - clock
         clock = time.perf_counter()
-
-    prs = select_pseudoranges(obs, systems, priority)
+    prs = select_pseudoranges(obs, systems, setup.priority)
     if prs.sv.size == 0:
-        raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, priority))})")
-    prs2 = align_pseudoranges(select_pseudoranges(obs, systems, priority2), prs.sv) if iono_free else None
-    t = prs.time_gps_s
-    sys_of = np.array([sv[0] for sv in prs.sv])
-    doppler_hz = select_dopplers(obs, prs)
-    arrays = _SatelliteArrays.empty(t.size, prs.sv.size, rates=doppler_hz is not None)
-    have_obs = np.isfinite(prs.pr_m)
-    toe_lo, toe_hi = np.inf, -np.inf
-    for system in systems:
-        cols = np.flatnonzero(sys_of == system)
-        if cols.size == 0:
-            continue
-        records, toe = _system_records(nav, system)
-        if records is None:
-            name, what = ("GLONASS", "GLONASS") if system == "R" else (system, f"system {system}")
-            warnings.append(f"{nav_name}: no {name} ephemeris; {what} not used")
-            continue
-        toe_lo, toe_hi = min(toe_lo, toe.min()), max(toe_hi, toe.max())
-        _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
-
-    _check_coverage(arrays, prs, have_obs, (toe_lo, toe_hi), systems, obs_path, nav_name, warnings)
-    usable, snr, unused = _selection(obs, prs, arrays.usable, config)
-    if iono_free:
-        usable = _iono_free_usable(replace(arrays, usable=usable), prs, systems, priority2, obs_path, warnings)
-    used_systems = tuple(sy for sy in systems if usable[:, sys_of == sy].any())
-    system_index = np.array([used_systems.index(x) if x in used_systems else 0 for x in sys_of], dtype=np.int64)
-    if iono_free:
-        pr_corr = np.where(usable, arrays.p_if + C_M_S * arrays.clk, np.nan)
-    else:
-        pr_corr = np.where(usable, prs.pr_m + C_M_S * (arrays.clk - arrays.tgd), np.nan)
-    klob = _klobuchar(nav, config, nav_name, warnings)
+        raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, setup.priority))})")
+    data, cov = build_epochs(obs, prs, setup, systems)
+    warnings = file_warnings(setup, prs.sv, systems, cov)
     if timings is not None:
         timings["orbits"] = time.perf_counter() - clock
-    return EpochData(
-        time_gps_s=t,
-        sv=prs.sv,
-        pr_corrected_m=pr_corr,
-        sat_ecef_m=arrays.sat,
-        ura_m=arrays.ura,
-        usable=usable,
-        klobuchar=klob,
-        approx_ecef_m=_approx_position(obs),
-        marker_name=str(obs.attrs.get("marker_name", "") or ""),
-        obs_path=str(obs_path),
-        nav_paths=tuple(str(p) for p in nav_paths),
-        warnings=tuple(warnings),
-        systems=used_systems,
-        system_index=system_index,
-        iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused,
-        leap_seconds=nav_leap_seconds(nav_paths),
-        **_rates(arrays, doppler_hz, usable),
-    )
+    return finish_epochs(data, used_systems(prs.sv, systems, cov), warnings)
 
 
 def _rates(arrays: _SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:

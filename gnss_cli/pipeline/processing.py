@@ -7,6 +7,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import xarray as xr
+
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
 from gnss_cli.pipeline.kalman import run_kalman
@@ -15,7 +17,7 @@ from gnss_cli.pipeline.smoothing import smooth
 from gnss_cli.pipeline.snapshot import run
 from gnss_cli.pipeline.velocity import solve_velocity
 
-__all__ = ["process"]
+__all__ = ["process", "with_velocity"]
 
 
 def process(
@@ -23,6 +25,7 @@ def process(
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     progress: Progress | None = None,
+    obs: list[xr.Dataset] | None = None,
 ) -> RunResult:
     """Read, validate and solve every epoch with every configured method.
 
@@ -33,6 +36,9 @@ def process(
     ``"auto"`` on a file with Doppler) the measurement-domain solution of
     :func:`~gnss_cli.pipeline.doppler_smoothing.doppler_smooth`; ``RunResult.models`` then holds one
     :class:`~gnss_cli.pipeline.results.WindowModel` per window.
+
+    ``obs``: the observation file already read (:func:`~gnss_cli.io.rinex.read_obs`) in a
+    one-element list, emptied when it is used (the dataset is then freed); else it is read here.
 
     ``kf`` (:func:`~gnss_cli.pipeline.kalman.run_kalman`) runs on the WLS solution (solved
     for it when not asked for). With Doppler in the observation file, every other method's
@@ -49,18 +55,18 @@ def process(
         No epoch could be solved by any method.
     """
     if "kf" not in config.methods:
-        return _with_velocity(_process_snapshot(obs_path, nav_paths, config, progress), config)
+        return with_velocity(_process_snapshot(obs_path, nav_paths, config, progress, obs), config)
     others = tuple(m for m in config.methods if m != "kf")
     snapshot = others + (() if "wls" in others else ("wls",))
-    result = _process_snapshot(obs_path, nav_paths, replace(config, methods=snapshot), progress)
+    result = _process_snapshot(obs_path, nav_paths, replace(config, methods=snapshot), progress, obs)
     if progress is not None:
         progress(f"kf: Kalman filter ({config.kalman.model}, smoother {config.kalman.smoother})", 0.0)
     kf = run_kalman(result.epochs, result.solutions["wls"], config)
     solutions = {m: (kf if m == "kf" else result.solutions[m]) for m in config.methods}
-    return _with_velocity(replace(result, solutions=solutions), config)
+    return with_velocity(replace(result, solutions=solutions), config)
 
 
-def _with_velocity(result: RunResult, config: ProcessingConfig) -> RunResult:
+def with_velocity(result: RunResult, config: ProcessingConfig) -> RunResult:
     """Every solution without a velocity gets the Doppler velocity at its fixes (file with Doppler)."""
     if result.epochs.range_rate_m_s is None:
         return result
@@ -76,17 +82,17 @@ def _with_velocity(result: RunResult, config: ProcessingConfig) -> RunResult:
 
 
 def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
-                      progress: Progress | None) -> RunResult:
+                      progress: Progress | None, obs: list[xr.Dataset] | None = None) -> RunResult:
     """The snapshot methods, and the stls smoothing with ``lag >= 1``."""
     lag = config.smoothing.lag
     if lag == 0:
-        return run(obs_path, nav_paths, config, progress=progress)
+        return run(obs_path, nav_paths, config, progress=progress, obs=obs)
     if "stls" not in config.methods:
         raise ConfigError(f"smoothing.lag = {lag} needs the stls method (the smoothed rows are the stls rows)")
     config.smoothing.validated()
     others = tuple(m for m in config.methods if m != "stls")
     snapshot = replace(config, methods=others + (() if "wls" in others else ("wls",)))
-    result = run(obs_path, nav_paths, snapshot, progress=progress)
+    result = run(obs_path, nav_paths, snapshot, progress=progress, obs=obs)
     if progress is not None:
         progress(f"stls: smoothing, lag {lag}", 0.0)
     has_doppler = result.epochs.range_rate_m_s is not None and config.kalman.doppler

@@ -56,7 +56,8 @@ from gnss_cli.pipeline.results import (
 )
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["smooth", "finish_smoothing", "BATCH_MAX_EPOCHS", "FIXED_KERNELS"]
+__all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "BATCH_MAX_EPOCHS",
+           "FIXED_KERNELS"]
 
 F64 = NDArray[np.float64]
 
@@ -68,7 +69,7 @@ _OK, _FALLBACK = EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value
 
 
 @dataclass(slots=True)
-class _Segment:
+class Segment:
     """A run of epochs in its local ENU frame."""
 
     epochs: NDArray[np.intp]
@@ -79,7 +80,7 @@ class _Segment:
 
 
 @dataclass(slots=True)
-class _Job:
+class WindowJob:
     """One window of a segment and the epochs whose estimate it supplies (``lo:hi``, segment-local)."""
 
     segment: int
@@ -106,7 +107,7 @@ def _failed(message: str) -> _Fit:
     return _Fit(None, None, None, None, message, None)
 
 
-def _fit_group(segs: list[_Segment], jobs: list[_Job], model: str, lag: int, tol: float,
+def _fit_group(segs: list[Segment], jobs: list[WindowJob], model: str, lag: int, tol: float,
                max_iter: int) -> list[_Fit]:
     """Fixed or identified shared kernels for windows of equal length, all at once."""
     n_t = jobs[0].b - jobs[0].a
@@ -134,7 +135,7 @@ def _fit_group(segs: list[_Segment], jobs: list[_Job], model: str, lag: int, tol
     return out
 
 
-def _fit_single(seg: _Segment, job: _Job, opts: SmoothingConfig) -> _Fit:
+def _fit_single(seg: Segment, job: WindowJob, opts: SmoothingConfig) -> _Fit:
     """One window with the banded per-series path (full kernels and long windows)."""
     w, cov = seg.w[job.a : job.b], seg.cov[job.a : job.b]
     try:
@@ -156,29 +157,35 @@ def _fit_single(seg: _Segment, job: _Job, opts: SmoothingConfig) -> _Fit:
     return _Fit(w_hat, kernel_record(ker), float(m), st, message, basis)
 
 
+def segment_frame(wls: MethodSolution, epochs: NDArray[np.intp], origin: F64) -> Segment:
+    """The epochs ``epochs`` of a segment in the ENU frame at ``origin`` (its first solved fix, m)."""
+    lat, lon, _ = ecef2geodetic(origin)
+    rot = ecef2enu_rotation(float(lat), float(lon))
+    cov_enu = np.einsum("ij,tjk,lk->til", rot, wls.cov_m2[epochs, :3, :3], rot)
+    # einsum, not a (T, 3) @ (3, 3) matmul: BLAS rounds a row differently with the number of rows,
+    # and a part of a file must give the rows of the whole file (pipeline/smoothing_stream.py)
+    return Segment(epochs, origin, rot, np.einsum("tj,ij->ti", wls.x_ecef_m[epochs] - origin, rot),
+                   0.5 * (cov_enu + cov_enu.transpose(0, 2, 1)))
+
+
 def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
-              opts: SmoothingConfig, step: int | None, gap_factor: float) -> tuple[list[_Segment], list[_Job]]:
+              opts: SmoothingConfig, step: int | None, gap_factor: float) -> tuple[list[Segment], list[WindowJob]]:
     """Segments in their ENU frames and their windows; epochs of too short segments fall back to WLS."""
     need = opts.min_window()
-    segs: list[_Segment] = []
-    jobs: list[_Job] = []
+    segs: list[Segment] = []
+    jobs: list[WindowJob] = []
     for seg in segments(data.time_gps_s, solved, gap_factor):
         if seg.size < need:
             status[seg] = _FALLBACK
             continue
-        origin = wls.x_ecef_m[seg[0]]
-        lat, lon, _ = ecef2geodetic(origin)
-        rot = ecef2enu_rotation(float(lat), float(lon))
-        cov_enu = np.einsum("ij,tjk,lk->til", rot, wls.cov_m2[seg, :3, :3], rot)
-        segs.append(_Segment(seg, origin, rot, (wls.x_ecef_m[seg] - origin) @ rot.T,
-                             0.5 * (cov_enu + cov_enu.transpose(0, 2, 1))))
+        segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
         bounds, owner = windows(seg.size, int(opts.window), step)
         edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")  # owner is non-decreasing
-        jobs += [_Job(len(segs) - 1, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)]
+        jobs += [WindowJob(len(segs) - 1, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)]
     return segs, jobs
 
 
-def _fit_all(segs: list[_Segment], jobs: list[_Job], opts: SmoothingConfig) -> list[_Fit]:
+def _fit_all(segs: list[Segment], jobs: list[WindowJob], opts: SmoothingConfig) -> list[_Fit]:
     """Every window's fit: equal-length shared/fixed windows batched, the others one at a time."""
     fits: list[_Fit | None] = [None] * len(jobs)
     by_length: dict[int, list[int]] = {}
@@ -258,10 +265,22 @@ def smooth(
         raise UsageError(f"wls: expected positions of shape ({T}, 3), received {wls.x_ecef_m.shape}")
     solved = (wls.status == _OK) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
-    x_s = wls.x_ecef_m.copy()
     status = wls.status.astype("<U24").copy()
-    smoothed = np.zeros(T, dtype=bool)
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
+    return smooth_windows(data, wls, config, segs, jobs, status, method)
+
+
+def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
+                   jobs: list[WindowJob], status: NDArray[np.str_], method: str = "stls",
+                   segment_ids: list[int] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+    """Fit the windows ``jobs`` of the segments ``segs`` and finish the smoothed solution of
+    :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
+    ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
+    (default: its index)."""
+    opts = config.smoothing
+    T = data.time_gps_s.size
+    x_s = wls.x_ecef_m.copy()
+    smoothed = np.zeros(T, dtype=bool)
     fits = _fit_all(segs, jobs, opts)
 
     models: list[WindowModel] = []
@@ -270,7 +289,8 @@ def smooth(
         seg = segs[job.segment]
         mine = seg.epochs[job.lo : job.hi]
         models.append(WindowModel(
-            segment=job.segment, window=job.window, start_time_gps_s=float(data.time_gps_s[seg.epochs[job.a]]),
+            segment=job.segment if segment_ids is None else segment_ids[job.segment], window=job.window,
+            start_time_gps_s=float(data.time_gps_s[seg.epochs[job.a]]),
             end_time_gps_s=float(data.time_gps_s[seg.epochs[job.b - 1]]), n_epochs=int(job.b - job.a),
             model=opts.model, structure=opts.structure, kernel=fit.kernel, misfit=fit.misfit,
             status=window_status_word(fit.status), message=fit.message,
@@ -278,7 +298,7 @@ def smooth(
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:
             continue
-        x_s[mine] = seg.origin + fit.w_hat[job.lo - job.a : job.hi - job.a] @ seg.rot
+        x_s[mine] = seg.origin + np.einsum("tj,ji->ti", fit.w_hat[job.lo - job.a : job.hi - job.a], seg.rot)
         smoothed[mine] = True
         if fit.basis is not None and fit.basis.shape[2] > 0:
             dop_windows.append((seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis), mine))

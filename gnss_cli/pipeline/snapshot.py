@@ -28,6 +28,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
@@ -41,7 +42,7 @@ from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
 from gnss_cli.solvers.robust import IrlsResult, irls_batch
 
-__all__ = ["solve_method", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
+__all__ = ["solve_method", "solve_methods", "status_counts", "status_summary", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
 
 F64 = NDArray[np.float64]
 
@@ -319,8 +320,11 @@ def run(
     nav_paths: Sequence[str | Path],
     config: ProcessingConfig,
     progress: Progress | None = None,
+    obs: list[xr.Dataset] | None = None,
 ) -> RunResult:
-    """Read, validate and solve every epoch with every configured method.
+    """Read, validate and solve every epoch with every configured method (``obs``: the
+    observation file already read, a one-element list :func:`~gnss_cli.pipeline.epochs.load_epochs`
+    empties; else it is read here).
 
     Raises
     ------
@@ -331,7 +335,15 @@ def run(
     """
     if progress:
         progress("reading", 0.0)
-    data = load_epochs(obs_path, nav_paths, config)
+    data = load_epochs(obs_path, nav_paths, config, given=obs)
+    solutions = solve_methods(data, config, progress)
+    if not any((s.status == EpochStatus.OK).any() for s in solutions.values()):
+        raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({status_summary(solutions)})")
+    return RunResult(data, solutions)
+
+
+def solve_methods(data: EpochData, config: ProcessingConfig, progress: Progress | None = None) -> dict[str, MethodSolution]:
+    """Every method of ``config.methods`` on ``data`` (the others linearized at the WLS fix)."""
     solutions: dict[str, MethodSolution] = {}
     base: MethodSolution | None = None
     for m in config.methods:
@@ -342,14 +354,19 @@ def run(
         solutions[m] = solve_method(data, m, config, progress, linearization=base)
         if m == "wls":
             base = solutions[m]
-    if not any((s.status == EpochStatus.OK).any() for s in solutions.values()):
-        raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({_status_summary(solutions)})")
-    return RunResult(data, solutions)
+    return solutions
 
 
-def _status_summary(solutions: dict[str, MethodSolution]) -> str:
-    parts = []
+def status_counts(solutions: dict[str, MethodSolution]) -> dict[str, dict[str, int]]:
+    """Epochs per status word of every method."""
+    out: dict[str, dict[str, int]] = {}
     for m, s in solutions.items():
         words, counts = np.unique(s.status, return_counts=True)
-        parts.append(f"{m}: " + ", ".join(f"{c} {w}" for w, c in zip(words, counts)))
-    return "; ".join(parts)
+        out[m] = {str(w): int(c) for w, c in zip(words, counts)}
+    return out
+
+
+def status_summary(solutions: dict[str, MethodSolution] | dict[str, dict[str, int]]) -> str:
+    """``method: N word, ...; ...`` (the message of a run without a solved epoch)."""
+    counts = {m: (s if isinstance(s, dict) else status_counts({m: s})[m]) for m, s in solutions.items()}
+    return "; ".join(f"{m}: " + ", ".join(f"{c} {w}" for w, c in sorted(wc.items())) for m, wc in counts.items())

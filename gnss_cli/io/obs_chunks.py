@@ -1,0 +1,212 @@
+"""A RINEX observation file as a sequence of datasets of at most N epochs each.
+
+:func:`iter_obs_chunks` decompresses the file as it reads it (:func:`~gnss_cli.io.compression.iter_bytes`),
+cuts the body at epoch records and hands each run of ``max_epochs`` epoch records to the
+readers' parsers (:func:`~gnss_cli.io.rinex3_obs.parse_obs3`,
+:func:`~gnss_cli.io.rinex2_obs.parse_obs2`, with the header of the file and the file's line
+numbers in their messages), so that the memory of a reading does not grow with the file's
+length. Each dataset has the layout of :func:`~gnss_cli.io.rinex.read_obs` for its epochs;
+together they hold the epochs of ``read_obs`` of the whole file. (A satellite appears in the
+``sv`` axis of the chunks it is observed in.)
+
+RINEX 3/4 epoch records start with ``>``; RINEX 2 records are measured from their epoch
+line (satellite count, observation types per satellite). Where a RINEX 2 body cannot be cut
+(a line that is not an epoch line where one is expected) the rest of the file goes into one
+chunk, whose parser then reports the line.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from gnss_cli.errors import RinexFormatError
+from gnss_cli.io.compression import iter_bytes
+
+__all__ = ["iter_obs_chunks"]
+
+
+def _header(blocks: Iterator[bytes], name: str) -> tuple[str, bytearray]:
+    """The header text (through the ``END OF HEADER`` line) and the bytes read after it."""
+    buf = bytearray()
+    for block in blocks:
+        buf += block
+        pos = buf.find(b"END OF HEADER")
+        if pos >= 0:
+            nl = buf.find(b"\n", pos)
+            if nl >= 0 or len(buf) - pos > 200:
+                end = len(buf) if nl < 0 else nl + 1
+                return bytes(buf[:end]).decode("ascii", errors="replace"), buf[end:]
+    if not buf.strip():
+        raise RinexFormatError(f"{name}: empty file")
+    pos = buf.find(b"END OF HEADER")
+    if pos < 0:
+        raise RinexFormatError(f"{name}: no 'END OF HEADER' line (not a RINEX file, or truncated)")
+    return bytes(buf).decode("ascii", errors="replace"), bytearray()
+
+
+def _cut3(buf: bytearray, max_epochs: int) -> int | None:
+    """Offset of the (max_epochs + 1)-th epoch line ``>`` of a RINEX 3/4 body, None before it."""
+    arr = np.frombuffer(buf, dtype=np.uint8)
+    starts = np.flatnonzero((arr[:-1] == ord("\n")) & (arr[1:] == ord(">"))) + 1
+    if arr.size and arr[0] == ord(">"):
+        starts = np.concatenate(([0], starts))
+    return int(starts[max_epochs]) if starts.size > max_epochs else None
+
+
+class _Cut2:
+    """Where to cut a RINEX 2 body after ``max_epochs`` epoch records (observation or event)."""
+
+    def __init__(self, n_types: int) -> None:
+        self.n_types = n_types
+        self.stuck = False  # a line that is not an epoch line: no more cuts (the parser reports it)
+
+    def __call__(self, buf: bytearray, max_epochs: int) -> int | None:
+        from gnss_cli.io.rinex2_obs import record_line_count
+
+        if self.stuck:
+            return None
+        pos, epochs = 0, 0
+        while epochs < max_epochs:
+            nl = buf.find(b"\n", pos)
+            if nl < 0:
+                return None
+            line = bytes(buf[pos:nl]).decode("ascii", errors="replace").rstrip("\r")
+            count = record_line_count(line, self.n_types)
+            if count is None:
+                self.stuck = True
+                return None
+            for _ in range(count):
+                nl = buf.find(b"\n", pos)
+                if nl < 0:
+                    return None
+                pos = nl + 1
+            epochs += 1 if line.strip() else 0
+        return pos
+
+
+class _Runs:
+    """Parse the runs of epoch records in order; check that epochs increase across runs. The
+    last run is parsed together with the one before when it holds a single epoch: numpy takes
+    another summation order over an axis of length one, and a part of one epoch would get
+    other last bits than the same epoch in the whole file."""
+
+    def __init__(self, name: str, info: object, parse: Callable[[bytes, int], xr.Dataset], before: int) -> None:
+        self.name, self.info, self.parse = name, info, parse
+        self.before = before  # file lines before the next run
+        self.last: np.datetime64 | None = None
+        self.yielded = 0
+        self.held: tuple[bytes, int] | None = None  # a parsed run not yet handed out (body, first line)
+
+    def _parse(self, body: bytes, before: int) -> xr.Dataset | None:
+        try:
+            return self.parse(body, before)
+        except RinexFormatError as exc:
+            if "no observation records" in str(exc):  # none of the chosen systems in this run
+                return None
+            raise
+
+    def add(self, body: bytes, final: bool = False) -> Iterator[xr.Dataset]:
+        """Take the next run (``final``: the rest of the file) and hand out what is settled."""
+        before = self.before
+        self.before += body.count(b"\n")
+        if not final:
+            if self.held is not None:
+                yield from self._out(self._parse(*self.held), self.held[1])
+            self.held = (body, before)
+            return
+        ds = self._parse(body, before) if body.strip() else None
+        if self.held is not None:
+            held_body, held_before = self.held
+            self.held = None
+            if ds is not None and ds.sizes["time"] == 1:  # join the last epoch to the run before
+                yield from self._out(self._parse(held_body + body, held_before), held_before)
+                return
+            yield from self._out(self._parse(held_body, held_before), held_before)
+        yield from self._out(ds, before)
+
+    def _out(self, ds: xr.Dataset | None, before: int) -> Iterator[xr.Dataset]:
+        if ds is None or ds.sizes["time"] == 0:
+            return
+        t = ds["time"].values
+        if self.last is not None and t[0] <= self.last:
+            raise RinexFormatError(f"{self.name}: the epoch after line {before} is not later than the one before it "
+                                   f"({np.datetime_as_string(t[0], 's')})")
+        self.last, self.yielded = t[-1], self.yielded + 1
+        ds.attrs["filename"] = self.info.path.name  # type: ignore[attr-defined]
+        ds.attrs["rinex_version"] = self.info.version  # type: ignore[attr-defined]
+        yield ds
+
+
+def iter_obs_chunks(
+    path: str | os.PathLike[str],
+    systems: Sequence[str] | None = None,
+    codes: Sequence[str] | None = None,
+    max_epochs: int = 3600,
+) -> Iterator[xr.Dataset]:
+    """Read a RINEX 2/3/4 observation file in runs of at most ``max_epochs`` epoch records.
+
+    Parameters
+    ----------
+    path, systems, codes
+        As :func:`gnss_cli.io.rinex.read_obs` (validated the same way).
+    max_epochs : int
+        Epoch records per chunk (>= 1). A chunk with no record of ``systems`` is skipped.
+
+    Yields
+    ------
+    xarray.Dataset
+        ``read_obs``'s layout for the chunk's epochs, with the attributes ``filename`` and
+        ``rinex_version``.
+
+    Raises
+    ------
+    InputFileNotFoundError, RinexFormatError
+        As ``read_obs``; also when an epoch is not later than the last of the chunk before.
+    """
+    from gnss_cli.io.rinex import rinex_info
+
+    if max_epochs < 1:
+        raise RinexFormatError(f"max_epochs: expected an integer >= 1, received {max_epochs}")
+    info = rinex_info(path)
+    if info.kind != "obs":
+        raise RinexFormatError(f"{info.path}: is a RINEX navigation file, expected an observation file (OBS and NAV swapped?)")
+    name = Path(path).name
+    blocks = iter_bytes(path)
+    header, buf = _header(blocks, name)
+    if info.version < 3:
+        from gnss_cli.io.rinex2_obs import obs_type_count, parse_obs2
+
+        cut = _Cut2(obs_type_count(header, name))
+
+        def parse(body: bytes, before: int) -> xr.Dataset:
+            return parse_obs2(name, header, body, list(systems) if systems else None,
+                              list(codes) if codes else None, lines_before=before)
+    else:
+        from gnss_cli.io.rinex3_obs import parse_obs3
+
+        cut = _cut3  # type: ignore[assignment]
+
+        def parse(body: bytes, before: int) -> xr.Dataset:
+            return parse_obs3(name, header, body, list(systems) if systems else None,
+                              list(codes) if codes else None, lines_before=before)
+
+    runs = _Runs(name, info, parse, header.count("\n"))
+    while True:
+        at = cut(buf, max_epochs)
+        if at is not None:
+            body = bytes(buf[:at])
+            del buf[:at]
+            yield from runs.add(body)
+            continue
+        block = next(blocks, None)
+        if block is None:
+            yield from runs.add(bytes(buf), final=True)
+            break
+        buf += block
+    if not runs.yielded:
+        raise RinexFormatError(f"{info.path}: no observation records" + (f" for systems {','.join(systems)}" if systems else ""))

@@ -1,0 +1,182 @@
+"""A long file solved part by part (``[processing] chunk_epochs``) writes the bytes of the whole-file run.
+
+Every case runs ``gnss-solve`` twice into ``--out-dir`` (with ``--model-out`` when smoothing):
+once with ``chunk_epochs = 0`` (the whole file at once) and once in parts of 50 epochs
+(``stream_above_epochs = 50``), and
+compares every output file byte for byte. The parts really are parts: :class:`ChunkedRun`
+yields several of them for the same configuration.
+"""
+
+from __future__ import annotations
+
+import gzip
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gnss_cli.cli.exits import run_app
+from gnss_cli.cli.solve import app
+from gnss_cli.config import load_config
+from gnss_cli.errors import RinexFormatError
+from gnss_cli.io.obs_chunks import iter_obs_chunks
+from gnss_cli.io.rinex import read_obs
+from gnss_cli.pipeline.stream import RESTART, ChunkedRun, streamable
+from gnss_cli.report import VELOCITY_COLUMNS
+from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_rinex" / "static"
+CHUNK = 50
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """10 min of a simulated flight at 1 Hz, GPS + Galileo, with Doppler."""
+    out = tmp_path_factory.mktemp("flight")
+    write_scenario(run_scenario(replace(ScenarioConfig(), trajectory="flight", duration_s=600.0, systems=("G", "E"),
+                                        seed=3)), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def gapped(flight: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The flight without the epochs 100-104, 200-202 and 206-208: three segments of the
+    smoothing, one of them (203-205) too short for a window."""
+    out = tmp_path_factory.mktemp("gapped")
+    text = (flight / "obs.rnx").read_text()
+    head, _, body = text.partition("END OF HEADER\n")
+    records = [">" + r for r in body.split("\n>")]
+    records[0] = records[0][1:]
+    drop = set(range(100, 105)) | {200, 201, 202, 206, 207, 208}
+    kept = [r for k, r in enumerate(records) if k not in drop]
+    (out / "obs.rnx").write_text(head + "END OF HEADER\n" + "\n".join(kept))
+    (out / "nav.rnx").write_bytes((flight / "nav.rnx").read_bytes())
+    return out
+
+
+def _solve(args: list[object], out: Path, chunk: int, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
+    cfg = out.parent / f"{out.name}.toml"
+    cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\nstream_above_epochs = {chunk}\n")
+    extra = ["--model-out", out / "models.json"] if "--lag" in args else []
+    with pytest.raises(SystemExit) as exc:
+        run_app(app, "gnss-solve", [str(a) for a in [*args, "--out-dir", out, "--config", cfg, "-q", *extra]])
+    _, err = capsys.readouterr()
+    assert exc.value.code == 0, err
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+
+def _same_bytes(args: list[object], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
+    whole = _solve(args, tmp_path / "whole", 0, capsys)
+    parts = _solve(args, tmp_path / "parts", CHUNK, capsys)
+    assert sorted(whole) == sorted(parts)
+    for name in whole:
+        assert parts[name] == whole[name], f"{name} differs between the whole-file run and parts of {CHUNK} epochs"
+    return whole
+
+
+def _n_parts(obs: Path, nav: Path, **overrides: object) -> int:
+    cfg = load_config(None, overrides)
+    assert streamable(cfg)
+    return sum(p is not RESTART for p in ChunkedRun(obs, [nav], cfg, CHUNK).parts())
+
+
+@pytest.mark.parametrize("extra", [["--method", "wls"], ["--method", "stls", "--lag", "3"]], ids=["wls", "stls-lag3"])
+def test_rtklib_0759_in_parts_is_the_whole_run(rinex_dir: Path, extra: list[str], tmp_path: Path, capsys) -> None:
+    d = rinex_dir / "rtklib-0759"
+    out = _same_bytes([d / "07590920.05o", d / "07590920.05n", *extra], tmp_path, capsys)
+    assert out["positions.csv"].count(b"\n") == 121  # 120 epochs and the header
+    assert _n_parts(d / "07590920.05o", d / "07590920.05n") == 3
+
+
+def test_sample_in_parts_is_the_whole_run(tmp_path: Path, capsys) -> None:
+    _same_bytes([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "wls,stls", "--lag", "3"], tmp_path, capsys)
+
+
+@pytest.mark.parametrize("extra", [["--method", "wls,tls"], ["--method", "ls,wls,stls", "--lag", "3"],
+                                   ["--method", "stls", "--lag", "3", "--model", "pva"]], ids=["wls-tls", "stls-lag3", "pva"])
+def test_simulated_flight_with_doppler_in_parts_is_the_whole_run(flight: Path, extra: list[str], tmp_path: Path,
+                                                                 capsys) -> None:
+    out = _same_bytes([flight / "obs.rnx", flight / "nav.rnx", "--reference-csv", flight / "truth.csv", *extra],
+                      tmp_path, capsys)
+    header = out["positions.csv"].split(b"\n", 1)[0].decode().split(",")
+    rows = out["positions.csv"].split(b"\n")[1:3]
+    velocity = [rows[0].decode().split(",")[header.index(c)] for c in VELOCITY_COLUMNS]
+    assert all(velocity), "the simulated file has Doppler: the velocity columns are filled"
+    assert {"errors.csv", "satellites.csv", "summary.csv"} <= set(out)
+    assert _n_parts(flight / "obs.rnx", flight / "nav.rnx") == 12
+    one = list(ChunkedRun(flight / "obs.rnx", [flight / "nav.rnx"], load_config(), CHUNK, whole_epochs=601).parts())
+    assert len(one) == 1 and one[0].epochs.time_gps_s.size == 601  # not above the threshold: whole
+
+
+@pytest.mark.parametrize("model", ["identify", "pva"])
+def test_segments_and_short_segments_across_parts(gapped: Path, model: str, tmp_path: Path, capsys) -> None:
+    out = _same_bytes([gapped / "obs.rnx", gapped / "nav.rnx", "--method", "stls", "--lag", "3", "--model", model],
+                      tmp_path, capsys)
+    text = out["positions.csv"].decode()
+    assert "fallback_wls" in text  # the three epochs between the second and third gap
+    assert b'"segment": 2' in out["models.json"]
+
+
+def test_a_system_unusable_all_through_is_dropped_and_the_parts_restart(flight: Path, tmp_path: Path, capsys) -> None:
+    galileo = sorted({s for s in read_obs(flight / "obs.rnx")["sv"].values.astype(str) if s.startswith("E")})
+    args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,stls", "--lag", "3", "--exclude", ",".join(galileo)]
+    out = _same_bytes(args, tmp_path, capsys)
+    assert b"tdop_E" not in out["positions.csv"]  # one clock: the Galileo clock column is gone
+    cfg = load_config(None, {"exclude": galileo})
+    parts = list(ChunkedRun(flight / "obs.rnx", [flight / "nav.rnx"], cfg, CHUNK).parts())
+    assert sum(p is RESTART for p in parts) == 1
+    after = parts[parts.index(RESTART) + 1:]
+    assert all(p.epochs.systems == ("G",) for p in after)
+
+
+def test_kf_and_whole_segment_windows_need_the_whole_file() -> None:
+    assert not streamable(load_config(None, {"methods": "wls,kf"}))
+    assert not streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3, "smoothing.window": 0}))
+    assert streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3}))
+
+
+def _concat_equal(path: Path, codes: list[str]) -> int:
+    whole = read_obs(path, codes=codes)
+    parts = list(iter_obs_chunks(path, None, codes, CHUNK))
+    t = np.concatenate([p["time"].values for p in parts])
+    assert np.array_equal(t, whole["time"].values)
+    for code in whole.data_vars:
+        joined = np.concatenate([p[code].reindex(sv=whole["sv"].values).values for p in parts])
+        assert np.array_equal(joined, whole[code].values, equal_nan=True), code
+    return len(parts)
+
+
+def test_chunks_of_a_file_are_its_epochs(rinex_dir: Path, flight: Path, tmp_path: Path) -> None:
+    assert _concat_equal(rinex_dir / "rtklib-0759" / "07590920.05o", ["C1", "P2"]) == 3
+    gz = tmp_path / "obs.rnx.gz"
+    gz.write_bytes(gzip.compress((flight / "obs.rnx").read_bytes()))
+    assert _concat_equal(gz, ["C1C", "D1C"]) == 12  # 601 epochs: the last one joins the 12th part
+
+
+def test_a_bad_line_in_a_later_part_names_the_file_line(flight: Path, tmp_path: Path) -> None:
+    lines = (flight / "obs.rnx").read_text().splitlines(keepends=True)
+    k = [i for i, line in enumerate(lines) if line.startswith(">")][437] + 2
+    lines[k] = lines[k][:3] + "  12ab5678.901" + lines[k][17:]
+    bad = tmp_path / "bad.rnx"
+    bad.write_text("".join(lines))
+    with pytest.raises(RinexFormatError) as whole:
+        read_obs(bad)
+    with pytest.raises(RinexFormatError) as parts:
+        list(iter_obs_chunks(bad, None, None, CHUNK))
+    assert str(parts.value) == str(whole.value) and f"line {k + 1}" in str(whole.value)
+
+
+def test_a_file_of_one_part_and_stdout_are_the_whole_run(rinex_dir: Path, tmp_path: Path, capsys) -> None:
+    d = rinex_dir / "rtklib-0759"
+    args = [d / "07590920.05o", d / "07590920.05n", "--method", "ls,wls"]
+    assert _solve(args, tmp_path / "one", 3600, capsys) == _solve(args, tmp_path / "whole", 0, capsys)
+    printed = {}
+    for chunk in (0, CHUNK):
+        cfg = tmp_path / f"stdout{chunk}.toml"
+        cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\nstream_above_epochs = {chunk}\n")
+        with pytest.raises(SystemExit) as exc:
+            run_app(app, "gnss-solve", [str(a) for a in [*args, "--config", cfg, "-q"]])
+        printed[chunk], _ = capsys.readouterr()
+        assert exc.value.code == 0
+    assert printed[CHUNK] == printed[0] and printed[0].count("\n") == 241
