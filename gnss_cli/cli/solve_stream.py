@@ -179,9 +179,8 @@ class _Models:
     def __init__(self, smoothing: Any, wanted: bool) -> None:
         import json
 
-        self.json, self.wanted, self.count = json, wanted, 0
-        self.head = json.dumps({"lag": smoothing.lag, "model": smoothing.model, "kernel": smoothing.kernel,
-                                "windows": []}, indent=1)
+        self.json, self.wanted, self.count, self.smoothing = json, wanted, 0, smoothing
+        self.model = smoothing.model  # "auto": what the first record says it resolved to
         self.spool: IO[str] | None = tempfile.TemporaryFile("w+", encoding="utf-8", newline="") if wanted else None
 
     def add(self, models: Any) -> None:
@@ -190,16 +189,20 @@ class _Models:
         if self.spool is None:
             return
         for m in models:
+            if self.model == "auto":
+                self.model = m.model
             self.spool.write((",\n" if self.count else "") + textwrap.indent(self.json.dumps(m.to_dict(), indent=1), "  "))
             self.count += 1
 
     def write(self, tmp: Path) -> None:
-        assert self.spool is not None and self.head.endswith("[]\n}")
+        sm = self.smoothing
+        head = self.json.dumps({"lag": sm.lag, "model": self.model, "kernel": sm.kernel, "windows": []}, indent=1)
+        assert self.spool is not None and head.endswith("[]\n}")
         with open(tmp, "w", encoding="utf-8", newline="") as f:
             if not self.count:
-                f.write(self.head + "\n")
+                f.write(head + "\n")
                 return
-            f.write(self.head[: -len("]\n}")] + "\n")
+            f.write(head[: -len("]\n}")] + "\n")
             self.spool.seek(0)
             while block := self.spool.read(1 << 20):
                 f.write(block)

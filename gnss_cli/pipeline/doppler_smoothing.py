@@ -154,23 +154,48 @@ def _standardized(p: F64, w: F64, y: F64, c: F64 | None, z: F64) -> F64:
     return np.where(w > 0, (e - np.einsum("tnk,tk->tn", c, b)) * np.sqrt(w), 0.0)
 
 
-def _variance_factors(pr: EpochNormals, rr: EpochNormals) -> tuple[float, float]:
-    """Misfit per degree of freedom of the epochs solved alone: pseudoranges, range rates."""
-    out = []
+def misfit_totals(pr: EpochNormals, rr: EpochNormals) -> tuple[float, float, float, float]:
+    """Misfit and degrees of freedom of the epochs solved alone, summed: pseudoranges, range rates."""
+    out: list[float] = []
     for nrm in (pr, rr):
         mis, rank = free_misfit(nrm)
         dof = nrm.n_rows - nrm.n_free - rank
         good = dof > 0
-        total, m = float(dof[good].sum()), float(mis[good].sum())
-        out.append(m / total if total > 0 and m > 0 else 1.0)
-    return out[0], out[1]
+        out += [float(mis[good].sum()), float(dof[good].sum())]
+    return out[0], out[1], out[2], out[3]
+
+
+def factors_from_totals(totals: tuple[float, float, float, float]) -> tuple[float, float]:
+    """Variance factors (misfit per degree of freedom) of :func:`misfit_totals`; 1 where undefined."""
+    m_pr, f_pr, m_rr, f_rr = totals
+    return (m_pr / f_pr if f_pr > 0 and m_pr > 0 else 1.0), (m_rr / f_rr if f_rr > 0 and m_rr > 0 else 1.0)
+
+
+def free_misfit_totals(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -> tuple[float, float, float, float]:
+    """:func:`misfit_totals` of ``data`` at the WLS fixes (what the variance factors are estimated
+    from), so that a file arriving in parts can sum them before smoothing any part."""
+    if wls.excluded is not None:
+        data = replace(data, usable=data.usable & ~wls.excluded)
+    fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
+    if not fix.any() or data.range_rate_m_s is None:
+        return 0.0, 0.0, 0.0, 0.0
+    nominal = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))
+    rows = _rows(data, nominal, config)
+    return misfit_totals(*_normals(rows, (np.ones_like(rows["w"]), np.ones_like(rows["wd"]))))
+
+
+def _variance_factors(pr: EpochNormals, rr: EpochNormals) -> tuple[float, float]:
+    """Misfit per degree of freedom of the epochs solved alone: pseudoranges, range rates."""
+    return factors_from_totals(misfit_totals(pr, rr))
 
 
 def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfig, lag: int, *,
-                           gap_factor: float = 1.5) -> DopplerRun | None:
+                           gap_factor: float = 1.5, factors: tuple[float, float] | None = None) -> DopplerRun | None:
     """Solve every segment (module docstring); None when WLS solved no epoch or the file has no range rates.
 
     ``data`` should carry the WLS exclusions in ``usable`` (:func:`doppler_smooth` does).
+    ``factors``: the variance factors, when they were estimated beforehand (a whole file's, for
+    a piece of it); else they are estimated from ``data``.
     """
     t = data.time_gps_s
     fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
@@ -185,10 +210,11 @@ def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: Process
     mis, dof = [0.0] * len(segs), [0] * len(segs)
     gate = float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
     passes = 0
-    factors = (1.0, 1.0)
+    given = factors
+    factors = (1.0, 1.0) if given is None else given
     for passes in range(1, MAX_PASSES + 1):
         rows = _rows(data, nominal, config)
-        if passes == 1:  # before any exclusion: re-estimated on the kept rows, the gate would tighten itself
+        if passes == 1 and given is None:  # before any exclusion: re-estimated on the kept rows, the gate would tighten itself
             factors = _variance_factors(*_normals(rows, (mult[0], mult[1])))
         scale = (mult[0] / factors[0], mult[1] / factors[1])
         pr, rr = _normals(rows, scale)
@@ -259,7 +285,8 @@ def _covariance(p_m: F64, w_pr: F64, clock_cols: F64, M_rr: F64, segs: list[NDAr
 
 
 def doppler_smooth(data: EpochData, wls: MethodSolution, config: ProcessingConfig, *, method: str = "stls",
-                   gap_factor: float = 1.5) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+                   gap_factor: float = 1.5, factors: tuple[float, float] | None = None,
+                   ) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """The ``"doppler"`` smoothing model's rows and one model record per segment (module docstring).
 
     Raises
@@ -270,7 +297,7 @@ def doppler_smooth(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     if wls.excluded is not None:
         data = replace(data, usable=data.usable & ~wls.excluded)
     lag = config.smoothing.lag
-    run = solve_doppler_segments(data, wls, config, lag, gap_factor=gap_factor)
+    run = solve_doppler_segments(data, wls, config, lag, gap_factor=gap_factor, factors=factors)
     if run is None:
         if data.range_rate_m_s is None or not config.kalman.doppler:
             raise ConfigError(f"smoothing.model = 'doppler' needs Doppler observations; {data.obs_path} has none")

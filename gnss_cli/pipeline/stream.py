@@ -4,7 +4,10 @@
 part, equal to the whole file's run: every part is solved on the whole file's satellite axis
 and clock columns (the numbers of a least-squares solve depend, at the last bit, on the size
 of its arrays), and the behavioral smoothing (``--lag``) runs over the parts with the whole
-file's schedule (:class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`).
+file's schedule (:class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`); the doppler model
+(the default ``auto`` on a file with Doppler) runs in overlapping pieces whose middles equal
+the whole segment's solution to well below a millimetre, not bit for bit
+(:class:`~gnss_cli.pipeline.doppler_stream.DopplerStreamSmoother`).
 
 The file is read twice: a first pass collects what the whole file decides (its satellites
 with a pseudorange, its systems, its epoch times for the segments' nominal step), the second
@@ -36,7 +39,8 @@ from gnss_cli.pipeline.epochs import (
     Coverage, EpochSetup, _systems_with_data, build_epochs, file_warnings, finish_epochs, signal_setup, used_systems,
 )
 from gnss_cli.pipeline.processing import process, with_velocity
-from gnss_cli.pipeline.results import EpochStatus, Progress, RunResult
+from gnss_cli.pipeline.doppler_stream import DopplerStreamSmoother
+from gnss_cli.pipeline.results import EpochData, EpochStatus, Progress, RunResult
 from gnss_cli.pipeline.smoothing_stream import StreamSmoother
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts, status_summary
 
@@ -57,6 +61,16 @@ def streamable(config: ProcessingConfig) -> bool:
         return False
     lag = config.smoothing
     return lag.lag == 0 or (lag.model != "kinematic" and lag.window > 0)
+
+
+def _smoother(config: ProcessingConfig, has_doppler: bool, nominal_step_s: float,
+              factors: tuple[float, float] | None) -> StreamSmoother | DopplerStreamSmoother:
+    """The smoother of the parts: the doppler model in overlapping pieces with the whole file's
+    variance ``factors``, the window models exactly."""
+    config = replace(config, smoothing=config.smoothing.resolved(has_doppler and config.kalman.doppler))
+    if config.smoothing.model == "doppler":
+        return DopplerStreamSmoother(config, factors=factors)
+    return StreamSmoother(config, nominal_step_s)
 
 
 def release_memory() -> None:
@@ -177,7 +191,8 @@ class ChunkedRun:
         sys_of = np.array([s[0] for s in sv])
         used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
         while True:
-            cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size)
+            factors = self._doppler_factors(setup, systems, sv, used)
+            cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size, factors)
             warnings = file_warnings(setup, sv, systems, cov)
             actual = used_systems(sv, systems, cov)
             if actual == used:
@@ -188,23 +203,50 @@ class ChunkedRun:
             raise NoSolutionError(f"{Path(self.obs_path).name}: no epoch could be solved ({status_summary(counts)})")
         self.warnings = tuple(warnings)
 
+    def _epochs(self, setup: EpochSetup, systems: list[str], sv: np.ndarray,
+                used: tuple[str, ...]) -> Iterator[tuple[EpochData, Coverage]]:
+        """The parts' epochs on the whole file's satellite axis, and each part's coverage."""
+        for obs in iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.chunk_epochs):
+            obs = obs.reindex(sv=np.union1d(np.asarray(obs["sv"].values).astype(str), sv))
+            prs = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority), sv)
+            data, part_cov = build_epochs(obs, prs, setup, systems)
+            del obs, prs
+            yield finish_epochs(data, used), part_cov
+
+    def _doppler_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray,
+                         used: tuple[str, ...]) -> tuple[float, float] | None:
+        """The whole file's variance factors of the doppler smoothing model (a pass of WLS over the
+        parts), so that every piece weighs as the whole file would; None for another model."""
+        config = self.config
+        if not config.smoothing.lag or config.smoothing.model not in ("auto", "doppler"):
+            return None
+        from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
+
+        totals = np.zeros(4)
+        wls_only = replace(config, methods=("wls",))
+        for k, (data, _) in enumerate(self._epochs(setup, systems, sv, used)):
+            if k == 0 and config.smoothing.resolved(data.range_rate_m_s is not None and config.kalman.doppler).model != "doppler":
+                return None
+            if self.progress:
+                self.progress(f"part {k + 1}: weighing pseudoranges and range rates", 0.0)
+            totals += free_misfit_totals(data, solve_methods(data, wls_only)["wls"], config)
+            del data
+            release_memory()
+        return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
+
     def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], nominal: float,
-              n_epochs: int):  # type: ignore[no-untyped-def]
+              n_epochs: int, factors: tuple[float, float] | None = None):  # type: ignore[no-untyped-def]
         """One pass of reading, solving and handing out; returns the coverage and the status counts."""
         config = self.config
         lag = config.smoothing.lag
         others = tuple(m for m in config.methods if m != "stls") if lag else config.methods
         snapshot = replace(config, methods=others + (() if "wls" in others or not lag else ("wls",)))
-        smoother = StreamSmoother(config, nominal) if lag else None
+        smoother: StreamSmoother | DopplerStreamSmoother | None = None
         cov: Coverage | None = None
         counts: dict[str, dict[str, int]] = {}
         done = 0
-        for k, obs in enumerate(iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.chunk_epochs)):
-            obs = obs.reindex(sv=np.union1d(np.asarray(obs["sv"].values).astype(str), sv))
-            prs = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority), sv)
-            data, part_cov = build_epochs(obs, prs, setup, systems)
+        for k, (data, part_cov) in enumerate(self._epochs(setup, systems, sv, used)):
             cov = part_cov if cov is None else cov.merge(part_cov)
-            data = finish_epochs(data, used)
             if self.progress:
                 self.progress(f"part {k + 1}: solving", done / max(n_epochs, 1))
             solutions = solve_methods(data, snapshot)
@@ -212,8 +254,10 @@ class ChunkedRun:
                 for w, n in c.items():
                     counts.setdefault(m, {})[w] = counts.get(m, {}).get(w, 0) + n
             done += data.time_gps_s.size
+            if lag and smoother is None:  # the model "auto" resolves on the file's Doppler
+                smoother = _smoother(config, data.range_rate_m_s is not None, nominal, factors)
             parts = [RunResult(data, solutions)]
-            del data, solutions, prs, obs
+            del data, solutions
             out = smoother.push(parts) if smoother is not None else parts.pop()
             if out is not None:
                 out = with_velocity(out, config)
