@@ -17,18 +17,10 @@ from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.doppler_smoothing import doppler_smooth
 from gnss_cli.report import models_json
-from gnss_cli.sim.error_sources import parse_error_list
-from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
+
+from flight_scenarios import simulate_flight
 
 BASE = {"methods": "wls,stls", "smoothing.lag": 3, "iono": "none", "tropo": "none"}
-
-
-def _simulate(out: Path, errors: str, seed: int = 11, duration_s: float = 300.0) -> Path:
-    base = ScenarioConfig()
-    cfg = replace(base, trajectory="flight", duration_s=duration_s, interval_s=1.0, seed=seed,
-                  errors=base.errors.with_sources(parse_error_list(errors)))
-    write_scenario(run_scenario(cfg), out)
-    return out
 
 
 def _err(x: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -41,7 +33,7 @@ def _rms(x: np.ndarray, ref: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def noisy(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _simulate(tmp_path_factory.mktemp("noisy"), "noise")
+    return simulate_flight(tmp_path_factory.mktemp("noisy"), "noise")
 
 
 def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
@@ -68,7 +60,7 @@ def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
 
 
 def test_noise_free_flight_gives_the_truth_to_a_centimetre(tmp_path: Path) -> None:
-    d = _simulate(tmp_path, "none")
+    d = simulate_flight(tmp_path, "none")
     res = process(d / "obs.rnx", [d / "nav.rnx"], load_config(None, BASE))
     ref = reference_from_csv(d / "truth.csv", res.epochs.time_gps_s)
     err = _err(res.solutions["stls"].x_ecef_m, ref)
@@ -123,7 +115,7 @@ def test_window_ladder_rejects_what_a_fixed_window_cannot_fit(tmp_path: Path) ->
     windows there (0.024 m)."""
     from gnss_cli.pipeline.window_solve import solve_in_windows
 
-    d = _simulate(tmp_path, "none")
+    d = simulate_flight(tmp_path, "none")
     cfg = load_config(None, {**BASE, "kalman.doppler": False})
     data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
     wls = solve_method(data, "wls", cfg)

@@ -3,7 +3,6 @@ with variance factors from the data."""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,18 +13,10 @@ from gnss_cli.cli.solve import app
 from gnss_cli.config import load_config
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import process
-from gnss_cli.sim.error_sources import parse_error_list
-from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
+
+from flight_scenarios import simulate_flight
 
 KINEMATIC = {"methods": "wls,stls", "smoothing.lag": 1, "smoothing.model": "kinematic", "iono": "none", "tropo": "none"}
-
-
-def _simulate(out: Path, errors: str, seed: int = 11, duration_s: float = 300.0) -> Path:
-    base = ScenarioConfig()
-    cfg = replace(base, trajectory="flight", duration_s=duration_s, interval_s=1.0, seed=seed,
-                  errors=base.errors.with_sources(parse_error_list(errors)))
-    write_scenario(run_scenario(cfg), out)
-    return out
 
 
 def _rms(x: np.ndarray, ref: np.ndarray) -> float:
@@ -41,7 +32,7 @@ def test_doppler_ties_the_fixes_far_below_their_noise(tmp_path: Path) -> None:
     """A 1 Hz flight with white pseudorange and Doppler noise: the smoothed track is well
     inside the WLS scatter (measured 0.52 m against 3.2 m on 600 s), every fix smoothed, and
     the smoothed velocity better than the per-epoch Doppler velocity."""
-    d = _simulate(tmp_path, "noise")
+    d = simulate_flight(tmp_path, "noise")
     result, ref = _run(d)
     wls, stls = result.solutions["wls"], result.solutions["stls"]
     assert (stls.status == "ok").all()
@@ -58,7 +49,7 @@ def test_noise_free_data_give_the_truth_to_a_centimetre(tmp_path: Path) -> None:
     """No error source: the variance factors collapse on the exact fixes instead of forcing the
     trapezoidal rule (2.5 cm per step in the turns) on them; with fixed a-priori weights the
     same projection is 0.2-0.3 m off."""
-    d = _simulate(tmp_path, "none")
+    d = simulate_flight(tmp_path, "none")
     result, ref = _run(d)
     err = np.linalg.norm(result.solutions["stls"].x_ecef_m - ref, axis=1)
     assert err.max() < 0.01
