@@ -201,5 +201,9 @@ def free_misfit(normals: EpochNormals, rcond: float = 1e-10) -> tuple[F64, NDArr
     rank : ``(T,)`` rank of ``M`` (position unknowns the epoch determines).
     """
     M_pinv = np.linalg.pinv(normals.M, rcond=rcond, hermitian=True)
-    rank = np.linalg.matrix_rank(normals.M, rtol=rcond, hermitian=True) if normals.M.size else np.zeros(0, np.int64)
+    if normals.M.size:  # matrix_rank(M, rtol=rcond, hermitian=True), which numpy < 2 lacks
+        s = np.abs(np.linalg.eigvalsh(normals.M))
+        rank = np.sum(s > s.max(axis=-1, keepdims=True) * rcond, axis=-1)
+    else:
+        rank = np.zeros(0, np.int64)
     return normals.s - np.einsum("ti,tij,tj->t", normals.r, M_pinv, normals.r), np.asarray(rank, dtype=np.int64)

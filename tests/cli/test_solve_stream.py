@@ -66,12 +66,48 @@ def _solve(args: list[object], out: Path, chunk: int, capsys: pytest.CaptureFixt
     return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
 
 
+NUMPY_2 = int(np.__version__.split(".")[0]) >= 2
+"""numpy 1.x's vectorized sums depend on the arrays' memory alignment, so its last bits differ
+from run to run (seen with numpy 1.25, the lowest version allowed); there the parts are held
+to the whole run's numbers within 1e-6 relative, the same cells and words otherwise."""
+
+
+def _same_numbers(name: str, a: bytes, b: bytes) -> None:
+    import io
+    import json
+
+    import pandas as pd
+
+    if name.endswith(".json"):
+        def flat(x: object) -> list[object]:
+            if isinstance(x, dict):
+                return [k for k in x] + [v for y in x.values() for v in flat(y)]
+            if isinstance(x, list):
+                return [v for y in x for v in flat(y)]
+            return [x]
+        fa, fb = flat(json.loads(a)), flat(json.loads(b))
+        assert len(fa) == len(fb)
+        for u, v in zip(fa, fb):
+            assert u == v or (isinstance(u, float) and u == pytest.approx(v, rel=1e-6, abs=1e-9)), (name, u, v)
+        return
+    da, db = (pd.read_csv(io.BytesIO(x)) for x in (a, b))
+    assert list(da.columns) == list(db.columns) and da.shape == db.shape, name
+    for c in da.columns:
+        if da[c].dtype.kind == "f":
+            np.testing.assert_allclose(da[c], db[c], rtol=1e-6, atol=2e-4, err_msg=f"{name}:{c}")
+        else:
+            assert (da[c].fillna("") == db[c].fillna("")).all(), f"{name}:{c}"
+
+
 def _same_bytes(args: list[object], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
     whole = _solve(args, tmp_path / "whole", 0, capsys)
     parts = _solve(args, tmp_path / "parts", CHUNK, capsys)
     assert sorted(whole) == sorted(parts)
     for name in whole:
-        assert parts[name] == whole[name], f"{name} differs between the whole-file run and parts of {CHUNK} epochs"
+        if NUMPY_2:
+            assert parts[name] == whole[name], f"{name} differs between the whole-file run and parts of {CHUNK} epochs"
+        else:
+            _same_numbers(name, parts[name], whole[name])
     return whole
 
 
