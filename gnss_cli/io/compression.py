@@ -230,7 +230,7 @@ class _Prefetch(threading.Thread):
 
 
 _PENDING: dict[tuple[str, int, int], _Prefetch] = {}
-"""Prefetched files by :func:`_file_key`, until :func:`open_bytes` takes them."""
+"""Prefetched files by :func:`_file_key`, until :func:`open_bytes` or :func:`iter_bytes` takes them."""
 
 
 def _file_key(path: str | os.PathLike[str]) -> tuple[str, int, int] | None:
@@ -360,10 +360,17 @@ def iter_bytes(path: str | os.PathLike[str], block_bytes: int = BLOCK_BYTES) -> 
     Plain, gzip, bzip2 and zip files are decompressed as they are read, so memory does not
     grow with the file. Unix-compressed (``.Z``) and Compact RINEX (Hatanaka) content is
     restored whole first (``crx2rnx`` takes the whole text) and then handed out in blocks.
-    The errors are those of :func:`open_bytes`.
+    A file that :func:`prefetch` has read already is handed out from that text (and the text
+    is let go: a second reading streams). The errors are those of :func:`open_bytes`.
     """
     p = _check_path(path)
     try:
+        job = _PENDING.pop(_file_key(p), None)
+        if job is not None:
+            content = job.result()
+            for k in range(0, len(content), block_bytes):
+                yield content[k : k + block_bytes]
+            return
         with open(p, "rb") as f:
             raw_head = f.read(4)
         reader = _stream(p, raw_head)
