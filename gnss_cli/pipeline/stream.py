@@ -191,7 +191,7 @@ class ChunkedRun:
         sys_of = np.array([s[0] for s in sv])
         used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
         while True:
-            factors = self._doppler_factors(setup, systems, sv, used)
+            factors = self._doppler_factors(setup, systems, sv, used, t.size)
             cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size, factors)
             warnings = file_warnings(setup, sv, systems, cov)
             actual = used_systems(sv, systems, cov)
@@ -214,7 +214,7 @@ class ChunkedRun:
             yield finish_epochs(data, used), part_cov
 
     def _doppler_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray,
-                         used: tuple[str, ...]) -> tuple[float, float] | None:
+                         used: tuple[str, ...], n_epochs: int) -> tuple[float, float] | None:
         """The whole file's variance factors of the doppler smoothing model (a pass of WLS over the
         parts), so that every piece weighs as the whole file would; None for another model."""
         config = self.config
@@ -223,13 +223,15 @@ class ChunkedRun:
         from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
 
         totals = np.zeros(4)
+        done = 0
         wls_only = replace(config, methods=("wls",))
         for k, (data, _) in enumerate(self._epochs(setup, systems, sv, used)):
             if k == 0 and config.smoothing.resolved(data.range_rate_m_s is not None and config.kalman.doppler).model != "doppler":
                 return None
             if self.progress:
-                self.progress(f"part {k + 1}: weighing pseudoranges and range rates", 0.0)
+                self.progress(f"part {k + 1}: weighing pseudoranges and range rates", done / max(n_epochs, 1))
             totals += free_misfit_totals(data, solve_methods(data, wls_only)["wls"], config)
+            done += data.time_gps_s.size
             del data
             release_memory()
         return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
