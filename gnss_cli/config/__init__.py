@@ -321,8 +321,13 @@ def _apply_smoothing(base: SmoothingConfig, table: Mapping[str, Any], source: st
     for key, value in table.items():
         if key in ("model", "kernel"):
             values[key] = str(value)
-        elif key == "tolerance":
+        elif key in ("tolerance", "window_pfa"):
             values[key] = float(value)
+        elif key == "window" and isinstance(value, str):
+            text = value.strip().lower()
+            if text != "auto" and not text.isdigit():
+                raise ConfigError(f"{source}: smoothing.window: expected an integer >= 0 or 'auto'; received {value!r}")
+            values[key] = text if text == "auto" else int(text)
         elif isinstance(value, float) and not value.is_integer():
             raise ConfigError(f"{source}: smoothing.{key}: expected an integer; received {value!r}")
         else:

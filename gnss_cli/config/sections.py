@@ -35,6 +35,9 @@ SMOOTHING_MODELS = ("auto", "doppler", "identify", "pva", "static", "kinematic")
 SMOOTHING_KERNELS = ("shared", "full")
 FIXED_MODEL_LAGS = {"static": 1, "pva": 3, "kinematic": 1}
 """Lags of the fixed kernels ``(z-1) I`` and ``(z-1)^3 I`` (they ignore ``lag``)."""
+IDENTIFY_WINDOW = 15
+"""The window (epochs) of ``window = "auto"`` for the pva and identified kernels (measured on the
+simulated flights; see ``gnss_cli/configs/default.toml``)."""
 
 
 @dataclass(frozen=True)
@@ -51,7 +54,8 @@ class SmoothingConfig:
     model: str = "auto"
     kernel: str = "shared"
     order: int = 0
-    window: int = 15
+    window: int | str = "auto"
+    window_pfa: float = 1e-3
     tolerance: float = 1e-6
     max_iterations: int = 200
 
@@ -80,11 +84,28 @@ class SmoothingConfig:
             return None
         return self.order if self.order > 0 else 3 * self.effective_lag
 
+    @property
+    def window_ladder(self) -> bool:
+        """Whether the windows are chosen from the data (``window = "auto"`` with the static kernel):
+        the longest window around each epoch whose misfit passes the chi-square test
+        (:func:`gnss_cli.pipeline.smoothing.ladder_schedule`). A static model that passes is
+        exact (only motion makes it wrong, and motion is what the test sees); for ``pva`` and
+        identified kernels the error of a longer window is an approximation error that the test
+        lets through while it is below the noise (Yamatogawa walk, pva: 4.14 m with the ladder,
+        2.99 m in 15-epoch windows), so they keep :data:`IDENTIFY_WINDOW`."""
+        return self.window == "auto" and self.model == "static"
+
+    @property
+    def window_epochs(self) -> int:
+        """The window length (epochs; 0 = whole segments) of a fixed schedule: ``window``, or
+        :data:`IDENTIFY_WINDOW` for ``"auto"`` (the static model's ladder does not use it)."""
+        return IDENTIFY_WINDOW if self.window == "auto" else int(self.window)
+
     def min_window(self) -> int:
-        """Shortest window (epochs) the model can be fitted on: static 2, pva 5, shared
+        """Shortest window (epochs) the model can be fitted on: static 3, pva 5 (the lag + 2 samples a window needs), shared
         ``2 lag + 2``, full ``3 (lag + 1) + 1``."""
         lag = self.effective_lag
-        need = {"static": 2, "pva": 5, "kinematic": 2, "doppler": 2}.get(self.model)
+        need = {"static": 3, "pva": 5, "kinematic": 2, "doppler": 2}.get(self.model)
         if need is None:
             need = 2 * lag + 2 if self.kernel == "shared" else 3 * (lag + 1) + 1
         return max(need, 2)
@@ -93,15 +114,21 @@ class SmoothingConfig:
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
         for name in ("lag", "order", "window", "max_iterations"):
             value = getattr(self, name)
+            if name == "window" and value == "auto":
+                continue
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "max_iterations" else 0):
                 low = 1 if name == "max_iterations" else 0
-                raise ConfigError(f"smoothing.{name}: expected an integer >= {low}; received {value!r}")
+                what = "an integer >= 0 or 'auto'" if name == "window" else f"an integer >= {low}"
+                raise ConfigError(f"smoothing.{name}: expected {what}; received {value!r}")
         if self.model not in SMOOTHING_MODELS:
             raise ConfigError(f"smoothing.model: expected one of {', '.join(SMOOTHING_MODELS)}; received {self.model!r}")
         if self.kernel not in SMOOTHING_KERNELS:
             raise ConfigError(f"smoothing.kernel: expected one of {', '.join(SMOOTHING_KERNELS)}; received {self.kernel!r}")
         if not self.tolerance > 0:
             raise ConfigError(f"smoothing.tolerance: expected > 0; received {self.tolerance}")
+        if isinstance(self.window_pfa, bool) or not isinstance(self.window_pfa, (int, float)) \
+                or not 0 < self.window_pfa < 0.5:
+            raise ConfigError(f"smoothing.window_pfa: expected a probability in (0, 0.5); received {self.window_pfa!r}")
         if self.model == "auto" and self.lag > 0:  # without Doppler it is "identify": check that
             replace(self, model="identify").validated()
             return self
@@ -111,8 +138,8 @@ class SmoothingConfig:
                 raise ConfigError(f"smoothing.{what} needs smoothing.lag >= 1 (lag 0 = no smoothing)")
             return self
         need = self.min_window()
-        if 0 < self.window < need:
-            raise ConfigError(f"smoothing.window: expected 0 or >= {need} epochs for model {self.model} "
+        if self.window != "auto" and 0 < self.window < need:
+            raise ConfigError(f"smoothing.window: expected 0, 'auto' or >= {need} epochs for model {self.model} "
                               f"(lag {self.effective_lag}, kernel {self.structure}); received {self.window}")
         order = self.full_order
         if order is None and self.order:
@@ -129,8 +156,9 @@ class SmoothingConfig:
         if not 0 < order < 3 * (lag + 1):
             raise ConfigError(f"smoothing.order: expected 1 <= order < 3 (lag + 1) = {3 * (lag + 1)} for lag {lag}; received {order}")
         g = 3 * (lag + 1) - order
-        if g > 3 and (self.window == 0 or g * (self.window - lag) > 3 * self.window):
-            span = "whole segments (window = 0)" if self.window == 0 else f"windows of {self.window} epochs"
+        n = self.window_epochs
+        if g > 3 and (n == 0 or g * (n - lag) > 3 * n):
+            span = "whole segments (window = 0)" if n == 0 else f"windows of {n} epochs"
             raise ConfigError(f"smoothing.order: order {order} with lag {lag} leaves {g} kernel rows, infeasible on {span}; "
                               f"use order >= {3 * lag} or a shorter window")
 

@@ -179,7 +179,7 @@ def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], s
             status[seg] = _FALLBACK
             continue
         segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
-        bounds, owner = windows(seg.size, int(opts.window), step)
+        bounds, owner = windows(seg.size, opts.window_epochs, step)
         edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")  # owner is non-decreasing
         jobs += [WindowJob(len(segs) - 1, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)]
     return segs, jobs
@@ -266,22 +266,101 @@ def smooth(
     solved = (wls.status == _OK) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
+    if opts.window_ladder:
+        segs, jobs, fits = ladder_schedule(data, wls, solved, status, opts, gap_factor)
+        return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     return smooth_windows(data, wls, config, segs, jobs, status, method)
 
 
+def ladder_lengths(n: int, shortest: int) -> list[int]:
+    """Window lengths (epochs) tried on a segment of ``n`` epochs, longest first: the whole
+    segment, then halving while at least ``shortest``."""
+    out = [n]
+    while out[-1] // 2 >= shortest:
+        out.append(out[-1] // 2)
+    return out
+
+
+def _chi2_limit(dof: NDArray[np.float64], pfa: float) -> NDArray[np.float64]:
+    """The misfit above which a window's model is rejected: the upper ``pfa`` quantile of the
+    chi-square distribution with ``dof`` degrees of freedom (unitless)."""
+    from scipy.special import chdtri  # not on the default path (lag 0): imported when a ladder runs
+
+    return np.asarray(chdtri(dof, pfa), dtype=np.float64)
+
+
+def ladder_schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
+                    opts: SmoothingConfig, gap_factor: float) -> tuple[list[Segment], list[WindowJob], list[_Fit]]:
+    """Windows chosen from the data (``window = "auto"`` with the static kernel).
+
+    Each segment is tried whole, then in half-overlapping windows of half the length, and so
+    on down to the model's shortest window (:func:`ladder_lengths`). A window *passes* when its
+    misfit (the ``Sigma^{-1}``-weighted squared distance of the fixes from the behavior, unitless)
+    is at most the upper ``opts.window_pfa`` quantile of the chi-square distribution with
+    ``3 (N - L)`` degrees of freedom (``N`` epochs, ``L`` the kernel's lag: the behavior leaves
+    ``3 L`` free initial conditions). Each epoch takes the longest passing window of the
+    ladder among those centred nearest to it at each length; an epoch that no window passes
+    (the model is rejected down to the shortest window) keeps its WLS fix (``fallback_wls``).
+
+    Returns the segments, the chosen windows (one job per run of the epochs a window
+    supplies) and their fits, for :func:`smooth_windows`.
+    """
+    need = opts.min_window()
+    lag = opts.effective_lag
+    segs: list[Segment] = []
+    jobs: list[WindowJob] = []
+    fits: list[_Fit] = []
+    for seg in segments(data.time_gps_s, solved, gap_factor):
+        if seg.size < need:
+            status[seg] = _FALLBACK
+            continue
+        segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
+        si, n = len(segs) - 1, seg.size
+        open_ = np.ones(n, dtype=bool)  # epochs without a passing window yet
+        for length in ladder_lengths(n, need):
+            bounds, owner = windows(n, length)
+            edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")
+            level = [WindowJob(si, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)
+                     if open_[edges[wi] : edges[wi + 1]].any()]
+            if not level:
+                break
+            level_fits = _fit_all(segs, level, opts)
+            mis = np.array([f.misfit if f.w_hat is not None and f.misfit is not None else np.inf for f in level_fits])
+            limit = _chi2_limit(np.array([3.0 * (j.b - j.a - lag) for j in level]), opts.window_pfa)
+            for job, fit, passed in zip(level, level_fits, mis <= limit):
+                if not passed:
+                    continue
+                mine = np.zeros(n, dtype=bool)
+                mine[job.lo : job.hi] = open_[job.lo : job.hi]
+                open_[job.lo : job.hi] = False
+                for lo, hi in _runs(mine):
+                    jobs.append(WindowJob(si, len(jobs), job.a, job.b, lo, hi))
+                    fits.append(fit)
+        status[seg[open_]] = _FALLBACK
+    return segs, jobs, fits
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Half-open index ranges of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                    jobs: list[WindowJob], status: NDArray[np.str_], method: str = "stls",
-                   segment_ids: list[int] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+                   segment_ids: list[int] | None = None,
+                   fits: list[_Fit] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """Fit the windows ``jobs`` of the segments ``segs`` and finish the smoothed solution of
     :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
     ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
-    (default: its index)."""
+    (default: its index). ``fits``: the windows' fits when already computed (one per job)."""
     opts = config.smoothing
     T = data.time_gps_s.size
     x_s = wls.x_ecef_m.copy()
     smoothed = np.zeros(T, dtype=bool)
-    fits = _fit_all(segs, jobs, opts)
+    if fits is None:
+        fits = _fit_all(segs, jobs, opts)
 
     models: list[WindowModel] = []
     dop_windows: list[tuple[NDArray[np.intp], F64, NDArray[np.intp]]] = []  # (window epochs, ECEF basis, owned)

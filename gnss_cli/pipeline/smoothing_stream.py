@@ -111,7 +111,7 @@ class StreamSmoother:
         self.opts = config.smoothing.validated()
         self.nominal = nominal_step_s
         self.gap_factor = gap_factor
-        self.window = int(self.opts.window)
+        self.window = self.opts.window_epochs
         self.step = max(1, self.window // 2)
         self.kept: RunResult | None = None
         self.kept_emitted = 0  # kept epochs already handed out

@@ -18,8 +18,9 @@ masked or unhealthy) is only known at the end: the parts are then handed out aga
 start (:data:`RESTART`), without it.
 
 Methods that need the whole file at once are run as a whole: ``kf`` (the RTS smoother runs
-backwards over the file), ``--model kinematic`` smoothing and windows of a whole segment
-(``window = 0``): :func:`streamable`.
+backwards over the file), ``--model kinematic`` smoothing, windows of a whole segment
+(``window = 0``) and windows chosen from the data (``window = "auto"`` with ``--model static``:
+the ladder starts with the whole segment): :func:`streamable`.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ def streamable(config: ProcessingConfig) -> bool:
     if "kf" in config.methods:
         return False
     lag = config.smoothing
-    return lag.lag == 0 or (lag.model != "kinematic" and lag.window > 0)
+    return lag.lag == 0 or (lag.model != "kinematic" and not lag.window_ladder and lag.window_epochs > 0)
 
 
 def _smoother(config: ProcessingConfig, has_doppler: bool, nominal_step_s: float,

@@ -191,6 +191,10 @@ def test_kf_and_whole_segment_windows_need_the_whole_file() -> None:
     assert not streamable(load_config(None, {"methods": "wls,kf"}))
     assert not streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3, "smoothing.window": 0}))
     assert streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3}))
+    # the static model's window ladder starts with the whole segment; a fixed length streams
+    static = {"methods": "stls", "smoothing.lag": 1, "smoothing.model": "static"}
+    assert not streamable(load_config(None, static))
+    assert streamable(load_config(None, {**static, "smoothing.window": 15}))
 
 
 def _concat_equal(path: Path, codes: list[str]) -> int:

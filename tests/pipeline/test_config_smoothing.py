@@ -34,10 +34,14 @@ def test_dataclass_defaults_equal_the_packaged_toml() -> None:
         ({"lag": 3, "kernel": "diagonal"}, "smoothing.kernel"),
         ({"lag": 3, "window": 5}, "smoothing.window"),
         ({"lag": 1, "model": "pva", "window": 4}, "smoothing.window"),
+        ({"lag": 1, "model": "static", "window": 2}, "smoothing.window"),
         ({"lag": -1}, "smoothing.lag"),
         ({"lag": 3, "order": 9}, "kernel = 'full' only"),
         ({"lag": 3, "tolerance": 0.0}, "smoothing.tolerance"),
         ({"lag": 3, "window": 2.5}, "integer"),
+        ({"lag": 1, "model": "static", "window": "whole"}, "'auto'"),
+        ({"lag": 1, "model": "static", "window_pfa": 0.0}, "smoothing.window_pfa"),
+        ({"lag": 1, "model": "static", "window_pfa": 0.7}, "smoothing.window_pfa"),
         ({"lags": 3}, "unknown [smoothing]"),
     ],
 )
@@ -51,6 +55,17 @@ def test_valid_smoothing_options() -> None:
                              "smoothing.order": 9})
     assert cfg.smoothing.full_order == 9 and cfg.smoothing.min_window() == 13
     assert load_config(None, {"smoothing.lag": 2, "smoothing.model": "pva"}).smoothing.effective_lag == 3
+
+
+def test_auto_window_is_a_ladder_for_the_static_model_only() -> None:
+    """``window = "auto"`` (the default; also ``"15"`` and ``"AUTO"`` from the command line)."""
+    static = load_config(None, {"smoothing.lag": 1, "smoothing.model": "static", "smoothing.window": "AUTO"}).smoothing
+    assert static.window == "auto" and static.window_ladder
+    for model in ("pva", "identify", "auto"):
+        s = load_config(None, {"smoothing.lag": 3, "smoothing.model": model}).smoothing
+        assert s.window == "auto" and not s.window_ladder and s.window_epochs == 15
+    fixed = load_config(None, {"smoothing.lag": 1, "smoothing.model": "static", "smoothing.window": "15"}).smoothing
+    assert fixed.window == 15 and not fixed.window_ladder
 
 
 def test_toml_section(tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -191,6 +191,51 @@ def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: i
     assert rms[-1] < 0.15 * rms_ls, (rms, rms_ls)
 
 
+def test_static_auto_window_takes_each_whole_segment(static_set) -> None:  # type: ignore[no-untyped-def]
+    """A receiver that does not move passes the chi-square test over the whole run: the ladder
+    gives what ``window = 0`` gives."""
+    cfg, data, ls, wls, ref = static_set
+    auto, models = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window="auto"))
+    whole, _ = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window=0))
+    assert [m.n_epochs for m in models] == [data.time_gps_s.size]
+    np.testing.assert_array_equal(auto.x_ecef_m, whole.x_ecef_m)
+    np.testing.assert_array_equal(auto.status, whole.status)
+
+
+def test_static_auto_window_stops_at_a_move(static_set) -> None:  # type: ignore[no-untyped-def]
+    """The receiver moves 20 m east half-way: the chosen windows reach at most a few epochs
+    across the move, each side is averaged over long windows."""
+    cfg, data, ls, wls, ref = static_set
+    T = data.time_gps_s.size
+    lat, lon, _ = ecef2geodetic(ref[0])
+    east = ecef2enu_rotation(float(lat), float(lon))[0]
+    moved = np.arange(T) >= T // 2
+    truth = ref + 20.0 * moved[:, None] * east
+    shifted = dataclasses.replace(wls, x_ecef_m=wls.x_ecef_m + 20.0 * moved[:, None] * east)
+    sol, models = smooth(data, shifted, _smoothing(cfg, lag=1, model="static", window="auto"))
+    t0 = data.time_gps_s[T // 2]
+    # a window may reach a few epochs across the move: with the fixes' stated covariance (about
+    # 4 m east here) a 20 m step over k epochs adds about 25 k to the misfit
+    across = [min(t0 - m.start_time_gps_s, m.end_time_gps_s - t0 + 1) for m in models
+              if m.start_time_gps_s < t0 <= m.end_time_gps_s]
+    assert max(across, default=0) <= 8, across
+    from scipy.stats import chi2
+
+    assert all(m.misfit <= chi2.isf(1e-3, 3 * (m.n_epochs - 1)) for m in models)
+    assert max(m.n_epochs for m in models) >= T // 4
+    ok = sol.status == "ok"
+    assert ok.sum() >= T - 4
+    err = np.linalg.norm(sol.x_ecef_m[ok] - truth[ok], axis=1)
+    fixed, _ = smooth(data, shifted, _smoothing(cfg, lag=1, model="static", window=15))
+    # beyond 30 epochs of the move each side is its own average, up to the few epochs of the
+    # other side that a long window may take in (4 of 75 epochs: 1.1 m)
+    far = np.abs(np.flatnonzero(ok) - T // 2) > 30
+    assert err[far].max() < 1.5, err[far].max()
+    assert np.median(err) < 0.3, np.median(err)
+    # near the move, the fixed 15-epoch windows mix both positions (up to 10 m off); the ladder less
+    assert err.max() < 0.5 * np.linalg.norm(fixed.x_ecef_m - truth, axis=1).max(), err.max()
+
+
 # ------------------------------------------------------------------ simulated flight
 def test_flight_stls_lag3_identify_beats_ls(flight_dir: Path, tmp_path: Path) -> None:
     """The identified shared kernel over windows of the fixes (``--model identify``; the default
