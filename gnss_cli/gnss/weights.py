@@ -30,6 +30,12 @@ def ura_from_index_table(ura_m: F64) -> F64:
     return np.where(k < URA_TABLE_M.size, URA_TABLE_M[np.minimum(k, URA_TABLE_M.size - 1)], 6144.0)
 
 
+MAX_EPHEMERIS_SIGMA_M = 300.0
+"""A satellite whose broadcast orbit-and-clock sigma (URA, SISA) exceeds this (m) is not used, as
+RTKLIB's ``MAX_VAR_EPH`` (URA index 10 and above, Galileo NAPA). Weighted instead, such a
+satellite adds nothing to the position but a degree of freedom to the residual test: a record
+with a damaged URA of 266 km let six reflected GPS signals in the urban canyon pass the test
+100-180 m off (benchmarks/fuzz.py)."""
 GLONASS_EPHEMERIS_SIGMA_M = 5.0
 """GLONASS broadcast orbit-and-clock error sigma (RTKLIB ``ERREPH_GLO``): RINEX 3 records carry no URA."""
 GALILEO_NAPA_SIGMA_M = 500.0

@@ -34,6 +34,7 @@ from gnss_cli.gnss.observables import (
 from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
 from gnss_cli.gnss.time import gps_s2datetime
+from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
 from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
 from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
 from gnss_cli.pipeline.results import EpochData
@@ -154,12 +155,15 @@ def _snr(obs: xr.Dataset, prs: Pseudoranges) -> F64 | None:
     return out
 
 
-def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, config: ProcessingConfig) -> NDArray[np.int8]:
+def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, config: ProcessingConfig,
+            ura_m: F64) -> NDArray[np.int8]:
     """Why each observation is not usable (:data:`~gnss_cli.pipeline.results.UNUSED_REASONS` index;
-    -1 not observed, 0 usable): no ephemeris, ``exclude``, ``snr_mask_dbhz`` (an observation without
-    an S value passes the mask)."""
+    -1 not observed, 0 usable): no ephemeris, an ephemeris sigma ``ura_m`` (m) above
+    :data:`~gnss_cli.gnss.weights.MAX_EPHEMERIS_SIGMA_M`, ``exclude``, ``snr_mask_dbhz`` (an
+    observation without an S value passes the mask)."""
     code = np.zeros(prs.pr_m.shape, dtype=np.int8)
     code[~usable] = 1
+    code[(code == 0) & (ura_m > MAX_EPHEMERIS_SIGMA_M)] = 4
     code[(code == 0) & np.isin(prs.sv, list(config.exclude))[None, :]] = 2
     if snr is not None and config.snr_mask_dbhz > 0:
         code[(code == 0) & (snr < config.snr_mask_dbhz)] = 3
@@ -167,11 +171,12 @@ def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, confi
     return code
 
 
-def _selection(obs: xr.Dataset, prs: Pseudoranges, usable: NDArray[np.bool_],
-               config: ProcessingConfig) -> tuple[NDArray[np.bool_], F64 | None, NDArray[np.int8]]:
-    """Usable observations after ``exclude`` and ``snr_mask_dbhz``, the C/N0, the unused codes."""
+def _selection(obs: xr.Dataset, prs: Pseudoranges, usable: NDArray[np.bool_], config: ProcessingConfig,
+               ura_m: F64) -> tuple[NDArray[np.bool_], F64 | None, NDArray[np.int8]]:
+    """Usable observations after the ephemeris sigma limit, ``exclude`` and ``snr_mask_dbhz``, the
+    C/N0, the unused codes."""
     snr = _snr(obs, prs)
-    unused = _unused(prs, usable, snr, config)
+    unused = _unused(prs, usable, snr, config, ura_m)
     return usable & (unused == 0), snr, unused
 
 
@@ -279,7 +284,7 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
         records = setup.records(system)[0] if cols.size else None
         if records is not None:
             _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
-    selected, snr, unused = _selection(obs, prs, arrays.usable, config)
+    selected, snr, unused = _selection(obs, prs, arrays.usable, config, arrays.ura)
     usable = selected & np.isfinite(arrays.p_if) if setup.iono_free else selected
     if setup.iono_free:
         pr_corr = np.where(usable, arrays.p_if + C_M_S * arrays.clk, np.nan)

@@ -164,8 +164,10 @@ class WindowModel:
         return out
 
 
-UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask")
-"""Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving."""
+UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask", "ephemeris_sigma")
+"""Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving
+(``ephemeris_sigma``: the broadcast orbit-and-clock sigma exceeds
+:data:`~gnss_cli.gnss.weights.MAX_EPHEMERIS_SIGMA_M`)."""
 DOWNWEIGHTED_BELOW = 0.1
 """A used satellite whose robust weight factor is below this is reported (``satellites.csv``
 ``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
