@@ -32,6 +32,7 @@ response of the identified behavior (first order: the kernel is held fixed).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -168,20 +169,32 @@ def segment_frame(wls: MethodSolution, epochs: NDArray[np.intp], origin: F64) ->
                    0.5 * (cov_enu + cov_enu.transpose(0, 2, 1)))
 
 
-def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
-              opts: SmoothingConfig, step: int | None, gap_factor: float) -> tuple[list[Segment], list[WindowJob]]:
-    """Segments in their ENU frames and their windows; epochs of too short segments fall back to WLS."""
-    need = opts.min_window()
-    segs: list[Segment] = []
-    jobs: list[WindowJob] = []
+def _framed_segments(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
+                     need: int, gap_factor: float, segs: list[Segment]) -> Iterator[tuple[int, int]]:
+    """Each segment long enough for a window, appended to ``segs`` in its ENU frame: yields its
+    index and length; the epochs of too short segments fall back to WLS."""
     for seg in segments(data.time_gps_s, solved, gap_factor):
         if seg.size < need:
             status[seg] = _FALLBACK
             continue
         segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
-        bounds, owner = windows(seg.size, opts.window_epochs, step)
-        edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")  # owner is non-decreasing
-        jobs += [WindowJob(len(segs) - 1, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)]
+        yield len(segs) - 1, seg.size
+
+
+def _window_jobs(segment: int, n: int, length: int, step: int | None = None) -> list[WindowJob]:
+    """The sliding windows of ``length`` epochs over a segment of ``n`` and the epochs each supplies."""
+    bounds, owner = windows(n, length, step)
+    edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")  # owner is non-decreasing
+    return [WindowJob(segment, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)]
+
+
+def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
+              opts: SmoothingConfig, step: int | None, gap_factor: float) -> tuple[list[Segment], list[WindowJob]]:
+    """Segments in their ENU frames and their windows; epochs of too short segments fall back to WLS."""
+    segs: list[Segment] = []
+    jobs: list[WindowJob] = []
+    for si, n in _framed_segments(data, wls, solved, status, opts.min_window(), gap_factor, segs):
+        jobs += _window_jobs(si, n, opts.window_epochs, step)
     return segs, jobs
 
 
@@ -311,18 +324,10 @@ def ladder_schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.boo
     segs: list[Segment] = []
     jobs: list[WindowJob] = []
     fits: list[_Fit] = []
-    for seg in segments(data.time_gps_s, solved, gap_factor):
-        if seg.size < need:
-            status[seg] = _FALLBACK
-            continue
-        segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
-        si, n = len(segs) - 1, seg.size
+    for si, n in _framed_segments(data, wls, solved, status, need, gap_factor, segs):
         open_ = np.ones(n, dtype=bool)  # epochs without a passing window yet
         for length in ladder_lengths(n, need):
-            bounds, owner = windows(n, length)
-            edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")
-            level = [WindowJob(si, wi, a, b, int(edges[wi]), int(edges[wi + 1])) for wi, (a, b) in enumerate(bounds)
-                     if open_[edges[wi] : edges[wi + 1]].any()]
+            level = [job for job in _window_jobs(si, n, length) if open_[job.lo : job.hi].any()]
             if not level:
                 break
             level_fits = _fit_all(segs, level, opts)
@@ -337,7 +342,7 @@ def ladder_schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.boo
                 for lo, hi in _runs(mine):
                     jobs.append(WindowJob(si, len(jobs), job.a, job.b, lo, hi))
                     fits.append(fit)
-        status[seg[open_]] = _FALLBACK
+        status[segs[si].epochs[open_]] = _FALLBACK
     return segs, jobs, fits
 
 
