@@ -17,6 +17,8 @@ velocity through the drift-reduced range-rate normals ``(Md_t, rd_t, sd_t)``
     min  sum_t  z^T M z - 2 z^T r + v^T Md v - 2 v^T rd  +  sum_t |v_{t+1} - 2 v_t + v_{t-1}|^2 / (j^2 dt^4)
     s.t. the kernel equations,
 
+plus, when given, ``sum_t [z_{t-1}; z_t]^T Mp_t [z_{t-1}; z_t] - 2 [z_{t-1}; z_t]^T rp_t`` of rows on two
+consecutive positions (time-differenced carrier phase; their nuisance columns reduced), and
 the last term a weak prior on the jerk (``j`` = :data:`JERK_SIGMA_M_S3`; a constant acceleration
 costs nothing). With Doppler a velocity is observed to ~0.1 m/s, an information ~1e4 times the
 prior's, which then does not bend the trajectory (the simulated flights and the Yamatogawa walk
