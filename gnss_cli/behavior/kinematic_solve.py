@@ -17,6 +17,8 @@ velocity through the drift-reduced range-rate normals ``(Md_t, rd_t, sd_t)``
     min  sum_t  z^T M z - 2 z^T r + v^T Md v - 2 v^T rd  +  sum_t |v_{t+1} - 2 v_t + v_{t-1}|^2 / (j^2 dt^4)
     s.t. the kernel equations,
 
+plus, when given, ``sum_t [z_{t-1}; z_t]^T Mp_t [z_{t-1}; z_t] - 2 [z_{t-1}; z_t]^T rp_t`` of rows on two
+consecutive positions (time-differenced carrier phase; their nuisance columns reduced), and
 the last term a weak prior on the jerk (``j`` = :data:`JERK_SIGMA_M_S3`; a constant acceleration
 costs nothing). With Doppler a velocity is observed to ~0.1 m/s, an information ~1e4 times the
 prior's, which then does not bend the trajectory (the simulated flights and the Yamatogawa walk
@@ -120,24 +122,37 @@ def _prior(dt_s: F64) -> sp.csr_matrix:
     return out.tocsr()
 
 
-def _kkt(M_pr: F64, M_rr: F64, dt_s: F64, lag: int) -> sp.csc_matrix:
+def _pair_information(M_ph: F64) -> sp.csr_matrix:
+    """``(3N, 3N)`` information of the epoch pairs: ``M_ph[t]`` ``(6, 6)`` on ``[x_{t-1}, x_t]`` (row 0 unused)."""
+    n = M_ph.shape[0]
+    j = np.arange(1, n)
+    idx = 3 * (j - 1)[:, None] + np.arange(6)[None, :]  # (n - 1, 6) positions of [x_{t-1}, x_t]
+    rows = np.broadcast_to(idx[:, :, None], (n - 1, 6, 6))
+    cols = np.broadcast_to(idx[:, None, :], (n - 1, 6, 6))
+    return sp.csr_matrix((M_ph[1:].ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
+
+
+def _kkt(M_pr: F64, M_rr: F64, dt_s: F64, lag: int, M_ph: F64 | None = None) -> sp.csc_matrix:
     """The KKT matrix ``[[H, G^T], [G, 0]]`` on ``[x (3N), v (3N), multipliers (3N - 3)]``."""
     n = M_pr.shape[0]
     G = sp.kron(_constraints(dt_s, lag), sp.eye(3), format="csr")  # coordinate fastest
     H = sp.block_diag([sp.block_diag(list(M_pr)), sp.block_diag(list(M_rr))], format="csr")
+    if M_ph is not None and n > 1:
+        H = H + sp.block_diag([_pair_information(M_ph), sp.csr_matrix((3 * n, 3 * n))], format="csr")
     if n > 1:
         H = H + sp.block_diag([sp.csr_matrix((3 * n, 3 * n)), sp.kron(_prior(dt_s), sp.eye(3))], format="csr")
     return sp.bmat([[H, G.T], [G, None]], format="csc")
 
 
 def kinematic_position_cov(M_pr: F64, M_rr: F64, dt_s: F64, lag: int, *, piece: int = 120,
-                           margin: int = 60) -> F64:
+                           margin: int = 60, M_ph: F64 | None = None) -> F64:
     """Covariance blocks ``(N, 3, 3)`` of the positions of :func:`solve_kinematic` (units of ``1 / M``).
 
     The position block of the inverse KKT matrix (the equality-constrained estimator's
     covariance), for the information ``M_pr`` (pseudoranges) and ``M_rr`` (range rates). A
     segment longer than ``piece`` epochs is cut into pieces, each solved with ``margin`` epochs of
-    its neighbours on either side: less information than the whole segment, so the blocks are
+    its neighbours on either side (``M_ph``: the information of the epoch pairs, as in
+    :func:`solve_kinematic`): less information than the whole segment, so the blocks are
     then slightly larger (conservative), never smaller. On a simulated 20-min 1 Hz flight with
     Doppler the defaults gave traces within 0.2 % (median; 3.4 % at most) of the whole-segment
     inverse at an eighth of its cost (the cost grows with ``piece + 2 margin`` per epoch).
@@ -147,7 +162,11 @@ def kinematic_position_cov(M_pr: F64, M_rr: F64, dt_s: F64, lag: int, *, piece: 
     for a in range(0, n, piece):
         b = min(n, a + piece)
         lo, hi = max(0, a - margin), min(n, b + margin)
-        lu = splu(_kkt(M_pr[lo:hi], M_rr[lo:hi], dt_s[lo : hi - 1], lag))
+        ph = None
+        if M_ph is not None:
+            ph = M_ph[lo:hi].copy()
+            ph[0] = 0.0  # the pair ending at the piece's first epoch starts outside it
+        lu = splu(_kkt(M_pr[lo:hi], M_rr[lo:hi], dt_s[lo : hi - 1], lag, ph))
         size = lu.shape[0]
         for c0 in range(3 * (a - lo), 3 * (b - lo), 384):
             c1 = min(3 * (b - lo), c0 + 384)
@@ -160,7 +179,8 @@ def kinematic_position_cov(M_pr: F64, M_rr: F64, dt_s: F64, lag: int, *, piece: 
     return 0.5 * (cov + cov.transpose(0, 2, 1))
 
 
-def solve_kinematic(pr: EpochNormals, rr: EpochNormals, step_m: F64, dt_s: F64, lag: int = 1) -> KinematicSolution:
+def solve_kinematic(pr: EpochNormals, rr: EpochNormals, step_m: F64, dt_s: F64, lag: int = 1,
+                    ph: EpochNormals | None = None) -> KinematicSolution:
     """Solve one segment (module docstring).
 
     Parameters
@@ -174,18 +194,30 @@ def solve_kinematic(pr: EpochNormals, rr: EpochNormals, step_m: F64, dt_s: F64, 
         Time steps, s.
     lag : 1, 2 or 3
         Kernel (:data:`STEP_RULES`).
+    ph : EpochNormals, optional
+        Normals of rows on two consecutive positions (time-differenced carrier phase), the
+        nuisance columns reduced: ``ph.M[t]`` ``(6, 6)`` and ``ph.r[t]`` ``(6,)`` on
+        ``[z_{t-1}, z_t]``; row 0 is not used (the term ``z^T M z - 2 z^T r`` joins the sum).
 
     Returns
     -------
     KinematicSolution
     """
     n = pr.M.shape[0]
-    kkt = _kkt(pr.M, rr.M, dt_s, lag)
-    rhs = np.concatenate([pr.r.ravel(), rr.r.ravel()])
+    kkt = _kkt(pr.M, rr.M, dt_s, lag, None if ph is None else ph.M)
+    r_x = pr.r.copy()
+    if ph is not None and n > 1:
+        r_x[:-1] += ph.r[1:, :3]
+        r_x[1:] += ph.r[1:, 3:]
+    rhs = np.concatenate([r_x.ravel(), rr.r.ravel()])
     c = -step_m.ravel()  # z_{t+1} - z_t - (velocity terms) = -(x_nom_{t+1} - x_nom_t)
     sol = spsolve(kkt, np.concatenate([rhs, c]))
     z, v = sol[: 3 * n].reshape(n, 3), sol[3 * n : 6 * n].reshape(n, 3)
     mis = float(pr.s.sum() - 2 * np.sum(z * pr.r) + np.einsum("ti,tij,tj->", z, pr.M, z)
                 + rr.s.sum() - 2 * np.sum(v * rr.r) + np.einsum("ti,tij,tj->", v, rr.M, v))
     dof = int(pr.n_rows.sum() - pr.n_free.sum() + rr.n_rows.sum() - rr.n_free.sum() - 3 * n - 3)
+    if ph is not None and n > 1:
+        z6 = np.hstack([z[:-1], z[1:]])
+        mis += float(ph.s[1:].sum() - 2 * np.sum(z6 * ph.r[1:]) + np.einsum("ti,tij,tj->", z6, ph.M[1:], z6))
+        dof += int(ph.n_rows[1:].sum() - ph.n_free[1:].sum())
     return KinematicSolution(z, v, mis, dof)

@@ -321,8 +321,14 @@ def _apply_smoothing(base: SmoothingConfig, table: Mapping[str, Any], source: st
     for key, value in table.items():
         if key in ("model", "kernel"):
             values[key] = str(value)
-        elif key in ("tolerance", "window_pfa"):
+        elif key in ("tolerance", "window_pfa", "phase_sigma_m", "phase_slip_m"):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ConfigError(f"{source}: smoothing.{key}: expected a number; received {value!r}")
             values[key] = float(value)
+        elif key == "carrier_phase":
+            if not isinstance(value, bool):
+                raise ConfigError(f"{source}: smoothing.{key}: expected true or false; received {value!r}")
+            values[key] = value
         elif key == "window" and isinstance(value, str):
             text = value.strip().lower()
             if text != "auto" and not text.isdigit():

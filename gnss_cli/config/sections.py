@@ -58,6 +58,9 @@ class SmoothingConfig:
     window_pfa: float = 1e-3
     tolerance: float = 1e-6
     max_iterations: int = 200
+    carrier_phase: bool = True
+    phase_sigma_m: float = 0.02
+    phase_slip_m: float = 1.0
 
     def resolved(self, has_doppler: bool) -> "SmoothingConfig":
         """Self with ``model = "auto"`` replaced by ``"doppler"`` (range rates available, and no full
@@ -129,6 +132,12 @@ class SmoothingConfig:
         if isinstance(self.window_pfa, bool) or not isinstance(self.window_pfa, (int, float)) \
                 or not 0 < self.window_pfa < 0.5:
             raise ConfigError(f"smoothing.window_pfa: expected a probability in (0, 0.5); received {self.window_pfa!r}")
+        if not isinstance(self.carrier_phase, bool):
+            raise ConfigError(f"smoothing.carrier_phase: expected true or false; received {self.carrier_phase!r}")
+        for name in ("phase_sigma_m", "phase_slip_m"):
+            value = getattr(self, name)
+            if not value > 0:  # also NaN
+                raise ConfigError(f"smoothing.{name}: expected > 0; received {value!r}")
         if self.model == "auto" and self.lag > 0:  # without Doppler it is "identify": check that
             replace(self, model="identify").validated()
             return self

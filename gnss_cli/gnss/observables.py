@@ -17,6 +17,7 @@ import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.gnss.time import datetime2gps_s
+from gnss_cli.io.fixed_width import lli_name
 
 DEFAULT_SIGNAL_PRIORITY: dict[str, tuple[str, ...]] = {
     "G": ("C1C", "C1", "C1W", "P1", "C1X", "C1P"),
@@ -160,3 +161,34 @@ def select_dopplers(obs: xr.Dataset, prs: Pseudoranges) -> NDArray[np.float64] |
         use = (prs.code == c) & np.isfinite(vals) & (vals != 0.0)
         out[use] = vals[use]
     return out if np.isfinite(out).any() else None
+
+
+def phase_code(code: str) -> str:
+    """The carrier-phase observation of a pseudorange code's signal: ``C1C`` -> ``L1C``, ``C1``/``P1`` -> ``L1``.
+
+    >>> phase_code("C1C"), phase_code("P1"), phase_code("C2I")
+    ('L1C', 'L1', 'L2I')
+    """
+    return "L" + code[1:]
+
+
+def select_phases(obs: xr.Dataset, prs: Pseudoranges) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """``(T, n)`` carrier phase (cycles) of the signal of each chosen pseudorange code and its
+    loss-of-lock indicator (the reader's ``<code>lli``; 0 where the file has none), on ``prs``'s
+    axes, as :func:`select_dopplers`. NaN where the file has no value (blank, or exactly 0). None
+    when the file has no phase of any chosen code."""
+    have = [c for c in np.unique(prs.code) if c and phase_code(str(c)) in obs]
+    if not have:
+        return None
+    col = {sv: i for i, sv in enumerate(np.asarray(obs["sv"].values).astype(str))}
+    idx = np.array([col[sv] for sv in prs.sv], dtype=np.intp)
+    out, lli = np.full(prs.pr_m.shape, np.nan), np.zeros(prs.pr_m.shape)
+    for c in have:
+        code = phase_code(str(c))
+        vals = np.asarray(obs[code].values, dtype=np.float64)[:, idx]
+        use = (prs.code == c) & np.isfinite(vals) & (vals != 0.0)
+        out[use] = vals[use]
+        if lli_name(code) in obs:
+            flags = np.asarray(obs[lli_name(code)].values, dtype=np.float64)[:, idx]
+            lli[use] = np.nan_to_num(flags[use])
+    return (out, lli) if np.isfinite(out).any() else None

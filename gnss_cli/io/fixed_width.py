@@ -17,6 +17,7 @@ from gnss_cli.errors import RinexFormatError, UsageError
 __all__ = [
     "split_lines", "gather_columns", "parse_uint_columns", "parse_uint_fields", "civil_ranges_ok",
     "civil2datetime64", "parse_f14_3", "parse_float_fields", "sv_codes2str", "parse_decimal_ns", "days_in_month",
+    "parse_lli", "lli_name", "wants_lli",
 ]
 
 SPACE = 32
@@ -313,3 +314,42 @@ def sv_codes2str(codes: NDArray[np.int64]) -> NDArray[np.str_]:
     """Turn integer satellite codes ``(system << 16) | (tens << 8) | units`` into ``'<U3'`` ids."""
     chars = np.stack([(codes >> 16) & 255, (codes >> 8) & 255, codes & 255], axis=1).astype(np.uint8)
     return np.ascontiguousarray(chars).view("S3").ravel().astype("<U3")
+
+
+def lli_name(code: str) -> str:
+    """Name of the variable holding the loss-of-lock indicators of a phase code: ``L1C`` -> ``L1Clli``
+    (georinex's name with ``useindicators=True``)."""
+    return code + "lli"
+
+
+def wants_lli(code: str, codes: object) -> bool:
+    """Whether the loss-of-lock indicators of observation ``code`` are asked for: a phase code
+    (``L...``) and ``codes`` (the readers' code prefixes; None = every code, without indicators)
+    holds ``<prefix>lli`` for a prefix of it.
+
+    >>> wants_lli("L1C", ["C1", "L1", "L1lli"]), wants_lli("L1C", ["L1"]), wants_lli("L1C", None)
+    (True, False, False)
+    """
+    if not code.startswith("L") or codes is None:
+        return False
+    return any(str(p).endswith("lli") and code.startswith(str(p)[:-3]) for p in codes)  # type: ignore[attr-defined]
+
+
+def parse_lli(chars: NDArray[np.uint8]) -> NDArray[np.float64]:
+    """Loss-of-lock indicators from the one character after each F14.3 value (RINEX 2/3/4).
+
+    Parameters
+    ----------
+    chars : ``(n, 1)`` uint8, the column after the value.
+
+    Returns
+    -------
+    ``(n,)`` float64: the digit 0-7 (bit 0: lost lock before this observation, a possible cycle
+    slip; bit 1: half-cycle ambiguity / opposite wavelength factor); 0 for a blank or any other
+    character (RINEX: blank means "not known to be lost").
+
+    >>> parse_lli(np.frombuffer(b"1 3x", dtype=np.uint8)[:, None]).tolist()
+    [1.0, 0.0, 3.0, 0.0]
+    """
+    c = chars[:, 0].astype(np.int64) - DIGIT0
+    return np.where((c >= 0) & (c <= 9), c, 0).astype(np.float64)

@@ -128,7 +128,10 @@ def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequ
     systems
         System letters to keep (``['G']``); None keeps all.
     codes
-        Observation codes to keep (``['C1C', 'C1']``); None keeps all.
+        Observation codes to keep (``['C1C', 'C1']``); None keeps all. A phase code (or prefix)
+        followed by ``lli`` (``'L1Clli'``, ``'L1lli'``) also asks for the loss-of-lock indicators
+        of the matching phase codes, as variables ``L1Clli`` (georinex's names; 0 where blank, NaN
+        where there is no phase; not with the georinex fallback of RINEX 3 files).
 
     Returns
     -------

@@ -31,7 +31,8 @@ import xarray
 from numpy.typing import NDArray
 
 from gnss_cli.errors import RinexFormatError
-from gnss_cli.io.fixed_width import DIGIT0, SPACE, gather_columns, parse_f14_3, parse_float_fields, split_lines, sv_codes2str
+from gnss_cli.io.fixed_width import (DIGIT0, SPACE, gather_columns, lli_name, parse_f14_3, parse_float_fields, parse_lli,
+                                      split_lines, sv_codes2str, wants_lli)
 from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.rinex3_header import read_header
 
@@ -338,6 +339,11 @@ def parse_obs2(name: str, header: str, body: bytes, systems: Sequence[str] | Non
         grid = np.full(size, np.nan)
         grid[flat] = values
         data_vars[code] = (("time", "sv"), grid.reshape(time_values.size, sv_values.size))
+        if wants_lli(code, codes):  # carrier phase: its loss-of-lock indicator, NaN where no phase
+            lli = gather_columns(buf, starts[idx], lengths[idx], (k % _PER_LINE) * _FIELD_WIDTH + _VALUE_WIDTH, 1)
+            grid = np.full(size, np.nan)
+            grid[flat] = np.where(np.isfinite(values), parse_lli(lli), np.nan)
+            data_vars[lli_name(code)] = (("time", "sv"), grid.reshape(time_values.size, sv_values.size))
     ds = xarray.Dataset(data_vars, coords={"time": time_values.astype("datetime64[ns]"), "sv": sv_codes2str(sv_values)})
     if "interval" not in attrs and time_values.size > 1:
         attrs["interval"] = float(np.median(np.diff(time_values)) / 1e9)

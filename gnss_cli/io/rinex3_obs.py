@@ -34,8 +34,11 @@ from gnss_cli.io.fixed_width import (
     civil2datetime64,
     civil_ranges_ok,
     gather_columns,
+    lli_name,
+    wants_lli,
     parse_f14_3,
     parse_float_fields,
+    parse_lli,
     parse_uint_columns,
     parse_uint_fields,
     split_lines,
@@ -120,10 +123,11 @@ def _validate_selection(
         codes = [codes]
     if codes is not None:
         codes = [c.strip() for c in codes]
-        bad = [c for c in codes if not c or len(c) > 3 or not c.isalnum()]
+        base = [c[:-3] if len(c) > 3 and c.endswith("lli") else c for c in codes]  # 'L1Clli': L1C's indicators
+        bad = [c for c in base if not c or len(c) > 3 or not c.isalnum()]
         if bad or not codes:
             raise UsageError(
-                f"codes: expected observation codes such as 'C1C' or prefixes 'C1', got {codes!r}"
+                f"codes: expected observation codes such as 'C1C', prefixes 'C1' or phase indicators 'L1Clli', got {codes!r}"
             )
     return systems, codes
 
@@ -229,7 +233,7 @@ def parse_obs3(
     time_values, time_of_line = np.unique(times.time[line_epoch], return_inverse=True)
     sv_values, sv_of_line = np.unique(sv_code, return_inverse=True)
     flat = time_of_line * sv_values.size + sv_of_line
-    variables = _decode_values(lines, data_idx, sys_code, flat, time_values.size * sv_values.size, chosen, name)
+    variables = _decode_values(lines, data_idx, sys_code, flat, time_values.size * sv_values.size, chosen, name, codes)
     return _dataset(variables, time_values, sv_values, attrs, name)
 
 
@@ -360,9 +364,11 @@ def _check_record_lengths(lines: _Lines, data_idx: NDArray[np.int64], sys_code: 
 
 def _decode_values(
     lines: _Lines, data_idx: NDArray[np.int64], sys_code: NDArray[np.uint8], flat: NDArray[np.int64], size: int,
-    chosen: dict[str, list[tuple[int, str]]], name: str,
+    chosen: dict[str, list[tuple[int, str]]], name: str, codes: Sequence[str] | None = None,
 ) -> dict[str, NDArray[np.float64]]:
-    """One flat ``(time * sv)`` array per chosen code, NaN where missing; ``flat`` is each line's cell."""
+    """One flat ``(time * sv)`` array per chosen code, NaN where missing; ``flat`` is each line's cell.
+    The loss-of-lock indicators of the phase codes that ``codes`` asks them for (``L1Clli``:
+    :func:`~gnss_cli.io.fixed_width.wants_lli`), NaN where there is no phase."""
     variables: dict[str, NDArray[np.float64]] = {}
     for sys_char, pairs in chosen.items():
         rows = np.flatnonzero(sys_code == ord(sys_char))
@@ -378,6 +384,10 @@ def _decode_values(
             if code not in variables:
                 variables[code] = np.full(size, np.nan)
             variables[code][flat[rows]] = values
+            if wants_lli(code, codes):  # carrier phase: its loss-of-lock indicator, NaN where no phase
+                lli = lines.columns(data_idx[rows], _SV_WIDTH + _FIELD_WIDTH * k + _VALUE_WIDTH, 1)
+                variables.setdefault(lli_name(code), np.full(size, np.nan))[flat[rows]] = np.where(
+                    np.isfinite(values), parse_lli(lli), np.nan)
     return variables
 
 

@@ -31,7 +31,7 @@ class DopplerStreamSmoother:
     """The doppler model over parts: :meth:`push` as :class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`."""
 
     def __init__(self, config: ProcessingConfig, margin_epochs: int = MARGIN_EPOCHS,
-                 factors: tuple[float, float] | None = None) -> None:
+                 factors: tuple[float, ...] | None = None) -> None:
         self.config = config
         self.factors = factors
         self.margin = int(margin_epochs)

@@ -20,6 +20,7 @@ from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import RinexFormatError
 from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
+from gnss_cli.gnss.carrier import phase_slips
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
 from gnss_cli.gnss.observables import (
     DEFAULT_SECOND_SIGNAL_PRIORITY,
@@ -28,13 +29,16 @@ from gnss_cli.gnss.observables import (
     align_pseudoranges,
     codes_for,
     doppler_code,
+    phase_code,
     select_dopplers,
+    select_phases,
     select_pseudoranges,
 )
 from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
+from gnss_cli.io.fixed_width import lli_name
 from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
 from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
 from gnss_cli.pipeline.results import EpochData
@@ -245,6 +249,9 @@ def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: 
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
     codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
+    if config.smoothing.carrier_phase and config.smoothing.lag > 0:  # for the doppler model (phase_rows)
+        phases = [phase_code(c) for c in codes_for(systems, priority)]
+        codes += [c for c in phases + [lli_name(c) for c in phases] if c not in codes]
     if config.iono == "iono-free":
         codes += [c for c in codes_for(systems, priority2) if c not in codes]
     return EpochSetup(str(obs_path), tuple(str(p) for p in nav_paths), config, explicit, systems, priority, priority2, codes)
@@ -296,6 +303,7 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
         marker_name=str(obs.attrs.get("marker_name", "") or ""), obs_path=setup.obs_path, nav_paths=setup.nav_paths,
         iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused, leap_seconds=setup.leap_seconds,
         **_rates(arrays, doppler_hz, usable),
+        **_phases(obs, prs, arrays, doppler_hz, usable, t, config),
     )
     cov = Coverage(have_obs.any(axis=0), arrays.usable.any(axis=0), selected.any(axis=0), usable.any(axis=0),
                    float(t.min()), float(t.max()))
@@ -412,3 +420,20 @@ def _rates(arrays: _SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.
         return {}
     rate = np.where(usable, -C_M_S / arrays.freq * doppler_hz, np.nan)
     return {"range_rate_m_s": rate, "sat_vel_ecef_m_s": arrays.vel, "sat_clock_drift_s_s": arrays.drift}
+
+
+def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: _SatelliteArrays, doppler_hz: F64 | None,
+            usable: NDArray[np.bool_], t: F64, config: ProcessingConfig) -> dict[str, F64 | NDArray[np.bool_]]:
+    """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
+    have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler
+    (the wavelengths and the slip check come with it), or when ``smoothing.carrier_phase`` is off."""
+    if not config.smoothing.carrier_phase or doppler_hz is None or arrays.freq is None:
+        return {}
+    selected = select_phases(obs, prs)
+    if selected is None:
+        return {}
+    cycles, lli = selected
+    lam = C_M_S / arrays.freq
+    phase = np.where(usable, lam * cycles + C_M_S * arrays.clk, np.nan)
+    slip = phase_slips(t, phase, np.where(usable, -lam * doppler_hz, np.nan), lli, config.smoothing.phase_slip_m)
+    return {"phase_m": phase, "phase_slip": slip}

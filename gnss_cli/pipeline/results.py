@@ -228,6 +228,14 @@ class EpochData:
     sat_clock_drift_s_s: F64 | None = None
     """``(T, n)`` satellite clock drift at transmit time, s/s (broadcast clock with its
     relativistic term; with Doppler)."""
+    phase_m: F64 | None = None
+    """``(T, n)`` carrier phase of the chosen code's signal times its wavelength, plus c times the
+    satellite clock (as ``pr_corrected_m``), m; its ambiguity is unknown, only time differences
+    are used. NaN where there is no phase or the pseudorange is not usable. None when the file has
+    no phase of any chosen code, or without Doppler (the wavelengths come with the range rates)."""
+    phase_slip: NDArray[np.bool_] | None = None
+    """``(T, n)`` the phase may have slipped since the previous epoch: loss-of-lock indicator bit 0,
+    or a jump against the Doppler (:func:`~gnss_cli.gnss.carrier.phase_slips`)."""
 
 
 @dataclass(frozen=True)

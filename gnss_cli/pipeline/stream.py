@@ -65,7 +65,7 @@ def streamable(config: ProcessingConfig) -> bool:
 
 
 def _smoother(config: ProcessingConfig, has_doppler: bool, nominal_step_s: float,
-              factors: tuple[float, float] | None) -> StreamSmoother | DopplerStreamSmoother:
+              factors: tuple[float, ...] | None) -> StreamSmoother | DopplerStreamSmoother:
     """The smoother of the parts: the doppler model in overlapping pieces with the whole file's
     variance ``factors``, the window models exactly."""
     config = replace(config, smoothing=config.smoothing.resolved(has_doppler and config.kalman.doppler))
@@ -215,7 +215,7 @@ class ChunkedRun:
             yield finish_epochs(data, used), part_cov
 
     def _doppler_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray,
-                         used: tuple[str, ...], n_epochs: int) -> tuple[float, float] | None:
+                         used: tuple[str, ...], n_epochs: int) -> tuple[float, ...] | None:
         """The whole file's variance factors of the doppler smoothing model (a pass of WLS over the
         parts), so that every piece weighs as the whole file would; None for another model."""
         config = self.config
@@ -223,7 +223,7 @@ class ChunkedRun:
             return None
         from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
 
-        totals = np.zeros(4)
+        totals = np.zeros(6)  # misfit and degrees of freedom: pseudoranges, range rates, phase pairs
         done = 0
         wls_only = replace(config, methods=("wls",))
         for k, (data, _) in enumerate(self._epochs(setup, systems, sv, used)):
@@ -238,7 +238,7 @@ class ChunkedRun:
         return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
 
     def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], nominal: float,
-              n_epochs: int, factors: tuple[float, float] | None = None):  # type: ignore[no-untyped-def]
+              n_epochs: int, factors: tuple[float, ...] | None = None):  # type: ignore[no-untyped-def]
         """One pass of reading, solving and handing out; returns the coverage and the status counts."""
         config = self.config
         lag = config.smoothing.lag

@@ -1,0 +1,139 @@
+"""Time-differenced carrier phase in the ``"doppler"`` smoothing model (``smoothing.carrier_phase``).
+
+The simulator writes no carrier phase, so the phase is made here from a noise-free flight of the
+same seed (same orbits, trajectory and receiver clock): its corrected pseudorange is the exact
+range plus clock, and a constant per satellite (the unknown ambiguity) is added.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gnss_cli.config import load_config
+from gnss_cli.errors import ConfigError
+from gnss_cli.gnss.carrier import phase_slips
+from gnss_cli.io.reference import reference_from_csv
+from gnss_cli.pipeline import load_epochs, solve_method
+from gnss_cli.pipeline.doppler_smoothing import doppler_smooth, solve_doppler_segments
+from gnss_cli.pipeline.results import EpochData
+
+from flight_scenarios import simulate_flight
+
+BASE = {"methods": "wls,stls", "smoothing.lag": 3, "iono": "none", "tropo": "none"}
+L1_M = 299792458.0 / 1575.42e6
+
+
+def _rms(x: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(np.sum((x - ref) ** 2, axis=1))))
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    cfg = load_config(None, BASE)
+    out: dict[str, object] = {"cfg": cfg}
+    for errors in ("none", "noise"):
+        d = simulate_flight(tmp_path_factory.mktemp(errors), errors)
+        data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+        assert data.phase_m is None  # the simulator writes no phase
+        out[errors] = data
+        out["ref"] = reference_from_csv(d / "truth.csv", data.time_gps_s)
+    exact, noisy = out["none"], out["noise"]
+    assert isinstance(exact, EpochData) and isinstance(noisy, EpochData)
+    np.testing.assert_allclose(exact.sat_ecef_m, noisy.sat_ecef_m, atol=1e-3)  # the same sky: one phase for both
+    ambiguity = L1_M * np.random.default_rng(5).integers(-10**6, 10**6, exact.sv.size)
+    out["phase"] = exact.pr_corrected_m + ambiguity
+    return out
+
+
+def _with_phase(data: EpochData, phase: np.ndarray, cfg, lli: np.ndarray | None = None) -> EpochData:  # type: ignore[no-untyped-def]
+    lli = np.zeros(phase.shape) if lli is None else lli
+    slip = phase_slips(data.time_gps_s, phase, data.range_rate_m_s, lli, cfg.smoothing.phase_slip_m)
+    return replace(data, phase_m=np.where(data.usable, phase, np.nan), phase_slip=slip)
+
+
+def test_exact_phase_keeps_exact_data_exact(flights) -> None:  # type: ignore[no-untyped-def]
+    cfg, ref = flights["cfg"], flights["ref"]
+    data = _with_phase(flights["none"], flights["phase"], cfg)
+    sol, models = doppler_smooth(data, solve_method(data, "wls", cfg), cfg)
+    assert "phase pairs" in models[0].message
+    err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
+    assert np.sqrt(np.mean(err**2)) <= 0.01 and err.max() <= 0.02
+
+
+def test_exact_phase_averages_the_pseudorange_noise(flights) -> None:  # type: ignore[no-untyped-def]
+    """The differences fix the trajectory's shape: 1 m pseudorange noise averages over the segment."""
+    cfg, ref, noisy = flights["cfg"], flights["ref"], flights["noise"]
+    wls = solve_method(noisy, "wls", cfg)
+    without = _rms(doppler_smooth(noisy, wls, cfg)[0].x_ecef_m, ref)
+    data = _with_phase(noisy, flights["phase"], cfg)
+    run = solve_doppler_segments(data, wls, cfg, 3)
+    assert run is not None and run.phase and run.factors[2] < 1e-3  # exact differences: a tiny factor
+    assert _rms(run.x_ecef_m, ref) < 0.5 * without
+    off = load_config(None, {**BASE, "smoothing.carrier_phase": False})
+    assert _rms(doppler_smooth(data, wls, off)[0].x_ecef_m, ref) == pytest.approx(without, abs=1e-9)
+
+
+@pytest.mark.parametrize("cycles", [10, 1])
+def test_a_cycle_slip_does_not_bias_the_track(flights, cycles: int) -> None:  # type: ignore[no-untyped-def]
+    """A slip of 10 cycles (1.9 m) is flagged by the Doppler check; one of 1 cycle (0.19 m, within
+    the Doppler's reach) by the residual gate. Either way the track stays that of the clean phase,
+    and a phase that keeps the slip unflagged and ungated pulls it."""
+    cfg, noisy = flights["cfg"], flights["noise"]
+    wls = solve_method(noisy, "wls", cfg)
+    clean = solve_doppler_segments(_with_phase(noisy, flights["phase"], cfg), wls, cfg, 3)
+    sat = int(np.flatnonzero(noisy.usable[100:200].all(axis=0))[0])
+    slipped = flights["phase"].copy()
+    slipped[150:, sat] += cycles * L1_M
+    data = _with_phase(noisy, slipped, cfg)
+    assert data.phase_slip is not None
+    assert data.phase_slip[150, sat] == (cycles == 10) and data.phase_slip.sum() == (cycles == 10)
+    run = solve_doppler_segments(data, wls, cfg, 3)
+    assert clean is not None and run is not None
+    assert np.abs(run.x_ecef_m - clean.x_ecef_m).max() < 0.02
+    off = load_config(None, {**BASE, "integrity": "off"})
+    pulled = solve_doppler_segments(replace(data, phase_slip=np.zeros_like(data.phase_slip)), wls, off, 3)
+    assert pulled is not None and np.abs(pulled.x_ecef_m - clean.x_ecef_m).max() > 0.05
+
+
+def test_loss_of_lock_indicator_breaks_the_difference(flights) -> None:  # type: ignore[no-untyped-def]
+    """Bit 0 of the indicator at t drops the pair (t-1, t); bit 1 (half cycle) does not."""
+    cfg, noisy = flights["cfg"], flights["noise"]
+    lli = np.zeros(noisy.pr_corrected_m.shape)
+    lli[40, 2], lli[41, 3] = 1, 2
+    data = _with_phase(noisy, flights["phase"], cfg, lli)
+    assert data.phase_slip is not None and data.phase_slip[40, 2] and not data.phase_slip[41, 3]
+
+
+@pytest.mark.parametrize(("key", "value"), [("phase_sigma_m", 0.0), ("phase_slip_m", -1.0),
+                                            ("carrier_phase", "yes"), ("phase_sigma_m", "0.02")])
+def test_bad_phase_settings_are_config_errors(key: str, value: object) -> None:
+    with pytest.raises(ConfigError, match=f"smoothing.{key}"):
+        load_config(None, {**BASE, f"smoothing.{key}": value})
+
+
+def test_reader_gives_the_indicators_of_the_file(tmp_path: Path) -> None:
+    """The indicators of the L1 field of a RINEX 2 file equal the column after each value, read
+    here character by character; blank is 0, and none without the ``lli`` code."""
+    from gnss_cli.io.rinex import read_obs
+
+    text = """     2.10           OBSERVATION DATA    G (GPS)             RINEX VERSION / TYPE
+     3    C1    L1    D1                                    # / TYPES OF OBSERV 
+  2010     1     6     5    57    3.0000000     GPS         TIME OF FIRST OBS   
+                                                            END OF HEADER       
+ 10  1  6  5 57  3.0000000  0  2G02G04
+  21128675.686 7     -7818.26327      2781.846 7
+  20670375.121 8      1562.632 8       211.206 8
+ 10  1  6  5 57  4.0000000  0  2G02G04
+  21128147.158 7    -10597.3281       2779.466 7
+  20670335.688 8      1357.12628       208.050 8
+"""
+    path = tmp_path / "lli.10o"
+    path.write_text(text)
+    ds = read_obs(path, codes=["C1", "L1", "L1lli"])
+    np.testing.assert_array_equal(ds["L1lli"].values, [[2.0, 0.0], [1.0, 2.0]])
+    assert float(ds["L1"].values[1, 0]) == -10597.328
+    assert "L1lli" not in read_obs(path, codes=["C1", "L1"])
