@@ -5,7 +5,9 @@ The doppler model solves whole segments; a long file is instead solved piece by 
 piece is the epochs not yet handed out plus :data:`MARGIN_EPOCHS` epochs on either side (those
 before it already handed out, those after it still to come), and only its middle is handed
 out. The kinematic kernel ties an epoch to its neighbours, and the pull of an observation
-fades with its distance in epochs. The variance factors are the whole file's, summed over a
+fades with its distance in epochs; carrier-phase differences (when the file has phase) tie
+the epochs of a piece rigidly, so there a piece's pseudoranges are averaged over the piece
+instead of the whole segment (tst2 in parts of 300 epochs: up to 0.56 m from the whole run). The variance factors are the whole file's, summed over a
 pass of WLS through the parts before the first piece is smoothed
 (:meth:`~gnss_cli.pipeline.stream.ChunkedRun`); each piece applies its own residual gate. The
 result is therefore close to, not bit for bit, the whole file's (measured in

@@ -172,7 +172,7 @@ DOWNWEIGHTED_BELOW = 0.1
 """A used satellite whose robust weight factor is below this is reported (``satellites.csv``
 ``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
 EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused",
-                     "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s")
+                     "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s", "phase_m", "phase_slip")
 """Fields of :class:`EpochData` with the epoch axis first."""
 
 
