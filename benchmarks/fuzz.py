@@ -79,6 +79,10 @@ DATASETS = {
     "malformed-obscount": ("malformed/wrong_obs2_count.10o", ["rtklib-0759/07590920.05n"]),
     "malformed-blanknav": ("rtklib-0759/07590920.05o", ["malformed/blank.10n"]),
 }
+SMOOTHED_SHARE = 0.15
+SMOOTHED_OPTIONS = ("--method", "wls,stls", "--lag", "3")
+"""A share of the cases also runs the default multi-epoch solution (Doppler, carrier phase and
+its loss-of-lock flags are read for it); positions are checked on the wls rows."""
 WEIGHTS = {"0759": 0.3, "kms3": 0.25, "p433": 0.17, "tst2": 0.13}
 """Share of the cases per data set; the malformed ones share what is left."""
 
@@ -125,8 +129,11 @@ def plan_case(seed: int, case: int, datasets: dict[str, tuple[str, list[str]]],
     if path.endswith(".crx"):
         choices.append("hatanaka_corrupt")
     mutator = choices[int(rng.integers(0, len(choices)))]
-    return {"case": case, "seed": seed, "dataset": name, "target": target, "file": path, "mutator": mutator,
+    plan = {"case": case, "seed": seed, "dataset": name, "target": target, "file": path, "mutator": mutator,
             "rng_state": int(rng.integers(0, 2**62))}
+    if rng.random() < SMOOTHED_SHARE:
+        plan["options"] = list(SMOOTHED_OPTIONS)
+    return plan
 
 
 def build_case(plan: dict, root: Path, indir: Path) -> tuple[list[Path], dict]:
@@ -214,12 +221,15 @@ def _run_cli(argv: list[str], workdir: Path) -> tuple[int, str, str]:
 
 
 def _positions(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str], dict[str, float]]:
-    """Position (ECEF, m), status and ``hypot(hpl_m, vpl_m)`` (m) per epoch key of a positions.csv."""
+    """Position (ECEF, m), status and ``hypot(hpl_m, vpl_m)`` (m) per epoch key of the wls rows of
+    a positions.csv."""
     xyz, status, pls = {}, {}, {}
     if not path.is_file():
         return xyz, status, pls
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
+            if row.get("method", "wls") != "wls":
+                continue
             key = f"{row['gps_week']}:{row['tow_s']}"
             try:
                 xyz[key] = np.array([float(row["x_m"]), float(row["y_m"]), float(row["z_m"])])
@@ -330,6 +340,7 @@ def run_case(plan: dict, root: Path, workdir: Path) -> dict:
     indir.mkdir(parents=True)
     rundir.mkdir()
     rec = {k: plan[k] for k in ("case", "dataset", "target", "file", "mutator")}
+    rec["options"] = plan.get("options", [])
     try:
         paths, details = build_case(plan, root, indir)
     except Exception as exc:  # noqa: BLE001 - a mutator that cannot apply is recorded, not fatal
@@ -337,7 +348,7 @@ def run_case(plan: dict, root: Path, workdir: Path) -> dict:
         return rec
     rec["details"] = details
     inputs_before = _listing(indir)
-    argv = [str(p) for p in paths] + ["--quiet", "--out-dir", str(rundir / "out")]
+    argv = [str(p) for p in paths] + ["--quiet", "--out-dir", str(rundir / "out"), *plan.get("options", [])]
     t0 = time.perf_counter()
     code, stdout, stderr = _run_cli(argv, workdir)
     rec["duration_s"] = round(time.perf_counter() - t0, 3)
