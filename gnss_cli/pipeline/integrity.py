@@ -113,16 +113,18 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     """The chi-square test, w-test and protection levels of every epoch of ``data`` at the
     fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m); ``robust_weights``
     (``(t, n)``, the M-estimate's final weight factors) multiply the estimator's weights."""
-    n, k = data.sv.size, len(data.systems)
+    k = len(data.systems)
     rows = np.arange(data.time_gps_s.size)
-    lin = linearize(data, rows, x, clocks, config)
+    lin = linearize(data, rows, x, clocks, config, compact=True)  # the used satellites' rows only
+    n = lin.sat_rows
     A, mask = lin.A, lin.mask
     var = np.where(mask, lin.var_m2, 1.0)
     w = np.where(mask, 1.0 / var, 0.0)
     we = w if weighted else mask.astype(np.float64)
     if robust_weights is not None:  # satellite rows only: the clock constraint rows keep theirs
         we = we.copy()
-        we[:, :n] *= np.where(np.isfinite(robust_weights), robust_weights, 1.0)
+        rw = np.take_along_axis(robust_weights, np.maximum(lin.sv_index, 0), axis=1)
+        we[:, :n] *= np.where(np.isfinite(rw), rw, 1.0)
     AtWe = np.swapaxes(A * we[..., None], 1, 2)  # (t, m, N)
     try:
         G = np.linalg.inv(AtWe @ A)
@@ -147,7 +149,9 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     lam = np.array([noncentrality(int(d), config.integrity_pfa, config.integrity_pmd) for d in dof])
     hslope = np.where(sat & (dof[:, None] >= 1), np.hypot(ke[:, 0], ke[:, 1]) / root, 0.0)
     vslope = np.where(sat & (dof[:, None] >= 1), np.abs(ke[:, 2]) / root, 0.0)
-    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=np.argmax(wtest, axis=1),
+    # the satellite (column of data.sv) of the largest w-test; 0 when no satellite is used
+    worst = np.where(sat.any(axis=1), np.take_along_axis(lin.sv_index, np.argmax(wtest, axis=1)[:, None], 1)[:, 0], 0)
+    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst,
                           hpl_m=hslope.max(axis=1) * np.sqrt(lam), vpl_m=vslope.max(axis=1) * np.sqrt(lam))
 
 
