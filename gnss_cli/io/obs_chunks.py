@@ -138,7 +138,7 @@ class _Runs:
                 yield from self._out(self._parse(*self.held), self.held[1])
             self.held = (body, before)
             return
-        ds = self._parse(body, before) if body.strip() else None
+        ds = self._parse(body, before) if body and not body.isspace() else None  # (strip() would copy the body)
         if self.held is not None:
             held_body, held_before = self.held
             self.held = None

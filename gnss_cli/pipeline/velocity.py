@@ -75,6 +75,11 @@ def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: Proc
     H, y = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s, data.range_rate_m_s, x)
     sigma = doppler_sigma_m_s(sigma_pr_m, config)
     mask = have_x[:, None] & np.isfinite(y) & np.isfinite(sigma) & np.isfinite(H).all(axis=-1)
+    # the used rows first (in satellite order), as many as the epoch with the most: an epoch uses a
+    # third of a multi-GNSS file's satellites, and the solve's work grows with the rows
+    order = np.argsort(~mask, axis=1, kind="stable")[:, : max(int(mask.sum(axis=1).max(initial=0)), 1)]
+    H = np.take_along_axis(H, order[..., None], axis=1)
+    y, sigma, mask = (np.take_along_axis(v, order, axis=1) for v in (y, sigma, mask))
     H = np.where(mask[..., None], H, 0.0)
     res = solve_batch("wls", H, np.where(mask, y, 0.0), mask, weights=np.where(mask, 1.0 / np.where(mask, sigma, 1.0) ** 2, 0.0))
     ok = res.status > 0
