@@ -63,10 +63,8 @@ class _Cut3:
 
     def __call__(self, buf: bytearray, max_epochs: int) -> int | None:
         arr = np.frombuffer(buf, dtype=np.uint8)
-        lo = max(self.scanned - 1, 0)  # a "\n" at the end of the last scan pairs with the new first byte
-        new = np.flatnonzero((arr[lo:-1] == ord("\n")) & (arr[lo + 1 :] == ord(">"))) + lo + 1
-        if self.scanned == 0 and arr.size and arr[0] == ord(">"):
-            new = np.concatenate(([0], new))
+        new = np.flatnonzero(arr[self.scanned :] == ord(">")) + self.scanned  # rare: epoch lines only
+        new = new[(new == 0) | (arr[np.maximum(new - 1, 0)] == ord("\n"))]  # at a line start
         self.starts = np.concatenate((self.starts, new))
         self.scanned = arr.size
         if self.starts.size <= max_epochs:
@@ -129,7 +127,7 @@ class _Runs:
                 return None
             raise
 
-    def add(self, body: bytes, final: bool = False) -> Iterator[xr.Dataset]:
+    def add(self, body: bytes | bytearray, final: bool = False) -> Iterator[xr.Dataset]:
         """Take the next run (``final``: the rest of the file) and hand out what is settled."""
         before = self.before
         self.before += body.count(b"\n")
@@ -218,13 +216,14 @@ def iter_obs_chunks(
     while True:
         at = cut(buf, max_epochs)
         if at is not None:
-            body = bytes(buf[:at])
+            with memoryview(buf) as view:
+                body = bytes(view[:at])  # (bytes(buf[:at]) would copy twice)
             del buf[:at]
             yield from runs.add(body)
             continue
         block = next(blocks, None)
         if block is None:
-            yield from runs.add(bytes(buf), final=True)
+            yield from runs.add(buf, final=True)  # the rest, not copied: buf changes no more
             break
         buf += block
     if not runs.yielded:
