@@ -262,7 +262,7 @@ class _Accumulator:
         self.cov[rows] = res.cov
         w_rows = lin.sat_rows
         gain = res.gain[:, :, :w_rows]  # satellites only: constraint rows are not geometry
-        self.gain_q[rows] = np.einsum("tmn,tkn->tmk", gain, gain)
+        self.gain_q[rows] = gain @ np.swapaxes(gain, 1, 2)  # (matmul: several times faster than einsum)
         if self.paper_cov is not None and res.details is not None and hasattr(res.details, "sigma_min"):
             self.paper_cov[rows] = tls_paper_cov(lin.A, res.details.sigma_min, mask=lin.mask)
         sat = lin.mask[:, :w_rows]
