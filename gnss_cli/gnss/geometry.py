@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.constants import C_M_S, OMEGA_E_RAD_S
+from gnss_cli.errors import UsageError
 from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
 from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.weights import pseudorange_variance_m2
@@ -88,7 +89,7 @@ class Linearization:
     unit : ``(t, n [+ k], 3)`` line-of-sight unit vectors (0 for constraint rows).
     range_m : ``(t, n [+ k])`` geometric ranges, m (1 for constraint rows).
     rot : ``(t, 3, 3)`` ECEF -> local ENU rotation at each position.
-    sv_col : ``(t, w)`` in the compact layout (``linearize(..., compact=True)``): the satellite
+    sv_col : ``(t, w)`` in the compact layout (``linearize(..., width=w)``): the satellite
         (column of ``data.sv``) of each of the ``w`` satellite rows, -1 for the padding rows
         (``mask`` False); None in the dense layout, where satellite row ``i`` is ``data.sv[i]``.
     """
@@ -130,8 +131,35 @@ ISB_CONSTRAINT_VAR_M2 = 0.01
 """Variance (m^2) of RTKLIB's pseudo-observation fixing the clock of a system without satellites."""
 
 
+COMPACT_ROW_STEP = 8
+"""The compact layout's satellite rows are a multiple of this (:func:`compact_width`)."""
+
+
+def compact_width(n_usable: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Satellite rows of an epoch's compact linearization: its usable satellites (an upper bound of
+    the used ones), rounded up to a multiple of :data:`COMPACT_ROW_STEP` (at least one step).
+
+    The width is a function of the epoch alone, not of the epochs stacked with it: the last bits
+    of a stacked factorization or sum change with the number of zero rows after the used ones,
+    and an epoch must get the same numbers in a whole-file run and in a run by parts.
+    """
+    n = np.maximum(np.asarray(n_usable, dtype=np.int64), 1)
+    return -(-n // COMPACT_ROW_STEP) * COMPACT_ROW_STEP
+
+
+def width_groups(usable: NDArray[np.bool_], block: int) -> list[tuple[NDArray[np.intp], int]]:
+    """The epochs of ``usable`` (``(t, n)``) by their :func:`compact_width`, in blocks of at most
+    ``block`` epochs: ``(epoch indices (ascending), width)`` per block."""
+    widths = compact_width(usable.sum(axis=1))
+    groups: list[tuple[NDArray[np.intp], int]] = []
+    for w in np.unique(widths):
+        idx = np.flatnonzero(widths == w)
+        groups += [(part, int(w)) for part in np.array_split(idx, -(-idx.size // block))]
+    return groups
+
+
 def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig,
-              compact: bool = False) -> Linearization:
+              width: int | None = None) -> Linearization:
     """Linearized pseudoranges at ``x`` (ECEF m) and clocks ``b`` (``(t, k)``, m, one per system).
 
     Columns: ``[-e (3), clock of system 0, ..., clock of system k-1]``. With several systems,
@@ -149,13 +177,19 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         Elevation mask, atmosphere models and the weight model. Corrections, the mask and
         the weights apply to positions near the Earth's surface (:data:`EARTH_SURFACE_BAND_M`)
         only: the first iterations from the Earth's centre use none of them, as RTKLIB.
-    compact : bool
-        Satellite rows only for the satellites used (usable and above the mask), in the order
-        of ``data.sv``, as many rows as the epoch of the block with the most (``w``; padding
-        rows have ``mask`` False), with ``sv_col`` naming each row's satellite. An epoch has
-        30-50 of the ~110 satellites of a multi-GNSS file: the solvers then factor
-        ``(t, w + k, 3 + k)`` instead of ``(t, n + k, 3 + k)`` matrices. Every number is the
-        same as in the dense layout; only the rows move.
+    width : int, optional
+        The compact layout: ``width`` satellite rows holding the satellites used (usable and
+        above the mask) in the order of ``data.sv``, then padding rows (``mask`` False), with
+        ``sv_col`` naming each row's satellite; at least the usable satellites of every epoch
+        (:func:`compact_width`, :func:`width_groups`). An epoch has 30-50 of the ~110
+        satellites of a multi-GNSS file: the solvers then factor ``(t, w + k, 3 + k)``
+        instead of ``(t, n + k, 3 + k)`` matrices. Every number is the same as in the dense
+        layout (the default); only the rows move.
+
+    Raises
+    ------
+    UsageError
+        ``width`` is smaller than an epoch's number of usable satellites.
     """
     k = len(data.systems)
     b = np.asarray(b, dtype=np.float64)
@@ -191,11 +225,14 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
     sv_col = None
-    if compact:  # the used observations only, each at its rank among its epoch's (ti ascends: np.nonzero)
+    if width is not None:  # the used observations only, each at its rank among its epoch's (ti ascends: np.nonzero)
+        if ti.size and np.bincount(ti, minlength=t_n).max() > width:
+            raise UsageError(f"width: expected at least the usable satellites of every epoch "
+                             f"({np.bincount(ti, minlength=t_n).max()}); received {width}")
         keep = np.flatnonzero(mask_u)
         ti, si, mask_u, q_u, var_u, unit_u, rng_u = (v[keep] for v in (ti, si, mask_u, q_u, var_u, unit_u, rng_u))
         counts = np.bincount(ti, minlength=t_n)
-        n = max(int(counts.max(initial=0)), 1)  # (one padding row when no satellite is used)
+        n = width
         col = np.arange(ti.size) - (np.cumsum(counts) - counts)[ti]
         sv_col = np.full((t_n, n), -1, dtype=np.intp)
         sv_col[ti, col] = si

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import NoSolutionError
-from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize
+from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize, width_groups
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
 from gnss_cli.pipeline.epochs import load_epochs
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
@@ -152,9 +152,11 @@ def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progre
         unconverged = np.flatnonzero(active)
         if unconverged.size == 0:
             break
-        # epochs are independent: blocks of _ITERATION_BLOCK bound the memory of the stacked arrays
-        for rows in np.array_split(unconverged, -(-unconverged.size // _ITERATION_BLOCK)):
-            lin, res, n_used, enough, ok, step, irls = _linear_step(data, method, config, rows, x, b, robust)
+        # epochs are independent: stacked by the width of their compact systems, in blocks of
+        # _ITERATION_BLOCK that bound the memory of the stacked arrays
+        for idx, width in width_groups(data.usable[unconverged], _ITERATION_BLOCK):
+            rows = unconverged[idx]
+            lin, res, n_used, enough, ok, step, irls = _linear_step(data, method, config, rows, x, b, width, robust)
             iterations[rows] = it + 1
             radius = np.linalg.norm(x[rows], axis=1)
             near = (radius > EARTH_SURFACE_BAND_M[0]) & (radius < EARTH_SURFACE_BAND_M[1])
@@ -171,8 +173,12 @@ def _gauss_newton(data: EpochData, method: str, config: ProcessingConfig, progre
 
 
 def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: NDArray[np.intp], x: F64, b: F64,  # type: ignore[no-untyped-def]
-                 robust: bool = False):
+                 width: int, robust: bool = False):
     """Linearize ``rows`` at ``(x, b)``, solve the step with ``method`` and apply it in place.
+
+    The system holds the used satellites' rows only, ``width`` of them (``linearize(..., width)``,
+    :func:`~gnss_cli.gnss.geometry.width_groups`): the solver's work grows with the rows, and an
+    epoch uses a third of a multi-GNSS file's satellites.
 
     With ``robust`` the step is the IRLS M-estimate of the linear system; the satellite rows
     are reweighted, the clock constraint rows keep their weight. Its final weights then give
@@ -182,7 +188,7 @@ def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: N
     satellites, the epochs solved, the step ``(len(rows), 3 + k)`` (m) and the IRLS result
     (None without ``robust``).
     """
-    lin = linearize(data, rows, x[rows], b[rows], config, compact=True)
+    lin = linearize(data, rows, x[rows], b[rows], config, width=width)
     n_used, enough = _count_used(lin, len(data.systems), config)
     mask = lin.mask & enough[:, None]
     options = solver_options(method, lin, config)
@@ -223,12 +229,13 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
     flagged = np.isin(status, _FLAGGED)  # integrity_fail, gdop_limit: solved, and keep the WLS word
     iterations = np.where((status == EpochStatus.OK) | flagged, 1, 0).astype(np.int64)
     out = _Accumulator(T, n, k, method)
-    rows = np.flatnonzero((status == EpochStatus.OK) | flagged)
-    if rows.size:
-        lin, res, n_used, enough, ok, _, _ = _linear_step(data, method, config, rows, x, b)
+    solved = np.flatnonzero((status == EpochStatus.OK) | flagged)
+    for idx, width in width_groups(data.usable[solved], _ITERATION_BLOCK):
+        rows = solved[idx]
+        lin, res, n_used, enough, ok, _, _ = _linear_step(data, method, config, rows, x, b, width)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
-        status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
+    status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
     return replace(out.finish(x, b, status, iterations), excluded=base.excluded)
 
 
