@@ -225,17 +225,10 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
     sv_col = None
-    if width is not None:  # the used observations only, each at its rank among its epoch's (ti ascends: np.nonzero)
-        if ti.size and np.bincount(ti, minlength=t_n).max() > width:
-            raise UsageError(f"width: expected at least the usable satellites of every epoch "
-                             f"({np.bincount(ti, minlength=t_n).max()}); received {width}")
-        keep = np.flatnonzero(mask_u)
+    if width is not None:  # the used observations only
+        keep, col, sv_col = _compact_rows(ti, si, mask_u, t_n, width)
         ti, si, mask_u, q_u, var_u, unit_u, rng_u = (v[keep] for v in (ti, si, mask_u, q_u, var_u, unit_u, rng_u))
-        counts = np.bincount(ti, minlength=t_n)
         n = width
-        col = np.arange(ti.size) - (np.cumsum(counts) - counts)[ti]
-        sv_col = np.full((t_n, n), -1, dtype=np.intp)
-        sv_col[ti, col] = si
     else:
         col = si
     # the k clock-constraint rows (several systems) follow the n satellite rows in the same arrays
@@ -261,3 +254,19 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         mask[:, n:] = ~present
         var[:, n:] = ISB_CONSTRAINT_VAR_M2
     return Linearization(A, q, mask, var, unit_c, rng_c, rot, sv_col)
+
+
+def _compact_rows(ti: NDArray[np.intp], si: NDArray[np.intp], used: NDArray[np.bool_], t_n: int, width: int
+                  ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Where the usable observations ``(ti, si)`` (epoch-major, as ``np.nonzero`` gives them) go in
+    the compact layout: the ``used`` ones (their indices), each at its rank among its epoch's
+    (its row), and ``sv_col`` ``(t_n, width)``."""
+    if ti.size and np.bincount(ti, minlength=t_n).max() > width:
+        raise UsageError(f"width: expected at least the usable satellites of every epoch "
+                         f"({np.bincount(ti, minlength=t_n).max()}); received {width}")
+    keep = np.flatnonzero(used)
+    counts = np.bincount(ti[keep], minlength=t_n)
+    col = np.arange(keep.size) - (np.cumsum(counts) - counts)[ti[keep]]
+    sv_col = np.full((t_n, width), -1, dtype=np.intp)
+    sv_col[ti[keep], col] = si[keep]
+    return keep, col, sv_col
