@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.constants import C_M_S, OMEGA_E_RAD_S
+from gnss_cli.errors import UsageError
 from gnss_cli.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
 from gnss_cli.gnss.frames import azimuth_elevation, ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.weights import pseudorange_variance_m2
@@ -88,6 +89,9 @@ class Linearization:
     unit : ``(t, n [+ k], 3)`` line-of-sight unit vectors (0 for constraint rows).
     range_m : ``(t, n [+ k])`` geometric ranges, m (1 for constraint rows).
     rot : ``(t, 3, 3)`` ECEF -> local ENU rotation at each position.
+    sv_col : ``(t, w)`` in the compact layout (``linearize(..., width=w)``): the satellite
+        (column of ``data.sv``) of each of the ``w`` satellite rows, -1 for the padding rows
+        (``mask`` False); None in the dense layout, where satellite row ``i`` is ``data.sv[i]``.
     """
 
     A: F64
@@ -97,13 +101,65 @@ class Linearization:
     unit: F64
     range_m: F64
     rot: F64
+    sv_col: NDArray[np.intp] | None = None
+
+    @property
+    def sat_rows(self) -> int:
+        """Number of satellite rows (``n`` dense, ``w`` compact); the clock constraint rows follow."""
+        k = self.A.shape[-1] - 3
+        return self.q.shape[1] - (k if k > 1 else 0)
+
+    @property
+    def sv_index(self) -> NDArray[np.intp]:
+        """``(t, sat_rows)`` satellite (column of ``data.sv``) of each satellite row; -1 for padding."""
+        if self.sv_col is not None:
+            return self.sv_col
+        return np.broadcast_to(np.arange(self.sat_rows), self.q.shape[:1] + (self.sat_rows,))
+
+    def scatter(self, values: F64, n: int, fill: float = np.nan) -> F64:
+        """Per-satellite-row ``values`` (``(t, sat_rows)``) in the dense layout ``(t, n)``,
+        ``fill`` where a satellite has no row (compact) or ``values`` itself (dense)."""
+        if self.sv_col is None:
+            return values[:, :n]
+        out = np.full((values.shape[0], n), fill)
+        t, j = np.nonzero(self.sv_col >= 0)
+        out[t, self.sv_col[t, j]] = values[t, j]
+        return out
 
 
 ISB_CONSTRAINT_VAR_M2 = 0.01
 """Variance (m^2) of RTKLIB's pseudo-observation fixing the clock of a system without satellites."""
 
 
-def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig) -> Linearization:
+COMPACT_ROW_STEP = 8
+"""The compact layout's satellite rows are a multiple of this (:func:`compact_width`)."""
+
+
+def compact_width(n_usable: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Satellite rows of an epoch's compact linearization: its usable satellites (an upper bound of
+    the used ones), rounded up to a multiple of :data:`COMPACT_ROW_STEP` (at least one step).
+
+    The width is a function of the epoch alone, not of the epochs stacked with it: the last bits
+    of a stacked factorization or sum change with the number of zero rows after the used ones,
+    and an epoch must get the same numbers in a whole-file run and in a run by parts.
+    """
+    n = np.maximum(np.asarray(n_usable, dtype=np.int64), 1)
+    return -(-n // COMPACT_ROW_STEP) * COMPACT_ROW_STEP
+
+
+def width_groups(usable: NDArray[np.bool_], block: int) -> list[tuple[NDArray[np.intp], int]]:
+    """The epochs of ``usable`` (``(t, n)``) by their :func:`compact_width`, in blocks of at most
+    ``block`` epochs: ``(epoch indices (ascending), width)`` per block."""
+    widths = compact_width(usable.sum(axis=1))
+    groups: list[tuple[NDArray[np.intp], int]] = []
+    for w in np.unique(widths):
+        idx = np.flatnonzero(widths == w)
+        groups += [(part, int(w)) for part in np.array_split(idx, -(-idx.size // block))]
+    return groups
+
+
+def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config: ProcessingConfig,
+              width: int | None = None) -> Linearization:
     """Linearized pseudoranges at ``x`` (ECEF m) and clocks ``b`` (``(t, k)``, m, one per system).
 
     Columns: ``[-e (3), clock of system 0, ..., clock of system k-1]``. With several systems,
@@ -121,6 +177,19 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         Elevation mask, atmosphere models and the weight model. Corrections, the mask and
         the weights apply to positions near the Earth's surface (:data:`EARTH_SURFACE_BAND_M`)
         only: the first iterations from the Earth's centre use none of them, as RTKLIB.
+    width : int, optional
+        The compact layout: ``width`` satellite rows holding the satellites used (usable and
+        above the mask) in the order of ``data.sv``, then padding rows (``mask`` False), with
+        ``sv_col`` naming each row's satellite; at least the usable satellites of every epoch
+        (:func:`compact_width`, :func:`width_groups`). An epoch has 30-50 of the ~110
+        satellites of a multi-GNSS file: the solvers then factor ``(t, w + k, 3 + k)``
+        instead of ``(t, n + k, 3 + k)`` matrices. Every number is the same as in the dense
+        layout (the default); only the rows move.
+
+    Raises
+    ------
+    UsageError
+        ``width`` is smaller than an epoch's number of usable satellites.
     """
     k = len(data.systems)
     b = np.asarray(b, dtype=np.float64)
@@ -152,29 +221,52 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         c = np.flatnonzero(corrected)
         tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
     sysidx = data.system_index if data.system_index is not None else np.zeros(n, dtype=np.int64)
-    onehot = (sysidx[:, None] == np.arange(k)[None, :]).astype(np.float64)  # (n, k)
     efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
     var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
+    sv_col = None
+    if width is not None:  # the used observations only
+        keep, col, sv_col = _compact_rows(ti, si, mask_u, t_n, width)
+        ti, si, mask_u, q_u, var_u, unit_u, rng_u = (v[keep] for v in (ti, si, mask_u, q_u, var_u, unit_u, rng_u))
+        n = width
+    else:
+        col = si
     # the k clock-constraint rows (several systems) follow the n satellite rows in the same arrays
     rows_n = n + (k if k > 1 else 0)
     mask = np.zeros((t_n, rows_n), dtype=bool)
-    mask[ti, si] = mask_u
+    mask[ti, col] = mask_u
     q = np.zeros((t_n, rows_n))
-    q[ti, si] = np.where(mask_u, q_u, 0.0)
+    q[ti, col] = np.where(mask_u, q_u, 0.0)
     var = np.ones((t_n, rows_n))
-    var[ti, si] = np.where(mask_u, var_u, 1.0)
+    var[ti, col] = np.where(mask_u, var_u, 1.0)
     A = np.zeros((t_n, rows_n, 3 + k))
-    A[ti, si, :3] = np.where(mask_u[:, None], -unit_u, 0.0)
-    A[ti, si, 3 + sysidx[si]] = np.where(mask_u, 1.0, 0.0)
+    A[ti, col, :3] = np.where(mask_u[:, None], -unit_u, 0.0)
+    A[ti, col, 3 + sysidx[si]] = np.where(mask_u, 1.0, 0.0)
     unit_c = np.zeros((t_n, rows_n, 3))
-    unit_c[ti, si] = unit_u
+    unit_c[ti, col] = unit_u
     rng_c = np.ones((t_n, rows_n))
-    rng_c[ti, si] = rng_u
+    rng_c[ti, col] = rng_u
     if k > 1:
-        present = (mask[:, :n, None] & (onehot[None, :, :] > 0)).any(axis=1)  # (t, k)
+        present = np.zeros((t_n, k), dtype=bool)
+        present[ti[mask_u], sysidx[si[mask_u]]] = True
         A[:, n + np.arange(k), 3 + np.arange(k)] = np.where(~present, 1.0, 0.0)
         q[:, n:] = np.where(~present, -b, 0.0)
         mask[:, n:] = ~present
         var[:, n:] = ISB_CONSTRAINT_VAR_M2
-    return Linearization(A, q, mask, var, unit_c, rng_c, rot)
+    return Linearization(A, q, mask, var, unit_c, rng_c, rot, sv_col)
+
+
+def _compact_rows(ti: NDArray[np.intp], si: NDArray[np.intp], used: NDArray[np.bool_], t_n: int, width: int
+                  ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Where the usable observations ``(ti, si)`` (epoch-major, as ``np.nonzero`` gives them) go in
+    the compact layout: the ``used`` ones (their indices), each at its rank among its epoch's
+    (its row), and ``sv_col`` ``(t_n, width)``."""
+    if ti.size and np.bincount(ti, minlength=t_n).max() > width:
+        raise UsageError(f"width: expected at least the usable satellites of every epoch "
+                         f"({np.bincount(ti, minlength=t_n).max()}); received {width}")
+    keep = np.flatnonzero(used)
+    counts = np.bincount(ti[keep], minlength=t_n)
+    col = np.arange(keep.size) - (np.cumsum(counts) - counts)[ti[keep]]
+    sv_col = np.full((t_n, width), -1, dtype=np.intp)
+    sv_col[ti[keep], col] = si[keep]
+    return keep, col, sv_col

@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.geometry import linearize
+from gnss_cli.gnss.geometry import linearize, width_groups
 from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
@@ -109,20 +109,24 @@ class IntegrityCheck:
 
 
 def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool,
-                 robust_weights: F64 | None = None) -> IntegrityCheck:
+                 robust_weights: F64 | None = None, width: int | None = None) -> IntegrityCheck:
     """The chi-square test, w-test and protection levels of every epoch of ``data`` at the
     fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m); ``robust_weights``
-    (``(t, n)``, the M-estimate's final weight factors) multiply the estimator's weights."""
-    n, k = data.sv.size, len(data.systems)
+    (``(t, n)``, the M-estimate's final weight factors) multiply the estimator's weights.
+    ``width``: the systems in the compact layout of :func:`~gnss_cli.gnss.geometry.linearize`
+    (the used satellites' rows only; default the dense layout)."""
+    k = len(data.systems)
     rows = np.arange(data.time_gps_s.size)
-    lin = linearize(data, rows, x, clocks, config)
+    lin = linearize(data, rows, x, clocks, config, width=width)
+    n = lin.sat_rows
     A, mask = lin.A, lin.mask
     var = np.where(mask, lin.var_m2, 1.0)
     w = np.where(mask, 1.0 / var, 0.0)
     we = w if weighted else mask.astype(np.float64)
     if robust_weights is not None:  # satellite rows only: the clock constraint rows keep theirs
         we = we.copy()
-        we[:, :n] *= np.where(np.isfinite(robust_weights), robust_weights, 1.0)
+        rw = np.take_along_axis(robust_weights, np.maximum(lin.sv_index, 0), axis=1)
+        we[:, :n] *= np.where(np.isfinite(rw), rw, 1.0)
     AtWe = np.swapaxes(A * we[..., None], 1, 2)  # (t, m, N)
     try:
         G = np.linalg.inv(AtWe @ A)
@@ -147,7 +151,9 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     lam = np.array([noncentrality(int(d), config.integrity_pfa, config.integrity_pmd) for d in dof])
     hslope = np.where(sat & (dof[:, None] >= 1), np.hypot(ke[:, 0], ke[:, 1]) / root, 0.0)
     vslope = np.where(sat & (dof[:, None] >= 1), np.abs(ke[:, 2]) / root, 0.0)
-    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=np.argmax(wtest, axis=1),
+    # the satellite (column of data.sv) of the largest w-test; 0 when no satellite is used
+    worst = np.where(sat.any(axis=1), np.take_along_axis(lin.sv_index, np.argmax(wtest, axis=1)[:, None], 1)[:, 0], 0)
+    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst,
                           hpl_m=hslope.max(axis=1) * np.sqrt(lam), vpl_m=vslope.max(axis=1) * np.sqrt(lam))
 
 
@@ -176,13 +182,21 @@ _BLOCK = 1024  # epochs per stacked test (bounds the memory of the (t, n, 3 + k)
 
 def _check_blocks(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], excluded: NDArray[np.bool_],
                   config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
-    """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), in blocks."""
+    """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), by the
+    width of their compact systems (:func:`~gnss_cli.gnss.geometry.width_groups`), in blocks."""
     clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
     rw = sol.robust_weights if config.robust != "off" else None
-    parts = [check_epochs(take_epochs(data, r, excluded), sol.x_ecef_m[r], clocks[r], config, weighted,
-                          None if rw is None else rw[r])
-             for r in np.array_split(rows, -(-rows.size // _BLOCK))]
-    return IntegrityCheck(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(IntegrityCheck)))
+    out: dict[str, NDArray[np.generic]] = {}
+    for idx, width in width_groups(data.usable[rows] & ~excluded[rows], _BLOCK):
+        r = rows[idx]
+        part = check_epochs(take_epochs(data, r, excluded), sol.x_ecef_m[r], clocks[r], config, weighted,
+                            None if rw is None else rw[r], width)
+        for f in fields(IntegrityCheck):
+            value = getattr(part, f.name)
+            if f.name not in out:
+                out[f.name] = np.empty(rows.shape + value.shape[1:], dtype=value.dtype)
+            out[f.name][idx] = value
+    return IntegrityCheck(**out)  # type: ignore[arg-type]
 
 
 def _blank(sol: MethodSolution, rows: NDArray[np.bool_]) -> MethodSolution:

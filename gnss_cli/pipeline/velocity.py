@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
+from gnss_cli.gnss.geometry import width_groups
 from gnss_cli.pipeline.results import EpochData
 from gnss_cli.solvers import solve_batch
 
@@ -75,16 +76,28 @@ def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: Proc
     H, y = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s, data.range_rate_m_s, x)
     sigma = doppler_sigma_m_s(sigma_pr_m, config)
     mask = have_x[:, None] & np.isfinite(y) & np.isfinite(sigma) & np.isfinite(H).all(axis=-1)
-    H = np.where(mask[..., None], H, 0.0)
-    res = solve_batch("wls", H, np.where(mask, y, 0.0), mask, weights=np.where(mask, 1.0 / np.where(mask, sigma, 1.0) ** 2, 0.0))
-    ok = res.status > 0
-    nan = np.full(T, np.nan)
-    gain = np.where(mask[:, None, :], res.gain, 0.0)
-    q_diag = np.einsum("tmn,tmn->tm", gain, gain)  # the diagonal of gain gain^T: the GDOP needs its trace only
+    x_v, cov, q_trace = np.full((T, 4), np.nan), np.full((T, 4, 4), np.nan), np.full(T, np.nan)
+    # the used rows only, in satellite order, padded to a width of the epoch's own
+    # (:func:`~gnss_cli.gnss.geometry.width_groups`): an epoch uses a third of a multi-GNSS
+    # file's satellites, and the solve's work grows with the rows
+    for idx, width in width_groups(mask, max(T, 1)):
+        order = np.argsort(~mask[idx], axis=1, kind="stable")[:, :width]
+        pad = width - order.shape[1]  # (a file with fewer satellites than the width)
+        used = np.pad(np.take_along_axis(mask[idx], order, axis=1), ((0, 0), (0, pad)))
+        Hg = np.pad(np.take_along_axis(H[idx], order[..., None], axis=1), ((0, 0), (0, pad), (0, 0)))
+        yg, sg = (np.pad(np.take_along_axis(v[idx], order, axis=1), ((0, 0), (0, pad))) for v in (y, sigma))
+        res = solve_batch("wls", np.where(used[..., None], Hg, 0.0), np.where(used, yg, 0.0), used,
+                          weights=np.where(used, 1.0 / np.where(used, sg, 1.0) ** 2, 0.0))
+        ok = res.status > 0
+        gain = np.where(used[:, None, :], res.gain, 0.0)
+        q_diag = np.einsum("tmn,tmn->tm", gain, gain)  # the diagonal of gain gain^T: the GDOP needs its trace only
+        x_v[idx] = np.where(ok[:, None], res.x, np.nan)
+        cov[idx] = np.where(ok[:, None, None], res.cov, np.nan)
+        q_trace[idx] = np.where(ok, np.sqrt(np.clip(q_diag.sum(axis=1), 0.0, None)), np.nan)
     return VelocitySolution(
-        vel_ecef_m_s=np.where(ok[:, None], res.x[:, :3], np.nan),
-        clock_drift_m_s=np.where(ok, res.x[:, 3], nan),
-        cov=np.where(ok[:, None, None], res.cov, np.nan),
-        gdop_vel=np.where(ok, np.sqrt(np.clip(q_diag.sum(axis=1), 0.0, None)), nan),
+        vel_ecef_m_s=x_v[:, :3],
+        clock_drift_m_s=x_v[:, 3],
+        cov=cov,
+        gdop_vel=q_trace,
         n_used=mask.sum(axis=1),
     )
