@@ -58,7 +58,7 @@ from gnss_cli.pipeline.results import (
 from gnss_cli.solvers.dop import dop_from_cov
 
 __all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "BATCH_MAX_EPOCHS",
-           "FIXED_KERNELS"]
+           "FIXED_KERNELS", "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
 
 F64 = NDArray[np.float64]
 
@@ -66,7 +66,7 @@ F64 = NDArray[np.float64]
 #: per-window factors); longer ones (e.g. ``window=0``) one at a time by the banded O(T) STLS.
 BATCH_MAX_EPOCHS = 64
 FIXED_KERNELS = {"static": ([-1.0, 1.0], "fixed kernel (z-1) I"), "pva": ([-1.0, 3.0, -3.0, 1.0], "fixed kernel (z-1)^3 I")}
-_OK, _FALLBACK = EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value
+_OK, FALLBACK = EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value
 
 
 @dataclass(slots=True)
@@ -93,7 +93,7 @@ class WindowJob:
 
 
 @dataclass(slots=True)
-class _Fit:
+class Fit:
     """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU)."""
 
     w_hat: F64 | None
@@ -104,12 +104,12 @@ class _Fit:
     basis: F64 | None
 
 
-def _failed(message: str) -> _Fit:
-    return _Fit(None, None, None, None, message, None)
+def _failed(message: str) -> Fit:
+    return Fit(None, None, None, None, message, None)
 
 
 def _fit_group(segs: list[Segment], jobs: list[WindowJob], model: str, lag: int, tol: float,
-               max_iter: int) -> list[_Fit]:
+               max_iter: int) -> list[Fit]:
     """Fixed or identified shared kernels for windows of equal length, all at once."""
     n_t = jobs[0].b - jobs[0].a
     w = np.stack([segs[j.segment].w[j.a : j.b] for j in jobs])
@@ -127,16 +127,16 @@ def _fit_group(segs: list[Segment], jobs: list[WindowJob], model: str, lag: int,
     ok = np.flatnonzero(status >= 0)
     rec_of = dict(zip(ok.tolist(), shared_kernel_records(r[ok], 3) if ok.size else []))
     basis_of = dict(zip(ok.tolist(), shared_behavior_bases(r[ok], n_t, 3) if ok.size else []))
-    out: list[_Fit] = []
+    out: list[Fit] = []
     for k in range(len(jobs)):
         if status[k] < 0 or basis_of.get(k) is None:
             out.append(_failed(messages[k] if status[k] < 0 else "kernel: R_lag is singular; cannot solve for w(t+lag)"))
             continue
-        out.append(_Fit(w_hat[k], rec_of[k], float(mis[k]), StlsStatus(int(status[k])), messages[k], basis_of[k]))
+        out.append(Fit(w_hat[k], rec_of[k], float(mis[k]), StlsStatus(int(status[k])), messages[k], basis_of[k]))
     return out
 
 
-def _fit_single(seg: Segment, job: WindowJob, opts: SmoothingConfig) -> _Fit:
+def _fit_single(seg: Segment, job: WindowJob, opts: SmoothingConfig) -> Fit:
     """One window with the banded per-series path (full kernels and long windows)."""
     w, cov = seg.w[job.a : job.b], seg.cov[job.a : job.b]
     try:
@@ -155,7 +155,7 @@ def _fit_single(seg: Segment, job: WindowJob, opts: SmoothingConfig) -> _Fit:
         basis = behavior_basis(ker.normalized(), job.b - job.a) if ker.p == ker.q else None
     except (GnssError, np.linalg.LinAlgError) as exc:
         return _failed(str(exc))
-    return _Fit(w_hat, kernel_record(ker), float(m), st, message, basis)
+    return Fit(w_hat, kernel_record(ker), float(m), st, message, basis)
 
 
 def segment_frame(wls: MethodSolution, epochs: NDArray[np.intp], origin: F64) -> Segment:
@@ -169,19 +169,19 @@ def segment_frame(wls: MethodSolution, epochs: NDArray[np.intp], origin: F64) ->
                    0.5 * (cov_enu + cov_enu.transpose(0, 2, 1)))
 
 
-def _framed_segments(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
+def framed_segments(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
                      need: int, gap_factor: float, segs: list[Segment]) -> Iterator[tuple[int, int]]:
     """Each segment long enough for a window, appended to ``segs`` in its ENU frame: yields its
     index and length; the epochs of too short segments fall back to WLS."""
     for seg in segments(data.time_gps_s, solved, gap_factor):
         if seg.size < need:
-            status[seg] = _FALLBACK
+            status[seg] = FALLBACK
             continue
         segs.append(segment_frame(wls, seg, wls.x_ecef_m[seg[0]]))
         yield len(segs) - 1, seg.size
 
 
-def _window_jobs(segment: int, n: int, length: int, step: int | None = None) -> list[WindowJob]:
+def window_jobs(segment: int, n: int, length: int, step: int | None = None) -> list[WindowJob]:
     """The sliding windows of ``length`` epochs over a segment of ``n`` and the epochs each supplies."""
     bounds, owner = windows(n, length, step)
     edges = np.searchsorted(owner, np.arange(len(bounds) + 1), side="left")  # owner is non-decreasing
@@ -193,14 +193,14 @@ def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], s
     """Segments in their ENU frames and their windows; epochs of too short segments fall back to WLS."""
     segs: list[Segment] = []
     jobs: list[WindowJob] = []
-    for si, n in _framed_segments(data, wls, solved, status, opts.min_window(), gap_factor, segs):
-        jobs += _window_jobs(si, n, opts.window_epochs, step)
+    for si, n in framed_segments(data, wls, solved, status, opts.min_window(), gap_factor, segs):
+        jobs += window_jobs(si, n, opts.window_epochs, step)
     return segs, jobs
 
 
-def _fit_all(segs: list[Segment], jobs: list[WindowJob], opts: SmoothingConfig) -> list[_Fit]:
+def fit_all(segs: list[Segment], jobs: list[WindowJob], opts: SmoothingConfig) -> list[Fit]:
     """Every window's fit: equal-length shared/fixed windows batched, the others one at a time."""
-    fits: list[_Fit | None] = [None] * len(jobs)
+    fits: list[Fit | None] = [None] * len(jobs)
     by_length: dict[int, list[int]] = {}
     for k, job in enumerate(jobs):
         if (opts.model == "identify" and opts.kernel == "full") or job.b - job.a > BATCH_MAX_EPOCHS:
@@ -280,82 +280,18 @@ def smooth(
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
     if opts.window_ladder:
+        from gnss_cli.pipeline.window_ladder import ladder_schedule
+
         segs, jobs, fits = ladder_schedule(data, wls, solved, status, opts, gap_factor)
         return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     return smooth_windows(data, wls, config, segs, jobs, status, method)
 
 
-def ladder_lengths(n: int, shortest: int) -> list[int]:
-    """Window lengths (epochs) tried on a segment of ``n`` epochs, longest first: the whole
-    segment, then halving while at least ``shortest``."""
-    out = [n]
-    while out[-1] // 2 >= shortest:
-        out.append(out[-1] // 2)
-    return out
-
-
-def _chi2_limit(dof: NDArray[np.float64], pfa: float) -> NDArray[np.float64]:
-    """The misfit above which a window's model is rejected: the upper ``pfa`` quantile of the
-    chi-square distribution with ``dof`` degrees of freedom (unitless)."""
-    from scipy.special import chdtri  # not on the default path (lag 0): imported when a ladder runs
-
-    return np.asarray(chdtri(dof, pfa), dtype=np.float64)
-
-
-def ladder_schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
-                    opts: SmoothingConfig, gap_factor: float) -> tuple[list[Segment], list[WindowJob], list[_Fit]]:
-    """Windows chosen from the data (``window = "auto"`` with the static kernel).
-
-    Each segment is tried whole, then in half-overlapping windows of half the length, and so
-    on down to the model's shortest window (:func:`ladder_lengths`). A window *passes* when its
-    misfit (the ``Sigma^{-1}``-weighted squared distance of the fixes from the behavior, unitless)
-    is at most the upper ``opts.window_pfa`` quantile of the chi-square distribution with
-    ``3 (N - L)`` degrees of freedom (``N`` epochs, ``L`` the kernel's lag: the behavior leaves
-    ``3 L`` free initial conditions). Each epoch takes the longest passing window of the
-    ladder among those centred nearest to it at each length; an epoch that no window passes
-    (the model is rejected down to the shortest window) keeps its WLS fix (``fallback_wls``).
-
-    Returns the segments, the chosen windows (one job per run of the epochs a window
-    supplies) and their fits, for :func:`smooth_windows`.
-    """
-    need = opts.min_window()
-    lag = opts.effective_lag
-    segs: list[Segment] = []
-    jobs: list[WindowJob] = []
-    fits: list[_Fit] = []
-    for si, n in _framed_segments(data, wls, solved, status, need, gap_factor, segs):
-        open_ = np.ones(n, dtype=bool)  # epochs without a passing window yet
-        for length in ladder_lengths(n, need):
-            level = [job for job in _window_jobs(si, n, length) if open_[job.lo : job.hi].any()]
-            if not level:
-                break
-            level_fits = _fit_all(segs, level, opts)
-            mis = np.array([f.misfit if f.w_hat is not None and f.misfit is not None else np.inf for f in level_fits])
-            limit = _chi2_limit(np.array([3.0 * (j.b - j.a - lag) for j in level]), opts.window_pfa)
-            for job, fit, passed in zip(level, level_fits, mis <= limit):
-                if not passed:
-                    continue
-                mine = np.zeros(n, dtype=bool)
-                mine[job.lo : job.hi] = open_[job.lo : job.hi]
-                open_[job.lo : job.hi] = False
-                for lo, hi in _runs(mine):
-                    jobs.append(WindowJob(si, len(jobs), job.a, job.b, lo, hi))
-                    fits.append(fit)
-        status[segs[si].epochs[open_]] = _FALLBACK
-    return segs, jobs, fits
-
-
-def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
-    """Half-open index ranges of the runs of True in ``mask``."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
-
-
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                    jobs: list[WindowJob], status: NDArray[np.str_], method: str = "stls",
                    segment_ids: list[int] | None = None,
-                   fits: list[_Fit] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+                   fits: list[Fit] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """Fit the windows ``jobs`` of the segments ``segs`` and finish the smoothed solution of
     :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
     ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
@@ -365,7 +301,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     x_s = wls.x_ecef_m.copy()
     smoothed = np.zeros(T, dtype=bool)
     if fits is None:
-        fits = _fit_all(segs, jobs, opts)
+        fits = fit_all(segs, jobs, opts)
 
     models: list[WindowModel] = []
     dop_windows: list[tuple[NDArray[np.intp], F64, NDArray[np.intp]]] = []  # (window epochs, ECEF basis, owned)
@@ -404,7 +340,7 @@ def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingCon
         geometry, rot_local, present = _reestimate_clocks(data, config, rows, x_s, clocks, out)
         gain_q = _window_gains(T, n_clk, dop_windows, geometry, out["cov"])
         _multi_epoch_dops(gain_q, rot_local, present, n_clk, dops, out["tdops"])
-    bad = np.isin(status, [_OK, _FALLBACK], invert=True)
+    bad = np.isin(status, [_OK, FALLBACK], invert=True)
     x_out = np.where(bad[:, None], np.nan, x_s)
     clocks = np.where(bad[:, None], np.nan, clocks)
     return replace(wls, method=method, x_ecef_m=x_out, clock_m=clocks[:, 0],
