@@ -259,14 +259,14 @@ def _usable_satellites(out: Path) -> dict[str, frozenset[str]]:
     return {k: frozenset(v) for k, v in found.items()}
 
 
-def _damaged_lines(details: dict, text: bytes) -> set[int]:
+def _damaged_lines(mutator: str, details: dict, text: bytes) -> set[int]:
     """0-based indices of the lines of the clean text ``text`` that a mutation touched (empty
-    when the details do not say)."""
+    when its details do not say: truncation, header-wide damage)."""
     if "line" in details:
         first = int(details["line"]) - 1
-        return {first, first + 1} if "deleted" not in details and "coefficient" not in details \
-            and "field" not in details and "system" not in details else {first}
-    if "position" in details:
+        count = {"line_swap": 2, "line_delete": int(details.get("deleted", 1))}.get(mutator, 1)
+        return set(range(first, first + count))
+    if "position" in details:  # byte_flip, byte_insert, byte_delete
         start = int(details["position"])
         stop = start + int(details.get("deleted", 1))
         return set(range(text.count(b"\n", 0, start), text.count(b"\n", 0, stop) + 1))
@@ -281,7 +281,7 @@ def _clean_nav_without_records(plan: dict, root: Path, details: dict) -> tuple[b
     src = root / plan["file"]
     text, packing = _plain(src.read_bytes())
     lines = text.split(b"\n")
-    touched = _damaged_lines(details, text)
+    touched = _damaged_lines(plan["mutator"], details, text)
     per = 8  # lines of a GPS LNAV record in RINEX 2, 3 and 4
     drop = {i for first in mut.gps_records(lines, _kind(text, "nav")) for i in range(first, first + per)
             if touched & set(range(first, first + per))}
