@@ -9,7 +9,10 @@ size from ``os.wait4`` (``ru_maxrss``); no third-party package is needed.
 
 Cases: ``--method wls`` and ``--method stls --lag 3``, each on the 1 h and the 24 h file,
 with the packaged ``chunk_epochs`` / ``stream_above_epochs`` (1200 / 3600: the 1 h file of
-3601 epochs is one part, the day 72 parts). ``--chunk-epochs N`` sets both to N.
+3601 epochs is one part, the day 72 parts). ``--chunk-epochs N`` sets both to N. Every run is
+given ``--processes 1``: a file of one part is otherwise cut in one part per core, solved in
+forked processes, and ``ru_maxrss`` is the peak of the largest single process, not of their
+sum; the comparison of lengths is made in one process.
 Targets (issue 16): the 24 h peak <= 1.3 x the 1 h peak, and <= 400 MiB, for both methods.
 Prints a table and writes ``benchmarks/results/bench_memory.json``.
 
@@ -85,7 +88,8 @@ def main() -> None:
             d = simulated(args.cache, hours)
             for name, flags in METHODS.items():
                 out = Path(tmp) / f"{name}_{hours}h"
-                cmd = [_bin("gnss-solve"), str(d / "obs.rnx"), str(d / "nav.rnx"), *flags, "--out-dir", str(out), "-q", *extra]
+                cmd = [_bin("gnss-solve"), str(d / "obs.rnx"), str(d / "nav.rnx"), *flags, "--out-dir", str(out), "-q", "--processes", "1",
+                       *extra]
                 mib, wall, code = peak_rss(cmd, env)
                 rows.append({"method": name, "hours": hours, "epochs": 3600 * hours + 1, "peak_mib": round(mib, 1),
                              "seconds": round(wall, 1), "exit_code": code})

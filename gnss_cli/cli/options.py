@@ -60,6 +60,7 @@ Robust = Annotated[Optional[str], typer.Option("--robust", help="huber | cauchy:
 Integrity = Annotated[Optional[str], typer.Option("--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
 Exclude = Annotated[Optional[str], typer.Option("--exclude", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
 SnrMask = Annotated[Optional[float], typer.Option("--snr-mask", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=shown(_PROC.get("snr_mask_dbhz")))]
+Processes = Annotated[Optional[int], typer.Option("--processes", metavar="N", help="Processes that read and solve the parts of a day file at once (snapshot methods, CSV); 0 = one per core, 1 = this one only.", show_default=shown(_PROC.get("processes")))]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress, warnings or summary on stderr.")]
 Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks of internal errors.")]
 
@@ -68,6 +69,7 @@ CONFIG_KEYS = {
     "integrity": "integrity", "exclude": "exclude", "snr_mask": "snr_mask_dbhz", "lag": "smoothing.lag",
     "model": "smoothing.model", "kernel": "smoothing.kernel", "order": "smoothing.order", "window": "smoothing.window",
     "kf_model": "kalman.model", "smoother": "kalman.smoother", "robust": "robust", "time_system": "time_system",
+    "processes": "processes",
 }
 """Command parameter name -> :func:`~gnss_cli.config.load_config` override key."""
 

@@ -19,7 +19,7 @@ import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
 from gnss_cli.cli.options import (
-    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Quiet, Reference,
+    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Processes, Quiet, Reference,
     ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
     check_reference_options, check_smoothing_flags, reference_inputs, run_config,
 )
@@ -56,6 +56,7 @@ def solve(
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
+    processes: Processes = None,
     model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
     report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),

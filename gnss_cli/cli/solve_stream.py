@@ -12,6 +12,8 @@ method. The bytes are those of the whole-file run.
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Optional
 
@@ -105,10 +107,16 @@ class _Summary:
         self.parts: dict[str, list[dict[str, Any]]] = {}
         self.refs: list[Any] = []
 
-    def add(self, part: Any, ref: Any) -> None:
-        for m, s in part.solutions.items():  # copies: a view would keep the part's arrays alive
-            self.parts.setdefault(m, []).append({f: getattr(s, f).copy() for f in _SUMMARY_FIELDS
-                                                 if getattr(s, f) is not None})
+    @staticmethod
+    def fields(part: Any) -> dict[str, dict[str, Any]]:
+        """The part's columns that the summary needs, per method (copies: a view would keep the
+        part's arrays alive)."""
+        return {m: {f: getattr(s, f).copy() for f in _SUMMARY_FIELDS if getattr(s, f) is not None}
+                for m, s in part.solutions.items()}
+
+    def add(self, fields: dict[str, dict[str, Any]], ref: Any) -> None:
+        for m, columns in fields.items():
+            self.parts.setdefault(m, []).append(columns)
         self.refs.append(ref if ref is None or np.ndim(ref) == 1 else ref.copy())
 
     def table(self, last: Any) -> Any:
@@ -126,42 +134,64 @@ class _Summary:
         return summary_table(replace(last, solutions=solutions), ref)
 
 
+@dataclass
+class _PartOut:
+    """What the tables need of one part: its CSV rows per table and method, its summary columns,
+    its reference, its window models and the part without its epochs. Small, so that a part
+    solved in another process comes back through a pipe in milliseconds."""
+
+    rows: list[tuple[str, str, str]]
+    summary: dict[str, dict[str, Any]]
+    ref: Any
+    models: Any
+    slim: Any
+
+
+def _finisher(refs: _References, cfg: Any, targets: dict[str, Path], obs_name: str) -> Callable[[Any], _PartOut]:
+    """The function that turns a solved part into its :class:`_PartOut` (where it was solved)."""
+    from gnss_cli.report import dop_table, errors_table, positions_table, satellites_table, to_csv_text
+
+    def finish(part: Any) -> _PartOut:
+        ref = refs.of(part, obs_name)
+        positions = positions_table(part, ref, cfg.time_system)
+        tables = {"positions": positions, "dop": dop_table(positions)}
+        if ref is not None:
+            tables["errors"] = errors_table(positions)
+        rows = [(name, m, to_csv_text(table[table["method"] == m]))
+                for name, table in tables.items() if name == "positions" or name in targets for m in part.solutions]
+        if "satellites" in targets:
+            rows.append(("satellites", "", to_csv_text(satellites_table(part, cfg))))
+        return _PartOut(rows, _Summary.fields(part), ref, part.models, _slim(part))
+
+    return finish
+
+
 def stream_tables(files: list[Path], cfg: Any, progress: Any, outputs: Any, targets: dict[str, Path],
                   references: tuple[Optional[str], Optional[Path], Optional[Path], Optional[Path]]
                   ) -> tuple[Any, list[str], bool]:
     """Run ``files`` part by part and stage (or print) the tables; returns the summary table, the
     warnings and whether there was a reference (the ``errors`` table)."""
     from gnss_cli.pipeline.stream import RESTART, ChunkedRun
-    from gnss_cli.report import dop_table, errors_table, positions_table, satellites_table, to_csv_text
 
     refs = _References(*references)
     spools, summary, models = _Spools(), _Summary(), _Models(cfg.smoothing, "models" in targets)
     run = ChunkedRun(files[0], files[1:], cfg, cfg.chunk_epochs, progress,
-                     whole_epochs=max(cfg.stream_above_epochs, cfg.chunk_epochs))
+                     whole_epochs=max(cfg.stream_above_epochs, cfg.chunk_epochs), processes=cfg.processes)
     last = None
     try:
-        for part in run.parts():
+        for part in run.parts(_finisher(refs, cfg, targets, Path(files[0]).name)):
             if part is RESTART:
                 spools.close()
                 summary, last = _Summary(), None
                 models.close()
                 models = _Models(cfg.smoothing, "models" in targets)
                 continue
-            ref = refs.of(part, Path(files[0]).name)
-            positions = positions_table(part, ref, cfg.time_system)
-            tables = {"positions": positions, "dop": dop_table(positions)}
-            if ref is not None:
-                tables["errors"] = errors_table(positions)
-            for name, table in tables.items():
-                if name == "positions" or name in targets:
-                    for m in part.solutions:
-                        spools.write(name, m, to_csv_text(table[table["method"] == m]))
-            if "satellites" in targets:
-                spools.write("satellites", "", to_csv_text(satellites_table(part, cfg)))
-            summary.add(part, ref)
+            for name, method, text in part.rows:
+                spools.write(name, method, text)
+            summary.add(part.summary, part.ref)
             models.add(part.models)
-            last = _slim(part)
-            del part, positions, tables  # before the next part is computed
+            last = part.slim
+            del part  # before the next part is computed
         assert last is not None
         summary_df = summary.table(last)
         _stage(outputs, targets, spools, tuple(last.solutions), summary_df, models)

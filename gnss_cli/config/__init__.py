@@ -103,6 +103,8 @@ class ProcessingConfig:
     """Epochs per part of a long observation file (``gnss-solve``'s streamed run, see default.toml); 0 = whole file."""
     stream_above_epochs: int = 3600
     """Files of more epochs than this (and than ``chunk_epochs``) are solved in parts (see default.toml)."""
+    processes: int = 0
+    """Processes that solve the halves of a file at once (``gnss-solve --processes``, see default.toml); 0 = one per core."""
 
     def validated(self) -> "ProcessingConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the option."""
@@ -117,10 +119,11 @@ class ProcessingConfig:
             raise ConfigError(f"tropo: expected 'saastamoinen' or 'none'; received {self.tropo!r}")
         if not 0.0 <= self.elevation_mask_deg < 90.0:
             raise ConfigError(f"elevation_mask_deg: expected 0 <= value < 90; received {self.elevation_mask_deg}")
-        for key in ("chunk_epochs", "stream_above_epochs"):
+        for key in ("chunk_epochs", "stream_above_epochs", "processes"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ConfigError(f"{key}: expected an integer >= 0 (chunk_epochs 0: the whole file at once); received {value!r}")
+                what = {"chunk_epochs": " (0: the whole file at once)", "processes": " (0: one per core)"}.get(key, "")
+                raise ConfigError(f"{key}: expected an integer >= 0{what}; received {value!r}")
         if self.max_iterations < 1:
             raise ConfigError(f"max_iterations: expected >= 1; received {self.max_iterations}")
         if not self.convergence_m > 0:
@@ -266,7 +269,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             if key in proc:
                 proc[key] = float(proc[key])
         for key in ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
-                    "chunk_epochs", "stream_above_epochs"):
+                    "chunk_epochs", "stream_above_epochs", "processes"):
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)

@@ -39,7 +39,7 @@ from typing import IO, Any
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
 
-__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "is_hatanaka", "iter_bytes"]
+__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "prefetched", "is_hatanaka", "iter_bytes"]
 
 _GZIP_MAGIC = b"\x1f\x8b"
 _LZW_MAGIC = b"\x1f\x9d"
@@ -225,7 +225,8 @@ class _Prefetch(threading.Thread):
         self.join()
         if self.error is not None:
             raise self.error
-        assert self.content is not None
+        if self.content is None:  # a forked child, whose copy of the reading thread never ran on
+            return _read(self.path)
         return self.content
 
 
@@ -267,6 +268,14 @@ def prefetch(*paths: str | os.PathLike[str]) -> None:
         job = _Prefetch(Path(path))
         _PENDING[key] = job
         job.start()
+
+
+def prefetched(path: str | os.PathLike[str]) -> bytes | None:
+    """The content of a file that :func:`prefetch` is reading (after waiting for it), left for the
+    next :func:`open_bytes` or :func:`iter_bytes`; None when the file is not being prefetched.
+    Raises what :func:`open_bytes` raises."""
+    job = _PENDING.get(_file_key(path))  # type: ignore[arg-type]
+    return job.result() if job is not None else None
 
 
 def open_header_lines(path: str | os.PathLike[str], max_lines: int = 2000) -> list[str]:

@@ -25,9 +25,9 @@ import numpy as np
 import xarray as xr
 
 from gnss_cli.errors import RinexFormatError
-from gnss_cli.io.compression import iter_bytes
+from gnss_cli.io.compression import iter_bytes, prefetched
 
-__all__ = ["iter_obs_chunks"]
+__all__ = ["iter_obs_chunks", "ObsRuns", "split_obs"]
 
 
 def _header(blocks: Iterator[bytes], name: str) -> tuple[str, bytearray]:
@@ -228,3 +228,87 @@ def iter_obs_chunks(
         buf += block
     if not runs.yielded:
         raise RinexFormatError(f"{info.path}: no observation records" + (f" for systems {','.join(systems)}" if systems else ""))
+
+
+class ObsRuns:
+    """A RINEX 3/4 observation file already in memory, cut in runs of consecutive epoch records
+    that can be parsed independently (:meth:`parse`, in any order or process) and then put in
+    order with the checks of :func:`iter_obs_chunks` (:meth:`ordered`). Made by :func:`split_obs`."""
+
+    def __init__(self, path: str | os.PathLike[str], info: object, header: str, bodies: list[tuple[bytes, int]],
+                 systems: Sequence[str] | None, codes: Sequence[str] | None, n_epochs: int) -> None:
+        self.name = Path(path).name
+        self.info, self.header, self.bodies = info, header, bodies
+        self.systems = list(systems) if systems else None
+        self.codes = list(codes) if codes else None
+        self.n_epochs = n_epochs
+
+    def __len__(self) -> int:
+        return len(self.bodies)
+
+    def parse(self, k: int) -> xr.Dataset | None:
+        """The dataset of run ``k`` with the attributes of :func:`iter_obs_chunks`' chunks (None
+        when it holds no record of the systems)."""
+        from gnss_cli.io.rinex3_obs import parse_obs3
+
+        body, before = self.bodies[k]
+        runs = _Runs(self.name, self.info, lambda b, n: parse_obs3(self.name, self.header, b, self.systems, self.codes,
+                                                                   lines_before=n), before)
+        return next(runs._out(runs._parse(body, before), before), None)
+
+    def check_order(self, spans: list[tuple[np.datetime64, np.datetime64] | None]) -> None:
+        """Check the runs' (first, last) epochs (None: a run without records) as
+        :func:`iter_obs_chunks` checks its chunks: every run later than the one before, and some run."""
+        last = None
+        for k, span in enumerate(spans):
+            if span is None:
+                continue
+            if last is not None and span[0] <= last:
+                raise RinexFormatError(f"{self.name}: the epoch after line {self.bodies[k][1]} is not later than "
+                                       f"the one before it ({np.datetime_as_string(span[0], 's')})")
+            last = span[1]
+        if last is None:
+            raise RinexFormatError(f"{self.info.path}: no observation records"  # type: ignore[attr-defined]
+                                   + (f" for systems {','.join(self.systems)}" if self.systems else ""))
+
+
+def split_obs(path: str | os.PathLike[str], systems: Sequence[str] | None, codes: Sequence[str] | None,
+              runs: int, max_epochs: int, min_run_epochs: int) -> ObsRuns | None:
+    """A RINEX 3/4 observation file that :func:`~gnss_cli.io.compression.prefetch` holds in memory,
+    cut in ``runs`` runs of nearly equal size (at the first epoch record after each equal share
+    of the bytes; fewer runs where a run would average fewer than ``min_run_epochs`` epochs). None when that is not so: another kind or version of file
+    (RINEX 2 records are cut line by line: :func:`iter_obs_chunks`), a file not prefetched (a long
+    one, read part by part), more than ``max_epochs`` epoch records (a file run in parts), or
+    fewer than two runs. Parsed and ordered (:class:`ObsRuns`), the runs hold what
+    ``iter_obs_chunks(path, systems, codes, max_epochs)`` yields in one chunk.
+    """
+    from gnss_cli.io.rinex import rinex_info
+
+    info = rinex_info(path)
+    if info.kind != "obs" or info.version < 3:
+        return None
+    content = prefetched(path)
+    if content is None:
+        return None
+    end = content.find(b"END OF HEADER")
+    end = content.find(b"\n", end) + 1 if end >= 0 else 0
+    if end <= 0:
+        return None  # (iter_obs_chunks reports the file)
+    n_epochs = content.count(b"\n>", end - 1)  # epoch lines (the header's last newline before the first)
+    runs = min(runs, n_epochs // max(min_run_epochs, 1))
+    if n_epochs > max_epochs or runs < 2:
+        return None
+    cuts = [end]  # at the first epoch line after each equal share of the bytes: parsing costs by the byte
+    for k in range(1, runs):
+        at = content.find(b"\n>", end + (len(content) - end) * k // runs)
+        if at < 0 or at + 1 <= cuts[-1]:
+            return None
+        cuts.append(at + 1)
+    cuts.append(len(content))
+    header = content[:end].decode("ascii", errors="replace")
+    before = header.count("\n")
+    bodies = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        bodies.append((content[a:b], before))
+        before += content.count(b"\n", a, b)
+    return ObsRuns(path, info, header, bodies, systems, codes, n_epochs)

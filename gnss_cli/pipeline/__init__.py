@@ -7,7 +7,9 @@ Modules, one job each::
     snapshot    solve_method, run: the single-epoch solution of every method, DOPs
     smoothing   smooth: behavioral multi-epoch smoothing of the WLS fixes (window scheduling)
     processing  process: the whole run (snapshot, then the smoothing when configured)
-    stream      ChunkedRun: a long file's run in parts of N epochs, equal to the whole run
+    stream      ChunkedRun: a long file's run in parts of N epochs, equal to the whole run; a day
+                file's parts read and solved at once in forked processes
+    memory      release_memory, map_large_blocks: the C heap of a run in parts
     smoothing_stream  StreamSmoother: the smoothing of parts with the whole file's schedule
     identification  identify_trajectory: kernel identification and prediction of a trajectory
 
