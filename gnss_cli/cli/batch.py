@@ -22,7 +22,7 @@ from typing import Any, Optional
 
 import typer
 
-from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
+from gnss_cli.cli.exits import HELP_OPTIONS, run_app, single_blas_thread, version_callback, without_dask
 from gnss_cli.cli.options import (
     Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Quiet, Reference,
     ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
@@ -70,6 +70,8 @@ def batch(
 ) -> int:
     """Solve every observation file with the navigation files that cover it; write one dataset."""
     values = dict(locals())
+    if scheduler is None:
+        without_dask()  # (before xarray is imported; the Dask runner needs dask)
     check_reference_options(values)
     if jobs is not None and scheduler is not None:
         raise UsageError("give --jobs or --scheduler, not both (the cluster decides how many tasks run at once)")
@@ -90,12 +92,15 @@ def batch(
             raise OutputError(f"{out}: cannot write output (not a folder)")
         csv_targets = {name: outputs.add(out / f"{name}.csv", "--out") for name in ("files", "summary")}
         dataset = PositionsDataset(outputs.stage_folder(out / "positions", "--out"))
-        from gnss_cli.cli.batch_runner import open_runner
+        from gnss_cli.cli.batch_runner import forks_workers, open_runner
 
+        # forked workers start with what the parent has loaded: the navigation reader first;
+        # spawned ones (elsewhere) import while the parent reads the navigation files
+        navs = nav_spans(nav_paths, quiet) if scheduler is None and forks_workers() else None
         runner = open_runner(jobs if jobs is not None else _cores(), scheduler, len(obs_paths))
         finished = False
         try:
-            navs = nav_spans(nav_paths, quiet)
+            navs = navs if navs is not None else nav_spans(nav_paths, quiet)
             settings = BatchSettings(cfg, reference, reference_sinex, reference_csv, reference_pos, navs)
             results = _run_all(runner.results([str(p) for p in obs_paths], settings), len(obs_paths), dataset, quiet)
             finished = True
@@ -253,6 +258,7 @@ def _finish(results: list[Any], out: Path, quiet: bool) -> int:
 
 def main() -> None:
     """Console entry point of ``gnss-batch``."""
+    single_blas_thread()
     run_app(app, PROG)
 
 

@@ -85,8 +85,13 @@ nanny sets the same)."""
 
 
 def init_worker() -> None:
-    """Start of a local worker process: Ctrl-C is for the parent, which ends the workers."""
+    """Start of a local worker process: Ctrl-C is for the parent, which ends the workers (with
+    SIGTERM, whose default action a worker forked from the parent gets back here)."""
+    from gnss_cli.pipeline.navigation import keep_navigation
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    keep_navigation()  # the files of a network share their navigation files
 
 
 def warm_up() -> None:
@@ -96,7 +101,10 @@ def warm_up() -> None:
     import gnss_cli.cli.solve  # noqa: F401
     import gnss_cli.formats  # noqa: F401
     import gnss_cli.io.catalog  # noqa: F401
+    import gnss_cli.io.nav_checks  # noqa: F401
     import gnss_cli.io.rinex  # noqa: F401
+    import gnss_cli.io.rinex3_nav  # noqa: F401
+    import gnss_cli.io.rinex3_obs  # noqa: F401
     import gnss_cli.pipeline  # noqa: F401
     import gnss_cli.report  # noqa: F401
 

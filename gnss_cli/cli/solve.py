@@ -17,7 +17,7 @@ from typing import Any, NoReturn, Optional
 
 import typer
 
-from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
+from gnss_cli.cli.exits import HELP_OPTIONS, mark_missing, run_app, single_blas_thread, version_callback, without_dask, write_stdout
 from gnss_cli.cli.options import (
     Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Processes, Quiet, Reference,
     ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
@@ -72,7 +72,7 @@ def solve(
 
     prefetch(*files)  # decompression (crx2rnx, gzip) on another core while the numerical modules import
     if not _writes_parquet(fmt, output):
-        _mark_missing("pyarrow")  # pandas imports it (~50 ms) for its string storage; only Parquet needs it
+        mark_missing("pyarrow")  # pandas imports it (~50 ms) for its string storage; only Parquet needs it
     check_reference_options(values)
     if output not in (None, "-") and out_dir is not None:
         raise UsageError("give -o/--output or --out-dir, not both")
@@ -251,11 +251,8 @@ def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyp
 
 def main() -> None:
     """Console entry point of ``gnss-solve``."""
-    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        # millions of 8x8 to 113x8 factorizations: BLAS threads only synchronise (a 24 h run took
-        # 1.1-1.4x the wall time with OpenBLAS's default threads on 2 cores); a value set by the user wins
-        os.environ.setdefault(name, "1")
-    _without_dask()
+    single_blas_thread()
+    without_dask()
     try:
         run_app(app, "gnss-solve")
     except SystemExit as done:
@@ -275,24 +272,6 @@ def _exit_now(code: object) -> NoReturn:
         except (OSError, ValueError):
             pass
     os._exit(code if isinstance(code, int) else (0 if code is None else 1))
-
-
-def _without_dask() -> None:
-    """Mark dask as not installed in this process.
-
-    One ``gnss-solve`` run never uses dask (``gnss-batch --scheduler`` does, in its own
-    processes), but xarray imports ``dask`` and ``dask.array`` when they are installed (the
-    ``cluster`` extra), only to recognise dask arrays: 0.1-0.2 s of every run.
-    """
-    _mark_missing("dask")
-
-
-def _mark_missing(module: str) -> None:
-    """Make ``module`` look not installed to this process, unless it, pandas or xarray is already
-    imported (they note at import what they found). A ``None`` entry in :data:`sys.modules`
-    makes ``importlib.util.find_spec`` report it missing and ``import`` raise ImportError."""
-    if not {module, "pandas", "xarray"} & set(sys.modules):
-        sys.modules[module] = None  # type: ignore[assignment]
 
 
 def _writes_parquet(fmt: Optional[str], output: Optional[str]) -> bool:

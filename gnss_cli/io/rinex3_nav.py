@@ -46,7 +46,7 @@ from gnss_cli.io.fixed_width import (
 from gnss_cli.io.nav_layout import Layout, layout_v3, layout_v4
 from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_nav_header, validate_systems
 
-__all__ = ["read_nav3", "FIELD_NAMES", "drop_identical_records", "records2dataset", "systems_in_order"]
+__all__ = ["read_nav3", "record_tocs", "FIELD_NAMES", "drop_identical_records", "records2dataset", "systems_in_order"]
 
 _KEPLER_GPS = [
     "SVclockBias", "SVclockDrift", "SVclockDriftRate", "IODE", "Crs", "DeltaN", "M0",
@@ -259,6 +259,12 @@ def _validate_paths(
     if bad:
         raise UsageError(f"path_or_paths: expected file paths, got {bad!r}")
     return paths
+
+
+def record_tocs(path: str | os.PathLike[str]) -> NDArray[np.datetime64]:
+    """The toc of every record of one RINEX 3/4 navigation file, as :func:`read_nav3` reads them
+    (same checks and errors), without building the dataset: what a catalogue of files needs."""
+    return _read_one(_validate_paths(path)[0], None)[0].toc
 
 
 def read_nav3(

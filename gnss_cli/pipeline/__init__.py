@@ -10,6 +10,7 @@ Modules, one job each::
     stream      ChunkedRun: a long file's run in parts of N epochs, equal to the whole run; a day
                 file's parts read and solved at once in forked processes
     memory      release_memory, map_large_blocks: the C heap of a run in parts
+    navigation  navigation_files, keep_navigation: the navigation files of a run (kept in a worker)
     smoothing_stream  StreamSmoother: the smoothing of parts with the whole file's schedule
     identification  identify_trajectory: kernel identification and prediction of a trajectory
 

@@ -19,7 +19,6 @@ from numpy.typing import NDArray
 from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import RinexFormatError
-from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
 from gnss_cli.gnss.carrier import phase_slips
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
 from gnss_cli.gnss.observables import (
@@ -39,8 +38,9 @@ from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m,
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
 from gnss_cli.io.fixed_width import lli_name
-from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav, read_obs
+from gnss_cli.io.rinex import read_obs
 from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
+from gnss_cli.pipeline.navigation import klobuchar_for, navigation_files
 from gnss_cli.pipeline.results import EpochData
 
 __all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
@@ -191,16 +191,6 @@ def _approx_position(obs: xr.Dataset) -> F64 | None:
     return approx if near else None
 
 
-def _klobuchar(nav, config: ProcessingConfig, nav_name: str, warnings: list[str]):  # type: ignore[no-untyped-def]
-    """The navigation files' Klobuchar coefficients, else RTKLIB's defaults (with a warning)."""
-    klob = klobuchar_coefficients(nav)
-    if klob is None and config.iono == "klobuchar":
-        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
-        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
-        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
-    return klob
-
-
 @dataclass
 class EpochSetup:
     """What every part of a run shares: the signal choice and the navigation data
@@ -226,13 +216,14 @@ class EpochSetup:
         return self.config.iono == "iono-free"
 
     def read_navigation(self) -> None:
-        """Read the navigation files (records, Klobuchar coefficients, leap seconds)."""
-        self.nav = read_nav(list(self.nav_paths), systems=self.systems)
+        """Read the navigation files (records, Klobuchar coefficients, leap seconds; in a process
+        that :func:`~gnss_cli.pipeline.navigation.keep_navigation` was called in, the last files
+        read are taken again unread while they are unchanged, with their per-system records)."""
+        self.nav, self.leap_seconds, self._records = navigation_files(self.nav_paths, self.systems)
         self.nav_name = ",".join(Path(p).name for p in self.nav_paths)
         warnings: list[str] = []
-        self.klobuchar = _klobuchar(self.nav, self.config, self.nav_name, warnings)
+        self.klobuchar = klobuchar_for(self.nav, self.config, self.nav_name, warnings)
         self.klobuchar_warnings = tuple(warnings)
-        self.leap_seconds = nav_leap_seconds(self.nav_paths)
 
     def records(self, system: str) -> tuple[GlonassRecords | KeplerRecords | None, F64]:
         if system not in self._records:

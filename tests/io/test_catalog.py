@@ -44,6 +44,19 @@ def test_rinex2_span_from_its_epoch_lines(rinex_dir: Path) -> None:
     assert covering_navs((first, last), [(a, b)]) == [0]
 
 
+@pytest.mark.parametrize("name", ["esbc-2020177/ESBC00DNK_R_20201770000_01D_MN.rnx.gz",
+                                  "kms3-2022159-rinex4/KMS300DNK_R_20221591000_01H_MN.rnx.gz",
+                                  "rtklib-0759/07590920.05n"])
+def test_nav_span_is_that_of_the_whole_reading(rinex_dir: Path, name: str) -> None:
+    """RINEX 3/4 spans come from the record start lines alone (ESBC: 3, KMS3: 4): the same as the
+    dataset's times."""
+    from gnss_cli.io.rinex import read_nav
+
+    path = rinex_dir / name
+    t = timestamps_gps_s(read_nav(path)["time"].values)
+    assert nav_toc_span(path) == (float(t.min()), float(t.max()))
+
+
 def test_unreadable_files_are_input_errors(tmp_path: Path) -> None:
     with pytest.raises(InputFileNotFoundError, match="nothere.rnx: no such file"):
         obs_time_span(tmp_path / "nothere.rnx")
