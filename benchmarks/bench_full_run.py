@@ -15,7 +15,7 @@ at once on two cores); the case ``--processes 1`` is the same run in one process
 (user + system, the process and the children it waited for: ``crx2rnx``, the forked process)
 are printed beside the wall times, and the peak is that of the largest single process. On a
 machine shared with other work the wall time also measures the waiting, and the load average
-at the start and end says how much of it there was. The target is ``ratio <= 0.6`` (``TARGET_RATIO``) for the default runs.
+at the start and end says how much of it there was. The target is ``ratio <= 0.6`` (``TARGET_RATIO``) for the case ``all systems`` (``TARGET_CASES``).
 
 Prints a table and writes ``benchmarks/results/bench_full_run.json``.
 
@@ -51,8 +51,10 @@ CASES = {"all systems": ("klobuchar", "brdc", []), "all systems, iono-free": ("i
          "all systems, 1 process": ("klobuchar", "brdc", ["--processes", "1"])}
 """label -> gnss-solve's --iono, rnx2rtkp's pos1-ionoopt, more gnss-solve arguments. The default
 run cuts the day in one part per core (two here); ``--processes 1`` is the same run in one process,
-shown beside it (the target is for the default runs)."""
+shown beside it."""
 TARGET_RATIO = 0.6
+TARGET_CASES = ("all systems",)
+"""The case the target is set for (issue 16: the whole run, all systems); the others are shown beside it."""
 _DECOMPRESS = (
     "import sys; from pathlib import Path; from gnss_cli.io.compression import open_bytes\n"
     "for src, dst in zip(sys.argv[1::2], sys.argv[2::2]): Path(dst).write_bytes(open_bytes(src))"
@@ -165,13 +167,15 @@ def main() -> None:
               f"{r['gnss_solve_peak_rss_mib']:>9.0f}{rtk:>10}{rtk_cpu:>7}{rtk_mem:>11}{ratio:>7}")
     print(f"medians of {args.repeat} runs; load average {load_start:.1f} at the start, {load_end:.1f} at the end "
           f"({os.cpu_count()} cores)")
-    ratios = [r["ratio"] for label, r in results.items() if r["ratio"] is not None and not CASES[label][2]]
+    ratios = [r["ratio"] for label, r in results.items() if r["ratio"] is not None and label in TARGET_CASES]
     if ratios:
         verdict = "holds" if max(ratios) <= TARGET_RATIO else "missed"  # type: ignore[operator]
-        print(f"target: ratio <= {TARGET_RATIO} {verdict} (worst {max(ratios):.2f})")  # type: ignore[type-var]
+        print(f"target: ratio <= {TARGET_RATIO} for {', '.join(TARGET_CASES)} {verdict} "  # type: ignore[type-var]
+              f"({max(ratios):.2f}; the other rows are shown beside it)")
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(json.dumps({"repeat": args.repeat, "load_average": [load_start, load_end],
-                                   "cpu_count": os.cpu_count(), "target_ratio": TARGET_RATIO, "cases": results},
+                                   "cpu_count": os.cpu_count(), "target_ratio": TARGET_RATIO,
+                                   "target_cases": list(TARGET_CASES), "cases": results},
                                   indent=2) + "\n")
     print(f"wrote {RESULTS.relative_to(REPO)}")
     if args.profile:
