@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import gnss_cli.cli.batch_runner as batch_runner
@@ -18,6 +19,7 @@ from gnss_cli.io.catalog import nav_toc_span
 from gnss_cli.parallel import can_fork
 from gnss_cli.pipeline import process
 
+NUMPY_2 = int(np.__version__.split(".")[0]) >= 2
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_rinex" / "static"
 
 
@@ -51,7 +53,10 @@ def test_forked_and_spawned_workers_give_the_same_rows(network, monkeypatch: pyt
     forked = _results(obs, nav, True, monkeypatch)
     spawned = _results(obs, nav, False, monkeypatch)
     for a, b in zip(forked, spawned):
-        assert a.positions.equals(b.positions)
+        if NUMPY_2:
+            assert a.positions.equals(b.positions)
+        else:  # numpy 1.x's sums change their last bits with the arrays' memory alignment
+            pd.testing.assert_frame_equal(a.positions, b.positions, rtol=1e-12, atol=1e-9)
         assert a.station == b.station and a.solved == b.solved > 0
 
 
@@ -68,7 +73,10 @@ def test_kept_navigation_is_read_once_while_unchanged(network, monkeypatch: pyte
     assert len(reads) == 1  # three stations, one reading
     for run in runs:
         for m, s in run.solutions.items():
-            assert np.array_equal(s.x_ecef_m, fresh.solutions[m].x_ecef_m, equal_nan=True)
+            if NUMPY_2:
+                assert np.array_equal(s.x_ecef_m, fresh.solutions[m].x_ecef_m, equal_nan=True)
+            else:
+                np.testing.assert_allclose(s.x_ecef_m, fresh.solutions[m].x_ecef_m, rtol=1e-12, atol=1e-9)
     st = os.stat(nav)
     os.utime(nav, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))  # the file changed: read again
     process(obs[0], [nav], cfg)
