@@ -23,7 +23,7 @@ from gnss_cli.errors import RinexFormatError
 from gnss_cli.io import compression
 from gnss_cli.io.obs_chunks import split_obs
 
-from test_solve_stream import NUMPY_2, _same_numbers, flight  # noqa: F401 - the module's fixture
+from test_solve_stream import flight, same_outputs  # noqa: F401 - the module's fixture
 
 ESBC = Path(__file__).resolve().parents[2].parent / "shared" / "rinex" / "esbc-2020177"
 ESBC_REF = "3582104.922,532590.196,5232755.366"
@@ -60,12 +60,7 @@ def _same_as_one_process(args: list[object], jobs: int, tmp_path: Path, capsys: 
     code, err, many = _run(args, tmp_path / "many", jobs, capsys)
     assert code == 0, err
     assert len(forks) == passes * (jobs - 1), f"expected {passes * (jobs - 1)} forked process(es), saw {len(forks)}"
-    assert sorted(one) == sorted(many)
-    for name in one:
-        if NUMPY_2:
-            assert many[name] == one[name], f"{name} differs between --processes 1 and --processes {jobs}"
-        else:
-            _same_numbers(name, many[name], one[name])
+    same_outputs(many, one, f"--processes 1 against --processes {jobs}")
     return one
 
 
@@ -150,11 +145,7 @@ def test_esbc_day_in_two_processes_is_one_process(tmp_path: Path, capsys, forks:
     code, err, many = _run(args, tmp_path / "many", 0, capsys)
     assert code == 0, err
     assert len(forks) == 1  # the second half read and solved in one forked process
-    for name in one:
-        if NUMPY_2:
-            assert many[name] == one[name], name
-        else:
-            _same_numbers(name, many[name], one[name])
+    same_outputs(many, one, "the ESBC day in one process against two")
 
 
 def test_split_runs_are_the_body_with_its_line_numbers(flight: Path) -> None:  # noqa: F811
