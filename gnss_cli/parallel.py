@@ -21,7 +21,7 @@ from collections.abc import Callable
 from functools import partial
 from typing import Any
 
-__all__ = ["Channel", "Forked", "WorkerError", "can_fork", "cores"]
+__all__ = ["Channel", "Forked", "WorkerError", "can_fork", "cores", "fork_all"]
 
 
 def can_fork() -> bool:
@@ -35,6 +35,20 @@ def cores() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         return os.cpu_count() or 1
+
+
+def fork_all(fns: list[Callable[..., Any]], talk: bool = False) -> "list[Forked] | OSError":
+    """A :class:`Forked` child for each of ``fns``, or, when the system refuses a process (a
+    limit on processes or memory: ``OSError``), that error, with the children already made ended."""
+    children: list[Forked] = []
+    try:
+        for fn in fns:
+            children.append(Forked(fn, talk))
+    except OSError as exc:
+        for child in children:
+            child.cancel()
+        return exc
+    return children
 
 
 class WorkerError(RuntimeError):

@@ -142,6 +142,7 @@ class ChunkedRun:
         self.progress = progress
         self.processes = int(processes)
         self.warnings: tuple[str, ...] = ()
+        self._notes: list[str] = []  # warnings of the run itself (a process refused)
 
     def parts(self, finish: Callable[[RunResult], Any] | None = None) -> Iterator[Any]:
         """The parts in order (each ``finish(part)`` when ``finish`` is given), or :data:`RESTART`.
@@ -197,9 +198,18 @@ class ChunkedRun:
         """The parts of a file in memory, each read, solved and ``finish``-ed in its own process:
         the first here, the others in forked processes that send back their survey and receive
         the whole file's axes (systems, satellites, clock columns) before they solve."""
-        from gnss_cli.parallel import Forked
+        from gnss_cli.parallel import fork_all
 
-        children = [Forked(partial(self._part_worker, split, k, setup, finish), talk=True) for k in range(1, len(split))]
+        children = fork_all([partial(self._part_worker, split, k, setup, finish) for k in range(1, len(split))], talk=True)
+        if isinstance(children, OSError):  # no process to be had: the parts one after the other, here
+            self._refused(children)
+            pieces = [split.parse(k) for k in range(len(split))]
+            split.check_order([None if ds is None else (ds["time"].values[0], ds["time"].values[-1]) for ds in pieces])
+            survey = _Survey()
+            for piece in pieces:
+                survey.merge(_Survey.of(piece, setup))
+            yield from self._solve(setup, survey, finish, [ds for ds in pieces if ds is not None])
+            return
         try:
             first = split.parse(0)
             setup.read_navigation()
@@ -240,7 +250,10 @@ class ChunkedRun:
         cov: Coverage | None = None
         counts: dict[str, dict[str, int]] = {}
         for k, outcome in enumerate(outcomes):
-            outcome = outcome.result() if hasattr(outcome, "result") else outcome
+            if hasattr(outcome, "result"):  # a forked process
+                outcome = outcome.result()
+            elif callable(outcome):  # work left to this process
+                outcome = outcome()
             if outcome is None:
                 continue
             out, part_cov, part_counts = outcome
@@ -254,6 +267,11 @@ class ChunkedRun:
             del out, outcome
         assert cov is not None
         return cov, counts
+
+    def _refused(self, error: OSError) -> None:
+        """No more processes from now on; the run's warnings say why."""
+        self.processes = 1
+        self._notes.append(f"--processes: no process could be started ({error}); solved in one process")
 
     def _workers(self, n_epochs: int) -> int:
         """Processes for a file of one part of ``n_epochs`` epochs (1: this one alone)."""
@@ -298,7 +316,7 @@ class ChunkedRun:
             if first_pass is not None:
                 cov, counts = yield from first_pass(systems, sv, used)
                 first_pass = None
-            elif pieces is not None and len(pieces) > 1:
+            elif pieces is not None and len(pieces) > 1 and self.processes != 1:
                 cov, counts = yield from self._pass_forked(setup, systems, sv, used, finish, pieces)
             else:
                 cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size, finish, factors, pieces)
@@ -312,7 +330,7 @@ class ChunkedRun:
             yield RESTART
         if not any(c.get(EpochStatus.OK.value, 0) for c in counts.values()):
             raise NoSolutionError(f"{Path(self.obs_path).name}: no epoch could be solved ({status_summary(counts)})")
-        self.warnings = tuple(warnings)
+        self.warnings = tuple(warnings) + tuple(self._notes)
 
     def _epochs(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
                 pieces: list[xr.Dataset] | None = None) -> Iterator[tuple[EpochData, Coverage]]:
@@ -328,17 +346,22 @@ class ChunkedRun:
                      finish: Callable[[RunResult], Any], pieces: list[xr.Dataset]):  # type: ignore[no-untyped-def]
         """:meth:`_pass` of snapshot methods with the ``pieces`` solved at once: every piece but the
         first in a forked process, the first here; returns the coverage and the status counts."""
-        from gnss_cli.parallel import Forked
+        from gnss_cli.parallel import fork_all
 
         if self.progress:
             self.progress(f"solving in {len(pieces)} processes", 0.0)
-        children = [Forked(partial(_solve_part, obs, setup, systems, sv, used, self.config, finish)) for obs in pieces[1:]]
+        work = [partial(_solve_part, obs, setup, systems, sv, used, self.config, finish) for obs in pieces[1:]]
+        children = fork_all(work)
+        if isinstance(children, OSError):  # no process to be had: the parts one after the other, here
+            self._refused(children)
+            children = work
         try:
             return (yield from self._gather([_solve_part(pieces[0], setup, systems, sv, used, self.config, finish)]
                                             + children))
         finally:
             for child in children:
-                child.cancel()
+                if hasattr(child, "cancel"):
+                    child.cancel()
 
     def _doppler_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
                          n_epochs: int, pieces: list[xr.Dataset] | None = None) -> tuple[float, ...] | None:

@@ -208,3 +208,25 @@ def test_one_process_where_it_cannot_fork(flight: Path, tmp_path: Path, capsys, 
     code, err, _ = _run([flight / "obs.rnx", flight / "nav.rnx"], tmp_path / "out", 2, capsys)
     assert code == 0, err
     assert not forks
+
+
+@pytest.mark.skipif(not parallel.can_fork(), reason="forked processes: Linux only")
+@pytest.mark.parametrize("prefetch", [True, False], ids=["read-in-processes", "read-here"])
+def test_a_refused_process_leaves_the_run_to_this_one(flight: Path, prefetch: bool, tmp_path: Path, capsys,  # noqa: F811
+                                                      small_parts: None, monkeypatch: pytest.MonkeyPatch) -> None:
+    args = [flight / "obs.rnx", flight / "nav.rnx"]
+    code, err, one = _run(args, tmp_path / "one", 1, capsys)
+    assert code == 0, err
+
+    def refused() -> int:
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", refused)
+    if not prefetch:
+        monkeypatch.setattr(compression, "PREFETCH_MAX_BYTES", 0)
+    with pytest.raises(SystemExit) as exc:
+        run_app(app, "gnss-solve", [str(a) for a in [*args, "--out-dir", tmp_path / "many", "--processes", 2]])
+    _, err = capsys.readouterr()
+    assert exc.value.code == 0, err
+    assert "no process could be started" in err and "solved in one process" in err
+    same_outputs({p.name: p.read_bytes() for p in sorted((tmp_path / "many").iterdir())}, one, "a refused fork")
