@@ -41,16 +41,17 @@ import xarray as xr
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import NoSolutionError, RinexFormatError
-from gnss_cli.gnss.observables import align_pseudoranges, codes_for, select_pseudoranges
+from gnss_cli.gnss.observables import codes_for, select_pseudoranges
 from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
-    Coverage, EpochSetup, _systems_with_data, build_epochs, file_warnings, finish_epochs, signal_setup, used_systems,
+    Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, used_systems,
 )
 from gnss_cli.pipeline.processing import process, with_velocity
 from gnss_cli.pipeline.doppler_stream import DopplerStreamSmoother
 from gnss_cli.pipeline.memory import map_large_blocks, release_memory
 from gnss_cli.pipeline.results import EpochData, EpochStatus, Progress, RunResult
 from gnss_cli.pipeline.smoothing_stream import StreamSmoother
+from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts, status_summary
 
 __all__ = ["ChunkedRun", "PART_MIN_EPOCHS", "RESTART", "streamable"]
@@ -163,7 +164,7 @@ class ChunkedRun:
         if split is not None:  # a day file in memory: its parts read at once too
             if self.progress:
                 self.progress(f"reading in {len(split)} processes", 0.0)
-            yield from self._run_split(split, setup, finish)
+            yield from self._runsplit_epochs(split, setup, finish)
             return
         chunks = iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs)
         if self.progress:
@@ -173,7 +174,7 @@ class ChunkedRun:
         if second is None:  # one part: the whole file
             workers = self._workers(held[0].sizes["time"])
             if workers > 1:
-                pieces = _split(held.pop(), workers)
+                pieces = split_epochs(held.pop(), workers)
                 survey = _Survey()
                 for piece in pieces:
                     survey.add(piece, setup)
@@ -194,7 +195,7 @@ class ChunkedRun:
         release_memory()
         yield from self._solve(setup, survey, finish)
 
-    def _run_split(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
+    def _runsplit_epochs(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
         """The parts of a file in memory, each read, solved and ``finish``-ed in its own process:
         the first here, the others in forked processes that send back their survey and receive
         the whole file's axes (systems, satellites, clock columns) before they solve."""
@@ -223,7 +224,7 @@ class ChunkedRun:
                 for child in children:
                     child.send((systems, sv, used))
                 return (yield from self._gather(
-                    [None if first is None else _solve_part(first, setup, systems, sv, used, self.config, finish)]
+                    [None if first is None else solve_part(first, setup, systems, sv, used, self.config, finish)]
                     + children))
 
             def reparse() -> list[xr.Dataset]:  # a restart (rare): every part read again, here
@@ -242,7 +243,7 @@ class ChunkedRun:
         channel.send(_Survey.of(piece, setup))
         setup.read_navigation()
         systems, sv, used = channel.recv()
-        return None if piece is None else _solve_part(piece, setup, systems, sv, used, self.config, finish)
+        return None if piece is None else solve_part(piece, setup, systems, sv, used, self.config, finish)
 
     def _gather(self, outcomes: list[Any]) -> Iterator[Any]:
         """Hand out the parts' outputs in order (a :class:`~gnss_cli.parallel.Forked` waited for);
@@ -339,7 +340,7 @@ class ChunkedRun:
         source = pieces if pieces is not None else iter_obs_chunks(self.obs_path, setup.systems, setup.codes,
                                                                    self.chunk_epochs)
         for obs in source:
-            yield _part_epochs(obs, setup, systems, sv, used)
+            yield part_epochs(obs, setup, systems, sv, used)
             del obs
 
     def _pass_forked(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
@@ -350,13 +351,13 @@ class ChunkedRun:
 
         if self.progress:
             self.progress(f"solving in {len(pieces)} processes", 0.0)
-        work = [partial(_solve_part, obs, setup, systems, sv, used, self.config, finish) for obs in pieces[1:]]
+        work = [partial(solve_part, obs, setup, systems, sv, used, self.config, finish) for obs in pieces[1:]]
         children = fork_all(work)
         if isinstance(children, OSError):  # no process to be had: the parts one after the other, here
             self._refused(children)
             children = work
         try:
-            return (yield from self._gather([_solve_part(pieces[0], setup, systems, sv, used, self.config, finish)]
+            return (yield from self._gather([solve_part(pieces[0], setup, systems, sv, used, self.config, finish)]
                                             + children))
         finally:
             for child in children:
@@ -425,27 +426,3 @@ class ChunkedRun:
 
 def _same(part: RunResult) -> RunResult:
     return part
-
-
-def _split(obs: xr.Dataset, n: int) -> list[xr.Dataset]:
-    """``obs`` cut in ``n`` runs of consecutive epochs of (nearly) equal length."""
-    bounds = np.linspace(0, obs.sizes["time"], n + 1).round().astype(int)
-    return [obs.isel(time=slice(int(a), int(b))) for a, b in zip(bounds[:-1], bounds[1:])]
-
-
-def _part_epochs(obs: xr.Dataset, setup: EpochSetup, systems: list[str], sv: np.ndarray,
-                 used: tuple[str, ...]) -> tuple[EpochData, Coverage]:
-    """The epochs of one part on the whole file's satellite axis ``sv``, and the part's coverage."""
-    obs = obs.reindex(sv=np.union1d(np.asarray(obs["sv"].values).astype(str), sv))
-    prs = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority), sv)
-    data, part_cov = build_epochs(obs, prs, setup, systems)
-    return finish_epochs(data, used), part_cov
-
-
-def _solve_part(obs: xr.Dataset, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
-                config: ProcessingConfig, finish: Callable[[RunResult], Any]) -> tuple[Any, Coverage, dict[str, dict[str, int]]]:
-    """One part with snapshot methods, wherever it runs: ``finish`` of its result, its coverage and
-    its status counts."""
-    data, part_cov = _part_epochs(obs, setup, systems, sv, used)
-    solutions = solve_methods(data, config)
-    return finish(with_velocity(RunResult(data, solutions), config)), part_cov, status_counts(solutions)
