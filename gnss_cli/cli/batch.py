@@ -93,11 +93,12 @@ def batch(
         csv_targets = {name: outputs.add(out / f"{name}.csv", "--out") for name in ("files", "summary")}
         dataset = PositionsDataset(outputs.stage_folder(out / "positions", "--out"))
         from gnss_cli.cli.batch_runner import forks_workers, open_runner
+        from gnss_cli.parallel import cores
 
         # forked workers start with what the parent has loaded: the navigation reader first;
         # spawned ones (elsewhere) import while the parent reads the navigation files
         navs = nav_spans(nav_paths, quiet) if scheduler is None and forks_workers() else None
-        runner = open_runner(jobs if jobs is not None else _cores(), scheduler, len(obs_paths))
+        runner = open_runner(jobs if jobs is not None else cores(), scheduler, len(obs_paths))
         finished = False
         try:
             navs = navs if navs is not None else nav_spans(nav_paths, quiet)
@@ -216,14 +217,6 @@ def _run_all(stream: Any, total: int, dataset: Any, quiet: bool) -> list[Any]:
     finally:
         stream.close()
     return results
-
-
-def _cores() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def _progress_line(result: Any, done: int, total: int, elapsed_s: float) -> str:

@@ -138,7 +138,7 @@ class _Summary:
 class _PartOut:
     """What the tables need of one part: its CSV rows per table and method, its summary columns,
     its reference, its window models and the part without its epochs. Small, so that a part
-    solved in another process comes back through a pipe in milliseconds."""
+    solved in a forked process comes back in milliseconds."""
 
     rows: list[tuple[str, str, str]]
     summary: dict[str, dict[str, Any]]

@@ -233,15 +233,14 @@ def iter_obs_chunks(
 class ObsRuns:
     """A RINEX 3/4 observation file already in memory, cut in runs of consecutive epoch records
     that can be parsed independently (:meth:`parse`, in any order or process) and then put in
-    order with the checks of :func:`iter_obs_chunks` (:meth:`ordered`). Made by :func:`split_obs`."""
+    order with the checks of :func:`iter_obs_chunks` (:meth:`check_order`). Made by :func:`split_obs`."""
 
     def __init__(self, path: str | os.PathLike[str], info: object, header: str, bodies: list[tuple[bytes, int]],
-                 systems: Sequence[str] | None, codes: Sequence[str] | None, n_epochs: int) -> None:
+                 systems: Sequence[str] | None, codes: Sequence[str] | None) -> None:
         self.name = Path(path).name
         self.info, self.header, self.bodies = info, header, bodies
         self.systems = list(systems) if systems else None
         self.codes = list(codes) if codes else None
-        self.n_epochs = n_epochs
 
     def __len__(self) -> int:
         return len(self.bodies)
@@ -276,7 +275,8 @@ def split_obs(path: str | os.PathLike[str], systems: Sequence[str] | None, codes
               runs: int, max_epochs: int, min_run_epochs: int) -> ObsRuns | None:
     """A RINEX 3/4 observation file that :func:`~gnss_cli.io.compression.prefetch` holds in memory,
     cut in ``runs`` runs of nearly equal size (at the first epoch record after each equal share
-    of the bytes; fewer runs where a run would average fewer than ``min_run_epochs`` epochs). None when that is not so: another kind or version of file
+    of the bytes; fewer runs where a run would average fewer than ``min_run_epochs`` epochs).
+    None when that is not so: another kind or version of file
     (RINEX 2 records are cut line by line: :func:`iter_obs_chunks`), a file not prefetched (a long
     one, read part by part), more than ``max_epochs`` epoch records (a file run in parts), or
     fewer than two runs. Parsed and ordered (:class:`ObsRuns`), the runs hold what
@@ -311,4 +311,4 @@ def split_obs(path: str | os.PathLike[str], systems: Sequence[str] | None, codes
     for a, b in zip(cuts[:-1], cuts[1:]):
         bodies.append((content[a:b], before))
         before += content.count(b"\n", a, b)
-    return ObsRuns(path, info, header, bodies, systems, codes, n_epochs)
+    return ObsRuns(path, info, header, bodies, systems, codes)

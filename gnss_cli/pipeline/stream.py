@@ -153,8 +153,8 @@ class ChunkedRun:
         run: the parts are solved and ``finish``-ed at once in forked processes
         (:class:`~gnss_cli.parallel.Forked`), the first in this one, and handed out in order.
         Their rows are those of the whole file at once, bit for bit, as every part's are.
-        ``finish`` runs where the part is solved (its value, not the part, comes back through
-        a pipe): it must return something that pickles.
+        ``finish`` runs where the part is solved (its value, not the part, comes back from a
+        forked process, pickled): it must return something that pickles.
         """
         finish = finish if finish is not None else _same
         setup = signal_setup(self.obs_path, self.nav_paths, self.config)
@@ -164,7 +164,7 @@ class ChunkedRun:
         if split is not None:  # a day file in memory: its parts read at once too
             if self.progress:
                 self.progress(f"reading in {len(split)} processes", 0.0)
-            yield from self._runsplit_epochs(split, setup, finish)
+            yield from self._run_split(split, setup, finish)
             return
         chunks = iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs)
         if self.progress:
@@ -195,7 +195,7 @@ class ChunkedRun:
         release_memory()
         yield from self._solve(setup, survey, finish)
 
-    def _runsplit_epochs(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
+    def _run_split(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
         """The parts of a file in memory, each read, solved and ``finish``-ed in its own process:
         the first here, the others in forked processes that send back their survey and receive
         the whole file's axes (systems, satellites, clock columns) before they solve."""
@@ -205,20 +205,13 @@ class ChunkedRun:
         if isinstance(children, OSError):  # no process to be had: the parts one after the other, here
             self._refused(children)
             pieces = [split.parse(k) for k in range(len(split))]
-            split.check_order([None if ds is None else (ds["time"].values[0], ds["time"].values[-1]) for ds in pieces])
-            survey = _Survey()
-            for piece in pieces:
-                survey.merge(_Survey.of(piece, setup))
+            survey = _whole_survey(split, [_Survey.of(ds, setup) for ds in pieces])
             yield from self._solve(setup, survey, finish, [ds for ds in pieces if ds is not None])
             return
         try:
             first = split.parse(0)
             setup.read_navigation()
-            surveys = [_Survey.of(first, setup)] + [child.recv() for child in children]
-            split.check_order([None if sv is None else sv.span for sv in surveys])
-            survey = _Survey()
-            for part_survey in surveys:
-                survey.merge(part_survey)
+            survey = _whole_survey(split, [_Survey.of(first, setup)] + [child.recv() for child in children])
 
             def first_pass(systems: list[str], sv: np.ndarray, used: tuple[str, ...]):  # type: ignore[no-untyped-def]
                 for child in children:
@@ -422,6 +415,16 @@ class ChunkedRun:
             yield finish(with_velocity(out, config))
         assert cov is not None
         return cov, counts
+
+
+def _whole_survey(split: ObsRuns, surveys: list[_Survey | None]) -> _Survey:
+    """The survey of the whole file from its runs' (None: a run without records), after the
+    checks of their order."""
+    split.check_order([None if sv is None else sv.span for sv in surveys])
+    survey = _Survey()
+    for part_survey in surveys:
+        survey.merge(part_survey)
+    return survey
 
 
 def _same(part: RunResult) -> RunResult:
