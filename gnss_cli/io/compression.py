@@ -39,7 +39,7 @@ from typing import IO, Any
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
 
-__all__ = ["open_bytes", "open_text", "open_header_lines", "prefetch", "prefetched", "is_hatanaka", "iter_bytes"]
+__all__ = ["open_bytes", "expand_crinex", "open_text", "open_header_lines", "prefetch", "prefetched", "is_hatanaka", "iter_bytes"]
 
 _GZIP_MAGIC = b"\x1f\x8b"
 _LZW_MAGIC = b"\x1f\x9d"
@@ -102,7 +102,7 @@ def _unpack(raw: bytes, name: str) -> bytes:
     return raw
 
 
-def open_bytes(path: str | os.PathLike[str]) -> bytes:
+def open_bytes(path: str | os.PathLike[str], keep_crinex3: bool = False) -> bytes:
     """Read a RINEX file and return its decompressed plain-RINEX content as bytes.
 
     Parameters
@@ -110,6 +110,9 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
     path : str or os.PathLike
         Plain, gzip, Unix-compress, zip or bzip2 file, holding RINEX or Compact RINEX
         (Hatanaka) text.
+    keep_crinex3 : bool, default False
+        Return Compact RINEX 3 content as it is (unpacked, not expanded: the observation reader
+        decodes it itself, :mod:`gnss_cli.io.crinex3`; :func:`expand_crinex` expands it).
 
     Returns
     -------
@@ -127,26 +130,33 @@ def open_bytes(path: str | os.PathLike[str]) -> bytes:
     Notes
     -----
     Hatanaka decompression is done by the ``hatanaka`` package's C ``crx2rnx``; on a 24 h
-    30 s multi-GNSS file (4 MB ``.crx.gz`` -> 33 MB RINEX) it takes about 0.4 s and
-    usually dominates the reading time.
+    30 s multi-GNSS file (4 MB ``.crx.gz`` -> 33 MB RINEX) it takes about 0.45 s of CPU, more
+    than the parsing of the text. The RINEX 3/4 observation reader therefore asks for Compact
+    RINEX 3 as it is (``keep_crinex3``) and decodes it itself, in about 0.2 s; where a second
+    core is idle (``gnss-solve`` while it imports, :func:`prefetch`) ``crx2rnx`` runs there.
     """
     p = _check_path(path)
     job = _PENDING.pop(_file_key(p), None)
     if job is not None:
         return job.result()
-    return _read(p)
+    return _read(p, keep_crinex3)
 
 
-def _read(p: Path) -> bytes:
+def _read(p: Path, keep_crinex3: bool = False) -> bytes:
     """:func:`open_bytes` of a checked path."""
     try:
         raw = p.read_bytes()
     except OSError as exc:
         raise InputFileNotFoundError(f"{p}: cannot read file ({exc})") from exc
     content = _unpack(raw, p.name)
-    if is_hatanaka(content):
+    if is_hatanaka(content) and not (keep_crinex3 and content.startswith(b"3.0")):
         content = _crx2rnx(content, p.name)
     return content
+
+
+def expand_crinex(content: bytes, name: str) -> bytes:
+    """Plain RINEX of Compact RINEX ``content`` (``crx2rnx``); other content as it is."""
+    return _crx2rnx(content, name) if is_hatanaka(content) else content
 
 
 def _crx2rnx(content: bytes, name: str) -> bytes:
@@ -260,6 +270,11 @@ def prefetch(*paths: str | os.PathLike[str]) -> None:
     :data:`PREFETCH_MAX_BYTES` on disk too: a long observation file is read part by part
     (:func:`iter_bytes`), and its whole text held in advance would be the run's largest
     allocation (a plain 24 h 1 Hz file: 86 MB, the peak 268 instead of 190 MiB).
+
+    Compact RINEX 3 is expanded here too, although the observation reader could decode it
+    with less CPU (:mod:`gnss_cli.io.crinex3`): on the idle core ``crx2rnx`` costs no wall
+    time, its text is parsed in 0.12 s against the decoder's 0.2 s, and the text can be cut
+    between processes (:func:`gnss_cli.io.obs_chunks.split_obs`).
     """
     for path in paths:
         key = _file_key(path)

@@ -1,7 +1,8 @@
 """Headers of RINEX 3.0x / 4.0x observation and navigation files.
 
 :func:`read_header` opens a file and cuts its header off the body; :func:`read_obs_header`
-and :func:`read_nav_header` decode the records the readers need. The bodies are decoded in
+and :func:`read_nav_header` decode the records the readers need; :func:`select_codes` picks the
+observation codes to decode. The bodies are decoded in
 :mod:`gnss_cli.io.rinex3_obs` and :mod:`gnss_cli.io.rinex3_nav`.
 
 References
@@ -24,7 +25,7 @@ from gnss_cli.io.compression import open_bytes
 
 __all__ = [
     "SYSTEM_CHARS", "validate_systems", "read_header", "header_end", "parse_version_line", "check_rinex34_type",
-    "read_obs_header", "read_nav_header",
+    "read_obs_header", "read_nav_header", "validate_selection", "select_codes",
 ]
 
 SYSTEM_CHARS = "GRECJSI"
@@ -52,8 +53,9 @@ def validate_systems(systems: Sequence[str] | str | None) -> list[str] | None:
     return systems
 
 
-def read_header(path: str | os.PathLike[str]) -> tuple[str, bytes, int, str]:
-    """Open a RINEX file; return its name, whole content, the offset of the body and the header text.
+def read_header(path: str | os.PathLike[str], content: bytes | None = None) -> tuple[str, bytes, int, str]:
+    """Open a RINEX file (or take its ``content``, read already); return its name, whole content,
+    the offset of the body and the header text.
 
     Raises
     ------
@@ -63,7 +65,7 @@ def read_header(path: str | os.PathLike[str]) -> tuple[str, bytes, int, str]:
         The file is empty or has no ``END OF HEADER`` line.
     """
     name = Path(path).name
-    content = open_bytes(path)
+    content = open_bytes(path) if content is None else content
     if not content or content.isspace():
         raise RinexFormatError(f"{name}: empty file")
     hdr_end = header_end(content, name)
@@ -220,3 +222,45 @@ def read_nav_header(header: str, name: str) -> dict[str, Any]:
     if "GAL" in iono:
         attrs["ionospheric_corr_GAL"] = iono["GAL"]
     return attrs
+
+
+def select_codes(
+    obs_types: dict[str, list[str]],
+    systems: Sequence[str] | None,
+    codes: Sequence[str] | None,
+    pseudorange_only: bool,
+) -> dict[str, list[tuple[int, str]]]:
+    """Per system of ``obs_types`` (system -> codes in header order) among ``systems``, the
+    (field index, code) pairs to decode: the codes that start with one of ``codes`` (all when
+    None), only pseudoranges when ``pseudorange_only``."""
+    chosen: dict[str, list[tuple[int, str]]] = {}
+    for sys_char, types in obs_types.items():
+        if systems is not None and sys_char not in systems:
+            continue
+        pairs = []
+        for k, code in enumerate(types):
+            if pseudorange_only and not code.startswith("C"):
+                continue
+            if codes is not None and not any(code.startswith(c) for c in codes):
+                continue
+            pairs.append((k, code))
+        chosen[sys_char] = pairs
+    return chosen
+
+
+def validate_selection(
+    systems: Sequence[str] | str | None, codes: Sequence[str] | str | None
+) -> tuple[list[str] | None, list[str] | None]:
+    """``systems`` and ``codes`` checked (:class:`UsageError`) and as lists (None: all)."""
+    systems = validate_systems(systems)
+    if isinstance(codes, str):
+        codes = [codes]
+    if codes is not None:
+        codes = [c.strip() for c in codes]
+        base = [c[:-3] if len(c) > 3 and c.endswith("lli") else c for c in codes]  # 'L1Clli': L1C's indicators
+        bad = [c for c in base if not c or len(c) > 3 or not c.isalnum()]
+        if bad or not codes:
+            raise UsageError(
+                f"codes: expected observation codes such as 'C1C', prefixes 'C1' or phase indicators 'L1Clli', got {codes!r}"
+            )
+    return systems, codes

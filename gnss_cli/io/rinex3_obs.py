@@ -8,7 +8,8 @@ the layout of ``georinex.load(path, use=systems, meas=codes)`` so the two reader
 interchangeable (and compared in the tests).
 
 The header is decoded in :mod:`gnss_cli.io.rinex3_header`, the fixed-width fields with the
-primitives of :mod:`gnss_cli.io.fixed_width` that the navigation reader shares.
+primitives of :mod:`gnss_cli.io.fixed_width` that the navigation reader shares. Compact RINEX 3
+is decoded from its compressed records (:mod:`gnss_cli.io.crinex3`) into the same dataset.
 
 References
 ----------
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,7 +47,10 @@ from gnss_cli.io.fixed_width import (
     sv_codes2str,
 )
 from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
-from gnss_cli.io.rinex3_header import SYSTEM_CHARS, read_header, read_obs_header, validate_systems
+from gnss_cli.io.compression import expand_crinex, open_bytes
+from gnss_cli.io.rinex3_header import (
+    SYSTEM_CHARS, header_end, read_header, read_obs_header, select_codes, validate_selection,
+)
 
 __all__ = ["read_obs3", "parse_obs3"]
 
@@ -91,45 +96,6 @@ def _sv_codes(sv_chars: NDArray[np.uint8]) -> tuple[NDArray[np.int64], NDArray[n
     known = np.isin(c0, np.frombuffer(SYSTEM_CHARS.encode(), dtype=np.uint8))
     ok = known & (c1 >= DIGIT0) & (c1 <= DIGIT0 + 9) & (c2 >= DIGIT0) & (c2 <= DIGIT0 + 9)
     return (c0 << 16) | (c1 << 8) | c2, ok
-
-
-def _select_codes(
-    obs_types: dict[str, list[str]],
-    systems: Sequence[str] | None,
-    codes: Sequence[str] | None,
-    pseudorange_only: bool,
-) -> dict[str, list[tuple[int, str]]]:
-    """Per system, the (field index, code) pairs to decode, in header order."""
-    chosen: dict[str, list[tuple[int, str]]] = {}
-    for sys_char, types in obs_types.items():
-        if systems is not None and sys_char not in systems:
-            continue
-        pairs = []
-        for k, code in enumerate(types):
-            if pseudorange_only and not code.startswith("C"):
-                continue
-            if codes is not None and not any(code.startswith(c) for c in codes):
-                continue
-            pairs.append((k, code))
-        chosen[sys_char] = pairs
-    return chosen
-
-
-def _validate_selection(
-    systems: Sequence[str] | str | None, codes: Sequence[str] | str | None
-) -> tuple[list[str] | None, list[str] | None]:
-    systems = validate_systems(systems)
-    if isinstance(codes, str):
-        codes = [codes]
-    if codes is not None:
-        codes = [c.strip() for c in codes]
-        base = [c[:-3] if len(c) > 3 and c.endswith("lli") else c for c in codes]  # 'L1Clli': L1C's indicators
-        bad = [c for c in base if not c or len(c) > 3 or not c.isalnum()]
-        if bad or not codes:
-            raise UsageError(
-                f"codes: expected observation codes such as 'C1C', prefixes 'C1' or phase indicators 'L1Clli', got {codes!r}"
-            )
-    return systems, codes
 
 
 def read_obs3(
@@ -187,8 +153,10 @@ def read_obs3(
     selected code is blank for them. Differences: ``'G 7'`` is read as ``'G07'`` before
     sorting; event epochs (flag 2-6) and their special records are skipped; an epoch that
     is not later than the one before it (the same epoch twice, a re-stamped epoch) is an
-    error, as is a file cut inside its last value. Loss-of-lock and signal-strength
-    indicators are not read.
+    error, as is a file cut inside its last value. Loss-of-lock indicators are read for the
+    phase codes ``codes`` asks them for (``L1Clli``); signal-strength indicators are not read.
+    Compact RINEX 3 is decoded directly (:mod:`gnss_cli.io.crinex3`, the same dataset as from
+    its ``crx2rnx`` text), unless :func:`~gnss_cli.io.compression.prefetch` expanded it already.
 
     Examples
     --------
@@ -200,8 +168,19 @@ def read_obs3(
     >>> float(obs["C1C"].sel(sv="G02").values[0])
     21534747.83
     """
-    _validate_selection(systems, codes)
-    name, content, hdr_end, header = read_header(path)
+    validate_selection(systems, codes)
+    from gnss_cli.io.crinex3 import crinex3_rinex_part
+
+    content = open_bytes(path, keep_crinex3=True)
+    part = crinex3_rinex_part(content)
+    if part is not None:  # CRINEX 3: decoded directly, or by crx2rnx when it holds what only that reads
+        name, hdr_end = Path(path).name, header_end(part, Path(path).name)
+        crinex = parse_crinex3(name, part[:hdr_end].decode("ascii", "replace"), part[hdr_end:], systems, codes,
+                               pseudorange_only)
+        if crinex is not None:
+            return crinex
+        content = expand_crinex(content, name)
+    name, content, hdr_end, header = read_header(path, content)
     return parse_obs3(name, header, content[hdr_end:], systems, codes, pseudorange_only=pseudorange_only)
 
 
@@ -218,9 +197,9 @@ def parse_obs3(
     """:func:`read_obs3` of a header text and a body of whole epoch records (the file, or a run
     of its epochs: :mod:`gnss_cli.io.obs_chunks`). ``lines_before``: file lines before
     ``body`` (default: the header's), so that error messages name the file's line numbers."""
-    systems, codes = _validate_selection(systems, codes)
+    systems, codes = validate_selection(systems, codes)
     attrs, obs_types = read_obs_header(header, name)
-    chosen = _select_codes(obs_types, systems, codes, pseudorange_only)
+    chosen = select_codes(obs_types, systems, codes, pseudorange_only)
     if not chosen:
         raise RinexFormatError(
             f"{name}: none of the systems {systems} in the file (it has {''.join(obs_types)})"
@@ -229,12 +208,51 @@ def parse_obs3(
     owner, times = _epochs(lines, name)
     data_idx, sv_code, sys_code = _data_lines(lines, owner, times.flag, chosen, name)
     _check_record_lengths(lines, data_idx, sys_code, obs_types, name)
-    line_epoch = owner[data_idx]
-    time_values, time_of_line = np.unique(times.time[line_epoch], return_inverse=True)
-    sv_values, sv_of_line = np.unique(sv_code, return_inverse=True)
-    flat = time_of_line * sv_values.size + sv_of_line
-    variables = _decode_values(lines, data_idx, sys_code, flat, time_values.size * sv_values.size, chosen, name, codes)
-    return _dataset(variables, time_values, sv_values, attrs, name)
+    cells = _Cells(times.time[owner[data_idx]], sv_code)
+    variables = _decode_values(lines, data_idx, sys_code, cells.flat, cells.size, chosen, name, codes)
+    return _dataset(variables, cells.time_values, cells.sv_values, attrs, name)
+
+
+class _Cells:
+    """The ``(time, sv)`` axes of records at ``times`` of satellites ``sv_code`` and each record's flat cell."""
+
+    def __init__(self, times: NDArray[np.datetime64], sv_code: NDArray[np.int64]) -> None:
+        self.time_values, time_of = np.unique(times, return_inverse=True)
+        self.sv_values, sv_of = np.unique(sv_code, return_inverse=True)
+        self.flat = time_of * self.sv_values.size + sv_of
+        self.size = self.time_values.size * self.sv_values.size
+
+
+def parse_crinex3(
+    name: str, header: str, body: bytes, systems: Sequence[str] | None, codes: Sequence[str] | None,
+    pseudorange_only: bool = False,
+) -> xarray.Dataset | None:
+    """:func:`parse_obs3` of a CRINEX 3 ``body`` (:mod:`gnss_cli.io.crinex3`), the same dataset as
+    :func:`parse_obs3` of the ``crx2rnx`` text; None where the body needs ``crx2rnx`` (events,
+    damage: its messages name the problem) or would give an error message."""
+    from gnss_cli.io.crinex3 import Unsupported, decode_body
+
+    systems, codes = validate_selection(systems, codes)
+    attrs, obs_types = read_obs_header(header, name)
+    chosen = select_codes(obs_types, systems, codes, pseudorange_only)
+    try:
+        rec = decode_body(body, {k: len(v) for k, v in obs_types.items()}, chosen,
+                          {c for pairs in chosen.values() for _, c in pairs if wants_lli(c, codes)})
+        times, flag, _ = _epoch_times(rec.epoch_chars, rec.epoch_line, name)
+        check_epochs_increasing(times, rec.epoch_line, name)
+    except (Unsupported, RinexFormatError):
+        return None
+    sv_code, sv_ok = _sv_codes(rec.sv_chars)
+    keep = np.isin(rec.sv_chars[:, 0], np.frombuffer("".join(chosen).encode(), dtype=np.uint8))
+    if not chosen or not np.all(sv_ok) or not np.any(keep) or np.any(flag > 1):
+        return None
+    cells = _Cells(times[rec.record_epoch[keep]], sv_code[keep])
+    cell_of = np.full(keep.size, -1)
+    cell_of[keep] = cells.flat
+    variables: dict[str, NDArray[np.float64]] = {}
+    for code, rows, values in rec.values:
+        variables.setdefault(code, np.full(cells.size, np.nan))[cell_of[rows]] = values
+    return _dataset(variables, cells.time_values, cells.sv_values, attrs, name)
 
 
 class _Lines:
