@@ -126,10 +126,9 @@ def _epochs(text: bytes, starts: list[int], lengths: list[int]) -> tuple[list[by
         if (len(line) < _EPOCH_WIDTH or line[:1] != b">" or line[29:31] != b"  " or not line[31:32].isdigit()
                 or line[_EPOCH_WIDTH:_SV_COL].strip()):
             raise Unsupported(f"epoch line {i + 1} does not restore to an epoch")
-        try:
-            nsat = int(line[32:35])
-        except ValueError:
-            raise Unsupported(f"epoch line {i + 1}: no satellite count") from None
+        if not line[32:35].strip().isdigit():
+            raise Unsupported(f"epoch line {i + 1}: no satellite count")
+        nsat = int(line[32:35])
         listed = line[_SV_COL:_SV_COL + 3 * nsat]
         if len(listed) != 3 * nsat or i + 1 + nsat >= n:
             raise Unsupported(f"epoch line {i + 1}: satellite list or records incomplete")
