@@ -27,7 +27,7 @@ import numpy as np
 import xarray
 from numpy.typing import NDArray
 
-from gnss_cli.errors import RinexFormatError, UsageError
+from gnss_cli.errors import RinexFormatError
 from gnss_cli.io.fixed_width import (
     DIGIT0,
     DOT,
@@ -48,6 +48,7 @@ from gnss_cli.io.fixed_width import (
 )
 from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_complete
 from gnss_cli.io.compression import expand_crinex, open_bytes
+from gnss_cli.io.crinex3 import Unsupported, crinex3_rinex_part, decode_body
 from gnss_cli.io.rinex3_header import (
     SYSTEM_CHARS, header_end, read_header, read_obs_header, select_codes, validate_selection,
 )
@@ -169,8 +170,6 @@ def read_obs3(
     21534747.83
     """
     validate_selection(systems, codes)
-    from gnss_cli.io.crinex3 import crinex3_rinex_part
-
     content = open_bytes(path, keep_crinex3=True)
     part = crinex3_rinex_part(content)
     if part is not None:  # CRINEX 3: decoded directly, or by crx2rnx when it holds what only that reads
@@ -230,21 +229,19 @@ def parse_crinex3(
     """:func:`parse_obs3` of a CRINEX 3 ``body`` (:mod:`gnss_cli.io.crinex3`), the same dataset as
     :func:`parse_obs3` of the ``crx2rnx`` text; None where the body needs ``crx2rnx`` (events,
     damage: its messages name the problem) or would give an error message."""
-    from gnss_cli.io.crinex3 import Unsupported, decode_body
-
     systems, codes = validate_selection(systems, codes)
     attrs, obs_types = read_obs_header(header, name)
     chosen = select_codes(obs_types, systems, codes, pseudorange_only)
     try:
         rec = decode_body(body, {k: len(v) for k, v in obs_types.items()}, chosen,
                           {c for pairs in chosen.values() for _, c in pairs if wants_lli(c, codes)})
-        times, flag, _ = _epoch_times(rec.epoch_chars, rec.epoch_line, name)
+        times = _epoch_times(rec.epoch_chars, rec.epoch_line, name)[0]  # (event records went to crx2rnx)
         check_epochs_increasing(times, rec.epoch_line, name)
     except (Unsupported, RinexFormatError):
         return None
     sv_code, sv_ok = _sv_codes(rec.sv_chars)
     keep = np.isin(rec.sv_chars[:, 0], np.frombuffer("".join(chosen).encode(), dtype=np.uint8))
-    if not chosen or not np.all(sv_ok) or not np.any(keep) or np.any(flag > 1):
+    if not chosen or not np.all(sv_ok) or not np.any(keep):
         return None
     cells = _Cells(times[rec.record_epoch[keep]], sv_code[keep])
     cell_of = np.full(keep.size, -1)
