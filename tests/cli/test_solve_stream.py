@@ -69,7 +69,9 @@ def _solve(args: list[object], out: Path, chunk: int, capsys: pytest.CaptureFixt
 NUMPY_2 = int(np.__version__.split(".")[0]) >= 2
 """numpy 1.x's vectorized sums depend on the arrays' memory alignment, so its last bits differ
 from run to run (seen with numpy 1.25, the lowest version allowed); there the parts are held
-to the whole run's numbers within 1e-6 relative, the same cells and words otherwise."""
+to the whole run's numbers within 1e-6 relative, the same cells and words otherwise. A DOP is
+held within 1e-6 + 2 eps DOP^2: an inverse's first-order sensitivity to last-bit changes of the
+normal matrix, which a near-singular epoch (a simulated flight's HDOP of 9e6) magnifies."""
 
 
 def _same_numbers(name: str, a: bytes, b: bytes) -> None:
@@ -94,7 +96,11 @@ def _same_numbers(name: str, a: bytes, b: bytes) -> None:
     assert list(da.columns) == list(db.columns) and da.shape == db.shape, name
     for c in da.columns:
         if da[c].dtype.kind == "f":
-            np.testing.assert_allclose(da[c], db[c], rtol=1e-6, atol=2e-4, err_msg=f"{name}:{c}")
+            x, y = da[c].to_numpy(), db[c].to_numpy()
+            rtol = 1e-6 + (2 * np.finfo(float).eps * np.nan_to_num(y) ** 2 if c.endswith("dop") else 0.0)
+            with np.errstate(invalid="ignore"):  # (inf - inf)
+                close = (x == y) | (np.isnan(x) & np.isnan(y)) | (np.abs(x - y) <= 2e-4 + rtol * np.abs(y))
+            assert close.all(), f"{name}:{c}: {x[~close][:5]} against {y[~close][:5]}"
         else:
             assert (da[c].fillna("") == db[c].fillna("")).all(), f"{name}:{c}"
 
