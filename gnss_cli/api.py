@@ -1,7 +1,7 @@
 """The public Python API: ``gnss_cli.solve(obs, nav, **options) -> xarray.Dataset``.
 
-The same run as ``gnss-solve`` (:func:`gnss_cli.pipeline.process`), returned as a dataset
-instead of CSV text::
+The same run as ``gnss-solve`` (:class:`gnss_cli.pipeline.run.Run`, its parts joined by
+:func:`gnss_cli.pipeline.process`), returned as a dataset instead of CSV text::
 
     import gnss_cli
     ds = gnss_cli.solve("obs.rnx", "nav.rnx", methods="ls,wls", elevation_mask_deg=15)
@@ -26,20 +26,21 @@ import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.config import load_config
-from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.frames import ecef2geodetic
 from gnss_cli.gnss.time import gps_s2datetime
-from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_sinex
+from gnss_cli.io.reference import Reference
 from gnss_cli.pipeline import RunResult, process
-from gnss_cli.report import enu_errors, tdop_columns
+from gnss_cli.report import enu_errors, tdop_columns, utc_offset_s
 
 __all__ = ["solve", "to_dataset"]
 
 F64 = NDArray[np.float64]
 PathArg = str | PathLike[str]
 
-_SECTIONS = ("weights", "signals", "stls", "wtls", "smoothing", "kalman")
-_SMOOTHING_KEYS = ("lag", "model", "kernel", "order", "window", "tolerance")
+_SECTIONS = ("weights", "signals", "stls", "wtls", "smoother", "kalman")
+_DIRECT_KEYS = {"lag": ("stls.lag", "smoother.lag"), "kernel": ("stls.kernel",), "order": ("stls.order",),
+                "window": ("stls.window",), "motion": ("smoother.motion",)}
+"""Multi-epoch keys that may be given directly, as on the command line (``lag=3``, ``motion="cv"``)."""
 _UNITS = {
     "x_m": ("m", "ECEF X"), "y_m": ("m", "ECEF Y"), "z_m": ("m", "ECEF Z"),
     "lat_deg": ("degree", "geodetic latitude (WGS-84)"), "lon_deg": ("degree", "geodetic longitude (WGS-84)"),
@@ -76,16 +77,17 @@ def solve(
     nav : path or list of paths
         RINEX navigation file(s).
     reference : array (3,) or path, optional
-        Reference for the error variables: an ECEF position (m), a SINEX file (the station
-        is the observation file's marker name) or a CSV with ``time, x_m, y_m, z_m`` (a
-        moving reference, matched to 1 ms; ``.csv`` suffix).
+        Reference for the error variables: an ECEF position (m) or ``"X,Y,Z"``, a SINEX file
+        (the station is the observation file's marker name), a CSV with ``time, x_m, y_m, z_m``
+        (a moving reference, matched to 1 ms; ``.csv`` suffix) or an RTKLIB ``.pos`` file.
     config : path, optional
         TOML file of processing options (as ``--config``).
     **options
         Processing options by their ``[processing]`` key (``methods="ls,wls"``,
-        ``systems="G,E"``, ``iono``, ``tropo``, ``elevation_mask_deg``, ...); another table as a
-        mapping (``weights={"model": "equal"}``, ``smoothing={"lag": 3}``); the smoothing keys
-        ``lag``, ``model``, ``kernel``, ``order``, ``window``, ``tolerance`` also directly.
+        ``systems="G,E"``, ``measurements="pseudorange,doppler"``, ``iono``, ``tropo``,
+        ``elevation_mask_deg``, ...); another table as a mapping (``weights={"model": "equal"}``,
+        ``stls={"lag": 3}``, ``smoother={"motion": "cv"}``); ``lag`` (stls and smoother), ``kernel``,
+        ``order``, ``window`` (stls) and ``motion`` (smoother) also directly.
 
     Returns
     -------
@@ -102,9 +104,11 @@ def solve(
         No epoch could be solved by any method.
     """
     cfg = load_config(config, _overrides(options))
+    ref = Reference.from_value(reference)
     navs = [nav] if isinstance(nav, (str, PathLike)) else list(nav)
     result = process(obs, navs, cfg)
-    return to_dataset(result, _reference(reference, result))
+    epochs = result.epochs
+    return to_dataset(result, ref.of(epochs.time_gps_s, epochs.marker_name, utc_offset_s(result), Path(obs).name))
 
 
 def _overrides(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -113,29 +117,11 @@ def _overrides(options: Mapping[str, Any]) -> dict[str, Any]:
     for key, value in options.items():
         if key in _SECTIONS and isinstance(value, Mapping):
             out.update({f"{key}.{k}": v for k, v in value.items()})
-        elif key in _SMOOTHING_KEYS:
-            out[f"smoothing.{key}"] = value
+        elif key in _DIRECT_KEYS:
+            out.update(dict.fromkeys(_DIRECT_KEYS[key], value))
         else:
             out[key] = value
     return out
-
-
-def _reference(reference: ArrayLike | PathArg | None, result: RunResult) -> F64 | None:
-    if reference is None:
-        return None
-    if isinstance(reference, (str, PathLike)):
-        path = Path(reference)
-        if isinstance(reference, str) and not path.exists() and "," in reference:
-            return parse_reference(reference)
-        if path.suffix.lower() == ".csv":
-            return reference_from_csv(path, result.epochs.time_gps_s)
-        if not result.epochs.marker_name:
-            raise ConfigError(f"reference: {result.epochs.obs_path} has no MARKER NAME to look up in {path}")
-        return reference_from_sinex(path, result.epochs.marker_name)
-    ref = np.asarray(reference, dtype=np.float64)
-    if ref.shape != (3,) or not np.all(np.isfinite(ref)):
-        raise ConfigError(f"reference: expected a finite ECEF position of shape (3,) in metres, or a path; received {reference!r}")
-    return ref
 
 
 def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> xr.Dataset:

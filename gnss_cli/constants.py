@@ -53,6 +53,8 @@ FREQ_B3I_HZ = 1_268.52e6
 METHOD_KEYS: tuple[str, ...] = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
 """Estimator keys, the user's words everywhere (CLI, configuration, solver registry, CSV ``method``)."""
 
-FILTER_METHOD_KEYS: tuple[str, ...] = ("kf",)
-"""Multi-epoch methods beside the solver family: ``kf``, the extended Kalman filter (and RTS
-smoother) over all epochs. ``--method all`` means :data:`METHOD_KEYS` (the single-epoch family)."""
+MULTI_EPOCH_METHOD_KEYS: tuple[str, ...] = ("smoother", "kf")
+"""Multi-epoch methods beside the solver family: ``smoother``, the batch least-squares smoother of
+whole segments with a fixed motion model, and ``kf``, the extended Kalman filter with its
+Rauch-Tung-Striebel smoother. ``stls`` with ``lag >= 1`` is multi-epoch too (the identified
+Hankel STLS). ``--method all`` means :data:`METHOD_KEYS` (the single-epoch family)."""

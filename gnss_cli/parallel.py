@@ -4,7 +4,7 @@ A forked child starts with the parent's memory (the imported modules, the file a
 the navigation records), so a piece of work needs no start-up and no input sent to it; only
 its result comes back, pickled (through an anonymous temporary file; a :class:`Channel` of two
 pipes carries the small messages of work that needs some on the way). This is what lets ``gnss-solve`` solve the
-halves of a day file on two cores at once (:class:`~gnss_cli.pipeline.stream.ChunkedRun`).
+halves of a day file on two cores at once (:class:`~gnss_cli.pipeline.run.Run`).
 
 Only on Linux (``os.fork``; macOS's system libraries are not safe to use after a fork, and
 Windows has none): elsewhere :func:`can_fork` is False and the callers run the work in turn.

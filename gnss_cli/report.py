@@ -36,18 +36,16 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from gnss_cli.config import SmoothingConfig
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_minus_utc_s, gps_s2datetime, gps_s2week_tow
 from gnss_cli.pipeline.identification import Identification
-from gnss_cli.pipeline.results import EpochStatus, RunResult, WindowModel
+from gnss_cli.pipeline.results import EpochStatus, RunResult
 
 F64 = NDArray[np.float64]
 
@@ -190,7 +188,11 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
     rows = []
     for method, s in result.solutions.items():
         ok = s.status == EpochStatus.OK
-        row: dict[str, object] = {"method": method, "epochs": int(s.status.size), "epochs_solved": int(ok.sum())}
+        row: dict[str, object] = {"method": method}
+        settings = result.settings.get(method)
+        row.update({k: v for k, v in settings.to_dict().items() if k != "method"} if settings is not None else
+                   dict.fromkeys(SETTINGS_COLUMNS, ""))
+        row.update({"epochs": int(s.status.size), "epochs_solved": int(ok.sum())})
         if reference_ecef_m is not None:
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
             ok = ok & np.isfinite(enu).all(axis=1)
@@ -239,6 +241,10 @@ def _mean_position(x_ecef_m: F64) -> dict[str, float]:
     out.update({f"scatter_{c}_m": float(np.std(enu[:, k])) for k, c in enumerate("enu")})
     return {k: float(v) for k, v in out.items()}
 
+
+SETTINGS_COLUMNS = ["estimator", "model", "lag", "window", "measurements", "integrity"]
+"""``summary.csv`` columns after ``method``: what the method resolved to
+(:class:`~gnss_cli.pipeline.methods.MethodSettings`)."""
 
 MEAN_POSITION_COLUMNS = ["mean_x_m", "mean_y_m", "mean_z_m", "mean_lat_deg", "mean_lon_deg", "mean_height_m",
                          "scatter_e_m", "scatter_n_m", "scatter_u_m"]
@@ -342,15 +348,6 @@ def identification_table(ident: Identification) -> pd.DataFrame:
     return table
 
 
-def models_json(smoothing: SmoothingConfig, models: Sequence[WindowModel]) -> str:
-    """The ``--model-out`` document: the smoothing options and one record per window (JSON text);
-    ``model = "auto"`` is written as what it resolved to (the records' model)."""
-    model = models[0].model if smoothing.model == "auto" and models else smoothing.model
-    doc = {"lag": smoothing.lag, "model": model, "kernel": smoothing.kernel,
-           "windows": [m.to_dict() for m in models]}
-    return json.dumps(doc, indent=1) + "\n"
-
-
 SATELLITE_COLUMNS = ["time", "method", "satellite", "elevation_deg", "azimuth_deg", "snr_dbhz", "residual_m",
                      "sigma_m", "weight", "used", "reason"]
 """Columns of ``satellites.csv`` (one row per observed satellite and epoch, README)."""
@@ -397,5 +394,5 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
 __all__: Sequence[str] = [
     "satellites_table", "SATELLITE_COLUMNS",
     "positions_table", "summary_table", "errors_table", "dop_table", "to_csv_text",
-    "enu_errors", "enu_covariances", "utc_offset_s", "output_time_s", "SD_COLUMNS", "MEAN_POSITION_COLUMNS", "models_json", "identification_table", "IDENTIFICATION_COLUMNS", "INTEGRITY_COLUMNS",
+    "enu_errors", "enu_covariances", "utc_offset_s", "output_time_s", "SD_COLUMNS", "MEAN_POSITION_COLUMNS", "SETTINGS_COLUMNS", "identification_table", "IDENTIFICATION_COLUMNS", "INTEGRITY_COLUMNS",
 ]

@@ -24,9 +24,10 @@ import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, single_blas_thread, version_callback, without_dask
 from gnss_cli.cli.options import (
-    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Quiet, Reference,
-    ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
-    check_reference_options, check_smoothing_flags, reference_inputs, run_config,
+    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method, Motion,
+    OldModel, OldSmoother, Order, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex, Robust, SnrMask, Systems,
+    TimeSystem, Tropo, Window, check_method_flags, check_old_spellings, check_reference_options, reference_inputs,
+    run_config,
 )
 from gnss_cli.errors import ConfigError, GnssError, InputFileNotFoundError, RinexFormatError, UsageError
 
@@ -54,12 +55,15 @@ def batch(
     config: Config = None,
     time_system: TimeSystem = None,
     lag: Lag = None,
-    model: Model = None,
     kernel: Kernel = None,
     order: Order = None,
     window: Window = None,
+    motion: Motion = None,
+    measurements: Measurements = None,
     kf_model: KfModel = None,
-    smoother: Smoother = None,
+    kf_output: KfOutput = None,
+    model: OldModel = None,
+    smoother: OldSmoother = None,
     integrity: Integrity = None,
     robust: Robust = None,
     exclude: Exclude = None,
@@ -70,13 +74,14 @@ def batch(
 ) -> int:
     """Solve every observation file with the navigation files that cover it; write one dataset."""
     values = dict(locals())
+    check_old_spellings(values)
     if scheduler is None:
         without_dask()  # (before xarray is imported; the Dask runner needs dask)
     check_reference_options(values)
     if jobs is not None and scheduler is not None:
         raise UsageError("give --jobs or --scheduler, not both (the cluster decides how many tasks run at once)")
     cfg = run_config(config, values)
-    check_smoothing_flags(cfg, values)
+    check_method_flags(cfg, values)
     if jobs is not None and jobs < 1:
         raise ConfigError(f"--jobs: expected an integer >= 1; received {jobs}")
     _check_references(values)

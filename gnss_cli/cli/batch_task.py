@@ -3,7 +3,7 @@
 :func:`run_file` runs in a worker process (a local process pool or a Dask worker): it
 finds the navigation files whose records cover the observation file's time span
 (:func:`gnss_cli.io.catalog.covering_navs`), calls
-:func:`gnss_cli.cli.solve.solve_tables` (the very function behind ``gnss-solve``) and
+:func:`gnss_cli.cli.tables.solve_files` (the very function behind ``gnss-solve``) and
 returns a :class:`FileResult`: the positions as a typed frame for the Parquet dataset,
 the per-method summary and one row of ``files.csv``. It never raises for a problem of its
 file: the error becomes a failed result with the exit code gnss-solve would have given,
@@ -98,7 +98,7 @@ def warm_up() -> None:
     """Import what a task needs (run in each new worker while the parent reads the navigation files).
     scipy is not among them: the default run does not use it (the integrity thresholds of the
     default probabilities are tabulated)."""
-    import gnss_cli.cli.solve  # noqa: F401
+    import gnss_cli.cli.tables  # noqa: F401
     import gnss_cli.formats  # noqa: F401
     import gnss_cli.io.catalog  # noqa: F401
     import gnss_cli.io.nav_checks  # noqa: F401
@@ -176,26 +176,30 @@ def run_file(index: int, obs_path: str, settings: BatchSettings) -> FileResult:
         ``status`` ``ok`` with the positions and summary, or ``failed`` with the message and
         exit code of the error (SIGINT / SIGTERM still propagate).
     """
-    from gnss_cli.cli.solve import solve_tables
+    from gnss_cli.cli.tables import solve_files
     from gnss_cli.io.catalog import station_id
+    from gnss_cli.io.reference import Reference
 
     t0 = time.perf_counter()
     navs: list[str] = []
     try:
         navs = _navs_for(obs_path, settings)
-        tables, _, warnings, (result, _) = solve_tables(
-            [Path(obs_path), *map(Path, navs)], settings.config, None, settings.reference, settings.reference_sinex,
-            settings.reference_csv, settings.reference_pos)
+        reference = Reference.from_options(settings.reference, settings.reference_sinex, settings.reference_csv,
+                                           settings.reference_pos)
+        run = solve_files([Path(obs_path), *map(Path, navs)], settings.config, None, reference, tables=(),
+                          keep_positions=True)
+        run.close()
     except Exception as exc:  # noqa: BLE001 - every failure of one file is reported, the others go on
         out = failed(index, obs_path, exc, time.perf_counter() - t0)
         out.nav_paths = tuple(navs)
         return out
-    station = station_id(obs_path, result.epochs.marker_name or "")
-    summary = tables["summary"]
+    warnings = run.warnings
+    station = station_id(obs_path, run.marker_name or "")
+    summary = run.summary
     first = summary.iloc[0]
     out = FileResult(index, obs_path, station, "ok", 0, tuple(navs), int(first["epochs"]), int(first["epochs_solved"]),
                      str(first["method"]), float(first.get("rms_3d_m", float("nan"))), 0.0, "", tuple(warnings))
-    out.positions = dataset_rows(tables["positions"], settings.config.time_system, obs_path, station)
+    out.positions = dataset_rows(run.positions, settings.config.time_system, obs_path, station)
     summary.insert(0, "station", station)
     summary.insert(0, "obs_path", obs_path)
     out.summary = summary

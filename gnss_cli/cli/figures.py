@@ -75,8 +75,7 @@ def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str)
         "weights": cfg.weights.model,
         "reference": reference,
     }
-    s = cfg.smoothing
-    if s.lag > 0:
-        settings["smoothing"] = f"stls lag {s.lag}, model {s.model}, kernel {s.kernel}, window {s.window}"
+    for method, ran in result.settings.items():
+        settings[f"method {method}"] = ran.line()
     settings["gnss-solve version"] = __version__
     return settings

@@ -6,8 +6,8 @@ text and packaged default. A flag that sets a configuration key has no default o
 (None): the ``--config`` file and the packaged ``default.toml`` decide, and ``--help``
 shows the packaged value. :data:`CONFIG_KEYS` maps the parameter names to the
 configuration keys, :func:`run_config` builds the configuration from a command's
-parameters, and :func:`check_reference_options` / :func:`check_smoothing_flags` are the
-usage checks both commands make.
+parameters, and :func:`check_old_spellings`, :func:`check_reference_options` and
+:func:`check_method_flags` are the usage checks both commands make.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from gnss_cli.errors import UsageError
 
 _DEFAULTS = packaged_defaults()
 _PROC = _DEFAULTS.get("processing", {})
-_SMOOTH = _DEFAULTS.get("smoothing", {})
+_STLS = _DEFAULTS.get("stls", {})
+_SMOOTHER = _DEFAULTS.get("smoother", {})
 _KALMAN = _DEFAULTS.get("kalman", {})
 
 
@@ -38,7 +39,7 @@ def shown(value: Any) -> str:
     return str(value)
 
 
-Method = Annotated[Optional[str], typer.Option("--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls, kf (Kalman filter), a comma list, or all (= ls ... wtls).", show_default=shown(_PROC.get("methods")))]
+Method = Annotated[Optional[str], typer.Option("--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls (single epoch; stls with --lag L >= 1: the identified Hankel STLS over several epochs), smoother (fixed-model batch smoother), kf (Kalman filter + RTS), a comma list, or all (= ls ... wtls).", show_default=shown(_PROC.get("methods")))]
 Systems = Annotated[Optional[str], typer.Option("--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=shown(_PROC.get("systems")))]
 Iono = Annotated[Optional[str], typer.Option("--iono", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=shown(_PROC.get("iono")))]
 Tropo = Annotated[Optional[str], typer.Option("--tropo", help="saastamoinen | none.", show_default=shown(_PROC.get("tropo")))]
@@ -49,13 +50,16 @@ ReferenceCsv = Annotated[Optional[Path], typer.Option("--reference-csv", help="M
 ReferencePos = Annotated[Optional[Path], typer.Option("--reference-pos", help="Moving reference: an RTKLIB .pos solution file (ECEF or lat/lon/height; GPST or UTC).", show_default="none")]
 Config = Annotated[Optional[Path], typer.Option("--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults")]
 TimeSystem = Annotated[Optional[str], typer.Option("--time-system", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=shown(_PROC.get("time_system")))]
-Lag = Annotated[Optional[int], typer.Option("--lag", help="Behavioral smoothing lag L (with --method stls, L >= 1): stls rows from sliding-window Hankel STLS of the WLS fixes; 0 = single-epoch methods.", show_default=shown(_SMOOTH.get("lag")))]
-Model = Annotated[Optional[str], typer.Option("--model", help="auto | doppler | identify | pva | static | kinematic: auto = doppler with Doppler in the file, else identify; doppler = pseudoranges and range rates in the measurement domain, positions and velocities tied by the lag-L kinematic kernel; a kernel identified per window, fixed, or fixes tied to Doppler velocities (with --lag).", show_default=shown(_SMOOTH.get("model")))]
-Kernel = Annotated[Optional[str], typer.Option("--kernel", help="shared | full: structure of the identified kernel (with --lag).", show_default=shown(_SMOOTH.get("kernel")))]
-Order = Annotated[Optional[int], typer.Option("--order", help="Order of the full identified kernel (with --lag --kernel full); 0 = 3 L.", show_default=shown(_SMOOTH.get("order")))]
-Window = Annotated[Optional[str], typer.Option("--window", metavar="N|auto", help="Window length, epochs; 0 = whole segments; auto = with --model static the longest window around each epoch whose misfit passes the chi-square test, else 15 (with --lag).", show_default=shown(_SMOOTH.get("window")))]
+Lag = Annotated[Optional[int], typer.Option("--lag", metavar="L", help="Lag of the multi-epoch kernel, epochs: stls with L >= 1 identifies a lag-L kernel from the data (0 = single-epoch STLS); smoother --motion quadrature: the lag (1-3) of its velocity rule.", show_default=f"stls {_STLS.get('lag')}, smoother {_SMOOTHER.get('lag')}")]
+Kernel = Annotated[Optional[str], typer.Option("--kernel", help="shared | full: structure of the kernel stls --lag L identifies.", show_default=shown(_STLS.get("kernel")))]
+Order = Annotated[Optional[int], typer.Option("--order", metavar="N", help="Order of the full identified kernel (stls --lag L --kernel full); 0 = 3 L.", show_default=shown(_STLS.get("order")))]
+Window = Annotated[Optional[int], typer.Option("--window", metavar="N", help="Window of stls --lag L, epochs (kernels identified in sliding windows); 0 = whole segments.", show_default=shown(_STLS.get("window")))]
+Motion = Annotated[Optional[str], typer.Option("--motion", help="quadrature | cv | ca | static: the fixed motion model of --method smoother.", show_default=shown(_SMOOTHER.get("motion")))]
+Measurements = Annotated[Optional[str], typer.Option("--measurements", metavar="KINDS", help="pseudorange,doppler,phase (comma list) or all: what every multi-epoch method (smoother, kf) uses; all = every kind in the file.", show_default=shown(_PROC.get("measurements")))]
 KfModel = Annotated[Optional[str], typer.Option("--kf-model", help="cv | ca: constant-velocity or constant-acceleration motion model of --method kf.", show_default=shown(_KALMAN.get("model")))]
-Smoother = Annotated[Optional[str], typer.Option("--smoother", help="rts | none: Rauch-Tung-Striebel smoothed or filtered kf rows.", show_default=shown(_KALMAN.get("smoother")))]
+KfOutput = Annotated[Optional[str], typer.Option("--kf-output", help="smoothed | filtered: Rauch-Tung-Striebel smoothed or the filter's own kf rows.", show_default=shown(_KALMAN.get("output")))]
+OldModel = Annotated[Optional[str], typer.Option("--model", hidden=True, help="Replaced by --method smoother / stls --lag L.")]
+OldSmoother = Annotated[Optional[str], typer.Option("--smoother", hidden=True, help="Replaced by --kf-output.")]
 Robust = Annotated[Optional[str], typer.Option("--robust", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=shown(_PROC.get("robust")))]
 Integrity = Annotated[Optional[str], typer.Option("--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
 Exclude = Annotated[Optional[str], typer.Option("--exclude", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
@@ -66,19 +70,24 @@ Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks of interna
 
 CONFIG_KEYS = {
     "method": "methods", "iono": "iono", "tropo": "tropo", "elevation_mask": "elevation_mask_deg", "systems": "systems",
-    "integrity": "integrity", "exclude": "exclude", "snr_mask": "snr_mask_dbhz", "lag": "smoothing.lag",
-    "model": "smoothing.model", "kernel": "smoothing.kernel", "order": "smoothing.order", "window": "smoothing.window",
-    "kf_model": "kalman.model", "smoother": "kalman.smoother", "robust": "robust", "time_system": "time_system",
-    "processes": "processes",
+    "integrity": "integrity", "exclude": "exclude", "snr_mask": "snr_mask_dbhz", "lag": ("stls.lag", "smoother.lag"),
+    "kernel": "stls.kernel", "order": "stls.order", "window": "stls.window", "motion": "smoother.motion",
+    "measurements": "measurements", "kf_model": "kalman.model", "kf_output": "kalman.output", "robust": "robust",
+    "time_system": "time_system", "processes": "processes",
 }
-"""Command parameter name -> :func:`~gnss_cli.config.load_config` override key."""
+"""Command parameter name -> :func:`~gnss_cli.config.load_config` override key(s)."""
 
 REFERENCE_NAMES = ("reference", "reference_sinex", "reference_csv", "reference_pos")
 """The parameters of the four reference options, in the order :func:`solve_tables` takes them."""
 
-SMOOTHING_FLAGS = {"model": "--model", "kernel": "--kernel", "order": "--order", "window": "--window",
-                   "model_out": "--model-out"}
-"""Parameters (-> flags) that only make sense with ``--lag`` >= 1."""
+OLD_SPELLINGS = {
+    ("model", "doppler"): "--method smoother", ("model", "auto"): "--method smoother (or stls --lag L)",
+    ("model", "identify"): "--method stls --lag L", ("model", "pva"): "--method smoother --motion ca",
+    ("model", "static"): "--method smoother --motion static",
+    ("model", "kinematic"): "--method smoother --motion quadrature --lag 1",
+    ("smoother", "rts"): "--kf-output smoothed", ("smoother", "none"): "--kf-output filtered",
+}
+"""Retired flags and values -> their new spelling (:func:`check_old_spellings`)."""
 
 
 def run_config(config: Optional[Path], values: Mapping[str, Any]) -> Any:
@@ -86,7 +95,23 @@ def run_config(config: Optional[Path], values: Mapping[str, Any]) -> Any:
     (flags > ``config`` TOML > packaged defaults); only the names of :data:`CONFIG_KEYS` are used."""
     from gnss_cli.config import load_config
 
-    return load_config(config, {key: values.get(name) for name, key in CONFIG_KEYS.items()})
+    overrides: dict[str, Any] = {}
+    for name, keys in CONFIG_KEYS.items():
+        for key in (keys,) if isinstance(keys, str) else keys:
+            overrides[key] = values.get(name)
+    return load_config(config, overrides)
+
+
+def check_old_spellings(values: Mapping[str, Any]) -> None:
+    """A retired flag (``--model``, ``--smoother``) exits 2 with one line naming the new spelling."""
+    for name in ("model", "smoother"):
+        value = values.get(name)
+        if value is None:
+            continue
+        new = OLD_SPELLINGS.get((name, str(value).lower()))
+        if new is None:
+            new = "--method smoother --motion M or --method stls --lag L" if name == "model" else "--kf-output smoothed|filtered"
+        raise UsageError(f"--{name} {value} was replaced: use {new}")
 
 
 def check_reference_options(values: Mapping[str, Any]) -> None:
@@ -95,16 +120,22 @@ def check_reference_options(values: Mapping[str, Any]) -> None:
         raise UsageError("give one of --reference, --reference-sinex, --reference-csv, --reference-pos")
 
 
-def check_smoothing_flags(cfg: Any, values: Mapping[str, Any]) -> None:
-    """The smoothing flags need ``--lag`` >= 1, ``--lag`` needs ``stls``, the Kalman flags need ``kf`` (:class:`UsageError`)."""
-    given = [flag for name, flag in SMOOTHING_FLAGS.items() if values.get(name) is not None]
-    if cfg.smoothing.lag == 0 and given:
-        raise UsageError(f"{', '.join(given)}: only with --lag L (L >= 1, behavioral smoothing of the stls rows)")
-    if cfg.smoothing.lag > 0 and "stls" not in cfg.methods:
-        raise UsageError("--lag: needs --method stls (the smoothed rows are the stls rows)")
-    kf_given = [flag for name, flag in (("kf_model", "--kf-model"), ("smoother", "--smoother")) if values.get(name) is not None]
-    if kf_given and "kf" not in cfg.methods:
-        raise UsageError(f"{', '.join(kf_given)}: only with --method kf")
+def check_method_flags(cfg: Any, values: Mapping[str, Any]) -> None:
+    """Each multi-epoch flag only with the method it configures (:class:`UsageError` otherwise)."""
+    methods = cfg.methods
+    identified = "stls" in methods and cfg.stls.lag > 0
+    need = [
+        (("kernel", "order", "window"), identified, "only with --method stls --lag L (L >= 1, the identified Hankel STLS)"),
+        (("motion",), "smoother" in methods, "only with --method smoother"),
+        (("kf_model", "kf_output"), "kf" in methods, "only with --method kf"),
+        (("lag",), "stls" in methods or "smoother" in methods, "only with --method stls or smoother"),
+        (("measurements", "model_out"), bool(cfg.multi_epoch_methods),
+         "only with a multi-epoch method (stls --lag L, smoother, kf)"),
+    ]
+    for names, allowed, why in need:
+        given = [f"--{n.replace('_', '-')}" for n in names if values.get(n) is not None]
+        if given and not allowed:
+            raise UsageError(f"{', '.join(given)}: {why}")
 
 
 def reference_inputs(values: Mapping[str, Any]) -> list[Path]:

@@ -10,20 +10,20 @@ answers at once; the numerical modules are imported when a run starts.
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
-from typing import Any, NoReturn, Optional
+from typing import Any, Optional
 
 import typer
 
-from gnss_cli.cli.exits import HELP_OPTIONS, mark_missing, run_app, single_blas_thread, version_callback, without_dask, write_stdout
+from gnss_cli.cli.exits import HELP_OPTIONS, mark_missing, run_app, single_blas_thread, version_callback, without_dask
 from gnss_cli.cli.options import (
-    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, Lag, Method, Model, Order, Processes, Quiet, Reference,
-    ReferenceCsv, ReferencePos, ReferenceSinex, Robust, Smoother, SnrMask, Systems, TimeSystem, Tropo, Window,
-    check_reference_options, check_smoothing_flags, reference_inputs, run_config,
+    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method,
+    Motion, OldModel, OldSmoother, Order, Processes, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex,
+    Robust, SnrMask, Systems, TimeSystem, Tropo, Window, check_method_flags, check_old_spellings,
+    check_reference_options, reference_inputs, run_config,
 )
-from gnss_cli.errors import ConfigError, UsageError
+from gnss_cli.errors import UsageError
 
 app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTIONS, rich_markup_mode=None)
 
@@ -46,26 +46,36 @@ def solve(
     fmt: Optional[str] = typer.Option(None, "--format", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
     time_system: TimeSystem = None,
     lag: Lag = None,
-    model: Model = None,
     kernel: Kernel = None,
     order: Order = None,
     window: Window = None,
+    motion: Motion = None,
+    measurements: Measurements = None,
     kf_model: KfModel = None,
-    smoother: Smoother = None,
+    kf_output: KfOutput = None,
     integrity: Integrity = None,
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
     processes: Processes = None,
-    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the per-window kernels, poles, misfits and statuses here (JSON; with --lag).", show_default="none"),
+    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write what each multi-epoch method ran and its window models (kernels, poles, misfits, statuses) here (JSON).", show_default="none"),
     plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
     report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
+    print_config: bool = typer.Option(False, "--print-config", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
+    model: OldModel = None,
+    smoother: OldSmoother = None,
     quiet: Quiet = False,
     debug: Debug = False,
     version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, help="Print the version and exit."),
 ) -> None:
     """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
     values = dict(locals())
+    check_old_spellings(values)
+    if print_config:
+        from gnss_cli.config.toml import config_toml
+
+        sys.stdout.write(config_toml(run_config(config, values)))
+        return
     if len(files) < 2:
         raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
     from gnss_cli.io.compression import prefetch
@@ -81,36 +91,37 @@ def solve(
 
     with OutputSet([*files, *reference_inputs(values)]) as outputs:
         cfg = run_config(config, values)
+        check_method_flags(cfg, values)
         fmt = _output_format(fmt, output, out_dir, cfg.methods)
         targets = _register_outputs(outputs, output, out_dir, model_out, fmt, cfg.methods)
         from gnss_cli.cli.figures import register_figures
         from gnss_cli.plots import RUN_FIGURES
 
         figure_targets = register_figures(outputs, plots, report, list(RUN_FIGURES))
-        check_smoothing_flags(cfg, values)
         progress = Progress("gnss-solve", enabled=not quiet)
-        from gnss_cli.cli.solve_stream import can_stream, stream_tables
+        from gnss_cli.cli.tables import closing_lines, solve_files, stage
+        from gnss_cli.io.reference import Reference
 
+        ref = Reference.from_options(reference, reference_sinex, reference_csv, reference_pos)
         try:
-            if can_stream(cfg, fmt, bool(figure_targets)):  # long files part by part, in bounded memory
-                summary, warnings, with_errors = stream_tables(files, cfg, progress, outputs, targets,
-                                                               (reference, reference_sinex, reference_csv, reference_pos))
-            else:
-                tables, models, warnings, (result, ref) = solve_tables(files, cfg, progress, reference, reference_sinex,
-                                                                       reference_csv, reference_pos)
-                summary, with_errors = tables["summary"], "errors" in tables
-                if figure_targets:
-                    progress("figures", 0.0)
-                    _stage_figures(outputs, figure_targets, files, cfg, result, ref, tables["summary"],
-                                   reference or reference_sinex or reference_csv or reference_pos)
+            run = solve_files(files, cfg, progress, ref, tables=tuple(n for n in targets if ":" not in n),
+                              models="models" in targets, keep_positions=fmt != "csv", keep_result=bool(figure_targets))
         finally:
             progress.done()
-        if not can_stream(cfg, fmt, bool(figure_targets)):
-            _write(outputs, targets, tables, models, fmt, cfg.time_system, [str(f) for f in files])
+        try:
+            if figure_targets:
+                _stage_figures(outputs, figure_targets, files, cfg, run, ref.source)
+            from gnss_cli.formats import pos_options
+
+            stage(outputs, targets, run, fmt, cfg.time_system,
+                  tuple(pos_options(cfg.elevation_mask_deg, cfg.iono, cfg.tropo, run.systems)))
+        finally:
+            run.close()
     if not quiet:
-        for w in warnings:
+        for w in run.warnings:
             sys.stderr.write(f"gnss-solve: warning: {w}\n")
-        _print_summary(summary, with_errors)
+        for line in closing_lines(run):
+            sys.stderr.write(line + "\n")
 
 
 FORMAT_NAMES = ("csv", "pos", "geojson", "kml", "nmea", "parquet")
@@ -164,114 +175,25 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
     return targets
 
 
-def solve_tables(files: list[Path], cfg: Any, progress: Any, reference: Optional[str], reference_sinex: Optional[Path],
-                 reference_csv: Optional[Path], reference_pos: Optional[Path] = None
-                 ) -> tuple[dict[str, Any], str, list[str], tuple[Any, Any]]:
-    """Process ``files`` (OBS, NAV...; one library call) and build the tables of one gnss-solve run.
-
-    Returns the tables (positions, dop, summary, satellites, errors with a reference), the
-    models JSON, the warnings and ``(result, reference_ecef_m)``. ``gnss-batch`` calls it
-    once per observation file. Heavy imports happen here.
-    """
-    from gnss_cli.io.reference import parse_reference, reference_from_csv, reference_from_pos, reference_from_sinex
-    from gnss_cli.pipeline import process
-    from gnss_cli.formats import pos_options
-    from gnss_cli.report import dop_table, errors_table, models_json, positions_table, satellites_table, summary_table, utc_offset_s
-
-    ref = parse_reference(reference) if reference else None
-    result = process(files[0], files[1:], cfg, progress=progress)
-    if reference_sinex is not None:
-        if not result.epochs.marker_name:
-            raise ConfigError(f"--reference-sinex: {files[0]} has no MARKER NAME to look up")
-        ref = reference_from_sinex(reference_sinex, result.epochs.marker_name)
-    if reference_csv is not None:
-        ref = reference_from_csv(reference_csv, result.epochs.time_gps_s)
-    if reference_pos is not None:
-        ref = reference_from_pos(reference_pos, result.epochs.time_gps_s, utc_offset_s(result))
-    positions = positions_table(result, ref, cfg.time_system)
-    tables = {"positions": positions, "dop": dop_table(positions), "summary": summary_table(result, ref),
-              "pos_options": pos_options(cfg.elevation_mask_deg, cfg.iono, cfg.tropo, result.epochs.systems)}
-    tables["satellites"] = lambda: satellites_table(result, cfg)  # built only when written
-    if ref is not None:
-        tables["errors"] = errors_table(positions)
-    return tables, models_json(cfg.smoothing, result.models), list(result.warnings), (result, ref)
-
-
-def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cfg: Any, result: Any, ref: Any,
-                   summary: Any, reference: Any) -> None:
+def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cfg: Any, run: Any,
+                   reference: str) -> None:
     """Draw the run's figures (``--plots``) and the HTML page (``--report``) and stage them."""
     from gnss_cli.cli.figures import solve_settings, stage_figures
     from gnss_cli.plots import RUN_FIGURES
     from gnss_cli.plots.html import html_report
     from gnss_cli.plots.run import run_figures
 
-    settings = solve_settings(files, cfg, result, str(reference) if reference is not None else "none")
+    settings = solve_settings(files, cfg, run.result, reference)
     title = f"gnss-solve: {Path(files[0]).name}"
-    stage_figures(outputs, targets, run_figures(result, ref, cfg.elevation_mask_deg), RUN_FIGURES,
-                  lambda figs: html_report(title, figs, summary, settings))
-
-
-def _write(outputs: Any, targets: dict[str, Path], tables: dict[str, Any], models_text: str, fmt: str = "csv",
-           time_system: str = "gpst", inputs: Optional[list[str]] = None) -> None:
-    """Stage every output (committed together when the ``OutputSet`` closes), or print to stdout.
-
-    The positions go in ``fmt`` (one file per method for pos / nmea with several methods,
-    targets ``positions:<method>``); the other tables are CSV."""
-    from gnss_cli.formats import render
-    from gnss_cli.report import to_csv_text
-
-    positions = tables["positions"]
-    for name, path in targets.items():
-        if name == "models":
-            outputs.write_text(path, models_text)
-        elif name.startswith("positions"):
-            _, _, method = name.partition(":")
-            table = positions[positions["method"] == method] if method else positions
-            data = render(fmt, table, time_system, inputs or (), tables.get("pos_options", ()))
-            if isinstance(data, bytes):
-                outputs.write_with(path, lambda tmp, data=data: tmp.write_bytes(data))
-            else:
-                outputs.write_text(path, data)
-        elif name in tables:
-            table = tables[name]() if callable(tables[name]) else tables[name]
-            outputs.write_text(path, to_csv_text(table))
-    if not any(name.startswith("positions") for name in targets):
-        text = render(fmt, positions, time_system, inputs or (), tables.get("pos_options", ()))
-        write_stdout(text if isinstance(text, str) else text.decode())
-
-
-def _print_summary(summary, with_errors: bool) -> None:  # type: ignore[no-untyped-def]
-    for _, row in summary.iterrows():
-        line = f"gnss-solve: {row['method']}: {row['epochs_solved']}/{row['epochs']} epochs solved"
-        if with_errors:
-            line += f", 3D RMS {row['rms_3d_m']:.3f} m (E {row['rms_e_m']:.3f} N {row['rms_n_m']:.3f} U {row['rms_u_m']:.3f})"
-        line += f", mean GDOP {row['mean_gdop']:.2f}"
-        sys.stderr.write(line + "\n")
+    stage_figures(outputs, targets, run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg), RUN_FIGURES,
+                  lambda figs: html_report(title, figs, run.summary, settings))
 
 
 def main() -> None:
     """Console entry point of ``gnss-solve``."""
     single_blas_thread()
     without_dask()
-    try:
-        run_app(app, "gnss-solve")
-    except SystemExit as done:
-        _exit_now(done.code)
-
-
-def _exit_now(code: object) -> NoReturn:
-    """End the process with exit status ``code``, skipping the interpreter's teardown.
-
-    By now every output is written, renamed into place and closed (or, after an error,
-    removed); tearing down numpy, pandas and xarray only costs time, 0.1 s of a run. The
-    standard streams are flushed first (a reader that closed the pipe is not an error).
-    """
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
-    os._exit(code if isinstance(code, int) else (0 if code is None else 1))
+    run_app(app, "gnss-solve")
 
 
 def _writes_parquet(fmt: Optional[str], output: Optional[str]) -> bool:

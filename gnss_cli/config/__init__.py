@@ -12,19 +12,20 @@ from importlib.resources import files
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gnss_cli.constants import FILTER_METHOD_KEYS, METHOD_KEYS
-
-ALL_METHOD_KEYS = METHOD_KEYS + FILTER_METHOD_KEYS
 from gnss_cli.config.sections import (
-    FIXED_MODEL_LAGS,
     KALMAN_MODELS,
-    SMOOTHERS,
-    SMOOTHING_KERNELS,
-    SMOOTHING_MODELS,
+    KALMAN_OUTPUTS,
+    MEASUREMENT_KINDS,
+    SMOOTHER_MOTIONS,
+    STLS_KERNELS,
     KalmanConfig,
-    SmoothingConfig,
+    SmootherConfig,
+    StlsConfig,
     WeightConfig,
 )
+from gnss_cli.constants import METHOD_KEYS, MULTI_EPOCH_METHOD_KEYS
+
+ALL_METHOD_KEYS = METHOD_KEYS + MULTI_EPOCH_METHOD_KEYS
 from gnss_cli.errors import ConfigError, InputError, InputFileNotFoundError
 
 if sys.version_info >= (3, 11):
@@ -35,10 +36,10 @@ if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
 __all__ = [
-    "ProcessingConfig", "WeightConfig", "SmoothingConfig", "KalmanConfig", "load_config", "packaged_defaults",
-    "parse_methods", "parse_systems", "parse_satellites", "ALL_METHOD_KEYS", "IONO_OPTIONS", "TIME_SYSTEMS",
-    "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH", "SMOOTHING_MODELS",
-    "SMOOTHING_KERNELS", "FIXED_MODEL_LAGS", "KALMAN_MODELS", "SMOOTHERS",
+    "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "load_config",
+    "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
+    "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
+    "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "RENAMED",
 ]
 
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
@@ -74,7 +75,11 @@ class ProcessingConfig:
     """Second-frequency code priority per system, for ``iono = "iono-free"``."""
     orbit_sigma_m: float = 1.7
     wtls_column_scaling: str = "orbit"
-    smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
+    stls: StlsConfig = field(default_factory=StlsConfig)
+    smoother: SmootherConfig = field(default_factory=SmootherConfig)
+    measurements: tuple[str, ...] = ()
+    """What the multi-epoch methods use, some of :data:`MEASUREMENT_KINDS`; empty = every kind
+    the observation file has (see default.toml)."""
     time_system: str = "gpst"
     """Time scale of the output time stamps: ``gpst`` or ``utc`` (GPST - leap seconds)."""
     integrity: str = "fde"
@@ -98,6 +103,10 @@ class ProcessingConfig:
     robust_max_iterations: int = 1000
     doppler_sigma_m_s: float = 0.1
     """Range-rate sigma (m/s, ``-lambda D``) of a typical satellite of the epoch (see default.toml)."""
+    phase_sigma_m: float = 0.02
+    """Sigma (m) of a typical satellite's time-differenced carrier phase (see default.toml)."""
+    phase_slip_m: float = 1.0
+    """A phase difference further than this (m) from the range rates' trapezoid is a slip (see default.toml)."""
     kalman: KalmanConfig = field(default_factory=lambda: KalmanConfig())
     chunk_epochs: int = 1200
     """Epochs per part of a long observation file (``gnss-solve``'s streamed run, see default.toml); 0 = whole file."""
@@ -156,9 +165,34 @@ class ProcessingConfig:
             raise ConfigError("wtls.column_scaling = 'orbit' needs stls.orbit_sigma_m > 0 (the geometry-column error it scales by)")
         if self.time_system not in TIME_SYSTEMS:
             raise ConfigError(f"time_system: expected one of {', '.join(TIME_SYSTEMS)}; received {self.time_system!r}")
-        self.smoothing.validated()
+        self.stls.validated()
+        self.smoother.validated()
+        self._validate_measurements()
         self._validate_integrity()
         return self
+
+    @property
+    def multi_epoch_methods(self) -> tuple[str, ...]:
+        """The methods of :attr:`methods` that solve several epochs at once: ``stls`` with
+        ``stls.lag >= 1`` (the identified Hankel STLS), ``smoother`` and ``kf``."""
+        return tuple(m for m in self.methods if m in MULTI_EPOCH_METHOD_KEYS or (m == "stls" and self.stls.lag > 0))
+
+    def uses(self, kind: str, present: bool = True) -> bool:
+        """Whether the multi-epoch methods use the measurements ``kind`` (of
+        :data:`MEASUREMENT_KINDS`), given whether the observation file has them (``present``)."""
+        return present and (not self.measurements or kind in self.measurements)
+
+    def _validate_measurements(self) -> None:
+        bad = [k for k in self.measurements if k not in MEASUREMENT_KINDS]
+        if bad or len(set(self.measurements)) != len(self.measurements):
+            raise ConfigError(f"measurements: expected 'all' or distinct kinds of {', '.join(MEASUREMENT_KINDS)}; "
+                              f"received {list(self.measurements)}")
+        if self.measurements and "pseudorange" not in self.measurements:
+            raise ConfigError(f"measurements: the pseudoranges are always used (they fix the position); "
+                              f"received {','.join(self.measurements)}: add pseudorange")
+        for name in ("doppler_sigma_m_s", "phase_sigma_m", "phase_slip_m"):
+            if not getattr(self, name) > 0:  # also NaN
+                raise ConfigError(f"{name}: expected > 0; received {getattr(self, name)!r}")
 
     def _validate_integrity(self) -> None:
         if self.integrity not in INTEGRITY_OPTIONS:
@@ -178,8 +212,6 @@ class ProcessingConfig:
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
-        if not self.doppler_sigma_m_s > 0:
-            raise ConfigError(f"doppler_sigma_m_s: expected > 0; received {self.doppler_sigma_m_s}")
         self.kalman.validated()
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
@@ -201,7 +233,8 @@ def parse_methods(text: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
             continue
         for m in METHOD_KEYS if item == "all" else (item,):
             if m not in ALL_METHOD_KEYS:
-                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(ALL_METHOD_KEYS)} or all")
+                raise ConfigError(f"--method: unknown method {item!r}; expected {', '.join(ALL_METHOD_KEYS)} or all"
+                                  f" (all = the single-epoch family {' '.join(METHOD_KEYS)})")
             if m not in out:
                 out.append(m)
     if not out:
@@ -230,6 +263,33 @@ def parse_satellites(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...
     return tuple(out)
 
 
+RENAMED = {
+    "[smoothing]": "the section [smoothing] is gone: lag, kernel, order, window, tolerance, max_iterations are "
+                   "[stls] keys (the identified Hankel STLS, methods = ['stls'] with stls.lag >= 1); model = 'doppler' "
+                   "is methods = ['smoother'] with [smoother] motion and lag; carrier_phase is [processing] "
+                   "measurements; phase_sigma_m and phase_slip_m are [processing] keys",
+    "kalman.doppler": "kalman.doppler is gone: [processing] measurements = ['pseudorange', 'doppler', 'phase'] "
+                      "(or 'all') gives every multi-epoch method the same measurements",
+    "kalman.smoother": "kalman.smoother is now kalman.output = 'smoothed' (rts) or 'filtered' (none)",
+}
+"""Old configuration spellings -> the message that names the new one."""
+
+
+def parse_measurements(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """``"pseudorange,doppler"`` / a list -> a tuple of kinds; ``"all"`` -> ``()`` (every kind in the file).
+
+    >>> parse_measurements("pseudorange, doppler"), parse_measurements("all")
+    (('pseudorange', 'doppler'), ())
+    """
+    items = value.split(",") if isinstance(value, str) else [str(v) for v in value]
+    kinds = tuple(i.strip().lower() for i in items if i.strip())
+    if kinds == ("all",):
+        return ()
+    if not kinds:
+        raise ConfigError(f"measurements: expected 'all' or some of {', '.join(MEASUREMENT_KINDS)}; received {value!r}")
+    return kinds
+
+
 def _read_toml(path: Path | Traversable) -> dict[str, Any]:
     try:
         with path.open("rb") as f:
@@ -242,34 +302,45 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
 
 
+_SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman")
+_OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman"}
+"""ProcessingConfig fields that are not ``[processing]`` keys."""
+_FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m",
+           "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
+           "phase_sigma_m", "phase_slip_m")
+_INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
+         "chunk_epochs", "stream_above_epochs", "processes")
+
+
 def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> ProcessingConfig:
-    known_sections = {"processing", "weights", "signals", "stls", "wtls", "smoothing", "kalman"}
-    unknown = set(data) - known_sections
+    if "smoothing" in data:
+        raise ConfigError(f"{source}: {RENAMED['[smoothing]']}")
+    unknown = set(data) - set(_SECTIONS)
     if unknown:
-        raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(known_sections)}")
+        raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(_SECTIONS)}")
     proc = dict(data.get("processing", {}))
-    names = {f.name for f in fields(ProcessingConfig)} - {"weights", "signals", "signals_second", "orbit_sigma_m",
-                                                          "wtls_column_scaling", "smoothing", "kalman"}
+    names = {f.name for f in fields(ProcessingConfig)} - _OWN_TABLES
     bad = set(proc) - names
     if bad:
-        raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}")
+        hint = "; ".join(f"did you mean {near!r}?" for key in sorted(bad) for near in _closest(key, names))
+        raise ConfigError(f"{source}: unknown [processing] key(s) {sorted(bad)}" + (f" ({hint})" if hint else ""))
     try:
         if "methods" in proc:
             proc["methods"] = parse_methods(proc["methods"])
         if "systems" in proc:
             proc["systems"] = parse_systems(proc["systems"])
+        if "measurements" in proc:
+            proc["measurements"] = parse_measurements(proc["measurements"])
         if "time_system" in proc:
             proc["time_system"] = str(proc["time_system"]).lower()
         if "exclude" in proc:
             proc["exclude"] = parse_satellites(proc["exclude"])
         if "robust" in proc:
             proc["robust"] = str(proc["robust"]).lower()
-        for key in ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m", "snr_mask_dbhz",
-                    "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s"):
+        for key in _FLOATS:
             if key in proc:
                 proc[key] = float(proc[key])
-        for key in ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
-                    "chunk_epochs", "stream_above_epochs", "processes"):
+        for key in _INTS:
             if key in proc:
                 proc[key] = int(proc[key])
         cfg = replace(cfg, **proc)
@@ -289,24 +360,25 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             sig2.update({str(k).upper(): tuple(str(c) for c in v) for k, v in second.items()})
             cfg = replace(cfg, signals=sig, signals_second=sig2)
         if "stls" in data:
-            sbad = set(data["stls"]) - {"orbit_sigma_m"}
-            if sbad:
-                raise ConfigError(f"{source}: unknown [stls] key(s) {sorted(sbad)}")
-            cfg = replace(cfg, orbit_sigma_m=float(data["stls"].get("orbit_sigma_m", cfg.orbit_sigma_m)))
+            table = dict(data["stls"])
+            if "orbit_sigma_m" in table:
+                cfg = replace(cfg, orbit_sigma_m=float(table.pop("orbit_sigma_m")))
+            cfg = replace(cfg, stls=_apply_table(cfg.stls, table, "stls", source, text=("kernel",),
+                                                 floats=("tolerance",)))
         if "wtls" in data:
             tbad = set(data["wtls"]) - {"column_scaling"}
             if tbad:
                 raise ConfigError(f"{source}: unknown [wtls] key(s) {sorted(tbad)}")
             cfg = replace(cfg, wtls_column_scaling=str(data["wtls"].get("column_scaling", cfg.wtls_column_scaling)))
-        if "smoothing" in data:
-            cfg = replace(cfg, smoothing=_apply_smoothing(cfg.smoothing, data["smoothing"], source))
+        if "smoother" in data:
+            cfg = replace(cfg, smoother=_apply_table(cfg.smoother, data["smoother"], "smoother", source, text=("motion",)))
         if "kalman" in data:
-            kbad = set(data["kalman"]) - {f.name for f in fields(KalmanConfig)}
-            if kbad:
-                raise ConfigError(f"{source}: unknown [kalman] key(s) {sorted(kbad)}")
-            kal = {k: (str(v) if k in ("model", "smoother") else bool(v) if k == "doppler" else float(v))
-                   for k, v in data["kalman"].items()}
-            cfg = replace(cfg, kalman=replace(cfg.kalman, **kal))
+            for old in ("doppler", "smoother"):
+                if old in data["kalman"]:
+                    raise ConfigError(f"{source}: {RENAMED['kalman.' + old]}")
+            cfg = replace(cfg, kalman=_apply_table(cfg.kalman, data["kalman"], "kalman", source, text=("model", "output"),
+                                                   floats=tuple(f.name for f in fields(KalmanConfig)
+                                                                if f.name not in ("model", "output"))))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -314,31 +386,33 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
     return cfg
 
 
-def _apply_smoothing(base: SmoothingConfig, table: Mapping[str, Any], source: str) -> SmoothingConfig:
-    """``[smoothing]`` keys onto ``base`` (types converted; values checked by ``validated``)."""
-    names = {f.name: f for f in fields(SmoothingConfig)}
-    bad = set(table) - set(names)
+def _closest(key: str, names: set[str]) -> list[str]:
+    """The valid key nearest to a mistyped one (at most one), for the error message."""
+    import difflib
+
+    return difflib.get_close_matches(key, sorted(names), n=1)
+
+
+def _apply_table(base: Any, table: Mapping[str, Any], section: str, source: str, *, text: tuple[str, ...] = (),
+                 floats: tuple[str, ...] = ()) -> Any:
+    """The keys of ``[section]`` onto the dataclass ``base``: strings, numbers and integers
+    converted (values are checked by its ``validated``)."""
+    names = {f.name for f in fields(base)}
+    bad = set(table) - names
     if bad:
-        raise ConfigError(f"{source}: unknown [smoothing] key(s) {sorted(bad)}")
+        raise ConfigError(f"{source}: unknown [{section}] key(s) {sorted(bad)}; expected some of {sorted(names)}")
     values: dict[str, Any] = {}
     for key, value in table.items():
-        if key in ("model", "kernel"):
-            values[key] = str(value)
-        elif key in ("tolerance", "window_pfa", "phase_sigma_m", "phase_slip_m"):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ConfigError(f"{source}: smoothing.{key}: expected a number; received {value!r}")
+        if key in text:
+            values[key] = str(value).lower()
+        elif isinstance(value, bool):
+            raise ConfigError(f"{source}: {section}.{key}: expected a number; received {value!r}")
+        elif key in floats:
+            if not isinstance(value, (int, float)):
+                raise ConfigError(f"{source}: {section}.{key}: expected a number; received {value!r}")
             values[key] = float(value)
-        elif key == "carrier_phase":
-            if not isinstance(value, bool):
-                raise ConfigError(f"{source}: smoothing.{key}: expected true or false; received {value!r}")
-            values[key] = value
-        elif key == "window" and isinstance(value, str):
-            text = value.strip().lower()
-            if text != "auto" and not text.isdigit():
-                raise ConfigError(f"{source}: smoothing.window: expected an integer >= 0 or 'auto'; received {value!r}")
-            values[key] = text if text == "auto" else int(text)
         elif isinstance(value, float) and not value.is_integer():
-            raise ConfigError(f"{source}: smoothing.{key}: expected an integer; received {value!r}")
+            raise ConfigError(f"{source}: {section}.{key}: expected an integer; received {value!r}")
         else:
             values[key] = int(value)
     return replace(base, **values)
@@ -364,7 +438,7 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
     """Packaged defaults, then ``path`` (TOML), then ``overrides``, validated.
 
     ``overrides`` keys are ``[processing]`` keys, or ``"section.key"`` for another table
-    (``"smoothing.lag"``); None values are ignored.
+    (``"stls.lag"``); None values are ignored.
     """
     cfg = ProcessingConfig()
     cfg = _apply(cfg, _read_toml(DEFAULT_CONFIG_PATH), str(DEFAULT_CONFIG_PATH))

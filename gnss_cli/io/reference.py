@@ -179,3 +179,73 @@ def reference_from_pos(path: str | Path, time_gps_s: F64, gps_minus_utc_s: F64 |
     if scale == "UTC":
         t = t - np.broadcast_to(np.asarray(gps_minus_utc_s, dtype=np.float64), t.shape)
     return match_reference(t_ref, xyz, t)
+
+
+class Reference:
+    """The one reference resolver of a run: a fixed ECEF position, a SINEX station, or a moving
+    reference (CSV or RTKLIB ``.pos``), resolved for any run of epochs.
+
+    Build it with :meth:`from_options` (the command line's four options) or :meth:`from_value`
+    (the Python API's ``reference=``); the files are read once. :meth:`of` gives the reference of
+    a run's epochs: ``(3,)`` (fixed) or ``(T, 3)`` (moving; NaN rows where no reference epoch is
+    within 1 ms), ECEF m, or None when no reference was given.
+    """
+
+    def __init__(self, fixed: F64 | None = None, sinex: Path | None = None,
+                 rows: tuple[F64, F64] | None = None, pos: tuple[F64, F64, str] | None = None,
+                 source: str = "") -> None:
+        self.fixed, self.sinex, self.rows, self.pos = fixed, sinex, rows, pos
+        self.source = source
+        """What was given, for the outputs that record the settings (``none`` without a reference)."""
+
+    @classmethod
+    def from_options(cls, reference: str | None = None, sinex: Path | None = None, csv: Path | None = None,
+                     pos: Path | None = None) -> "Reference":
+        """From ``--reference X,Y,Z``, ``--reference-sinex``, ``--reference-csv`` or ``--reference-pos`` (at most one)."""
+        given = [v for v in (reference, sinex, csv, pos) if v is not None]
+        if len(given) > 1:
+            raise ConfigError("give one of --reference, --reference-sinex, --reference-csv, --reference-pos")
+        source = str(given[0]) if given else "none"
+        return cls(parse_reference(reference) if reference else None, Path(sinex) if sinex is not None else None,
+                   read_reference_csv(csv) if csv is not None else None, read_pos(pos) if pos is not None else None,
+                   source)
+
+    @classmethod
+    def from_value(cls, value: ArrayLike | str | Path | None) -> "Reference":
+        """From the Python API's ``reference=``: an ECEF position ``(3,)`` (m) or ``"X,Y,Z"``, or a
+        path: ``.csv`` (moving reference), ``.pos`` (RTKLIB solution) or a SINEX file (by the
+        observation file's marker name)."""
+        if value is None:
+            return cls(source="none")
+        if isinstance(value, (str, Path)):
+            path = Path(value)
+            if isinstance(value, str) and not path.exists() and "," in value:
+                return cls.from_options(reference=value)
+            suffix = path.suffix.lower()
+            if suffix == ".csv":
+                return cls.from_options(csv=path)
+            if suffix == ".pos":
+                return cls.from_options(pos=path)
+            return cls.from_options(sinex=path)
+        ref = np.asarray(value, dtype=np.float64)
+        if ref.shape != (3,) or not np.all(np.isfinite(ref)):
+            raise ConfigError(f"reference: expected a finite ECEF position of shape (3,) in metres, or a path; received {value!r}")
+        return cls(ref, source=",".join(f"{v:.4f}" for v in ref))
+
+    @property
+    def given(self) -> bool:
+        return self.fixed is not None or self.sinex is not None or self.rows is not None or self.pos is not None
+
+    def of(self, time_gps_s: F64, marker_name: str, gps_minus_utc_s: F64 | float, obs_name: str = "") -> F64 | None:
+        """The reference of the epochs ``time_gps_s`` (s, GPS) of an observation file whose marker
+        is ``marker_name``; ``gps_minus_utc_s`` turns a ``.pos`` reference in UTC to GPS time."""
+        if self.sinex is not None and self.fixed is None:
+            if not marker_name:
+                raise ConfigError(f"--reference-sinex: {obs_name or 'the observation file'} has no MARKER NAME to look up")
+            self.fixed = reference_from_sinex(self.sinex, marker_name)
+        if self.rows is not None:
+            return match_reference(*self.rows, time_gps_s)
+        if self.pos is not None:
+            t_ref, xyz, scale = self.pos
+            return match_reference(t_ref, xyz, time_gps_s - (gps_minus_utc_s if scale == "UTC" else 0.0))
+        return self.fixed

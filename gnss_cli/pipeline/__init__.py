@@ -4,22 +4,29 @@ Modules, one job each::
 
     results     EpochData, MethodSolution, RunResult, WindowModel, EpochStatus (the status vocabulary)
     epochs      load_epochs: RINEX files -> validated epochs with satellite states
-    snapshot    solve_method, run: the single-epoch solution of every method, DOPs
-    smoothing   smooth: behavioral multi-epoch smoothing of the WLS fixes (window scheduling)
-    processing  process: the whole run (snapshot, then the smoothing when configured)
-    stream      ChunkedRun: a long file's run in parts of N epochs, equal to the whole run; a day
-                file's parts read and solved at once in forked processes
+    snapshot    solve_method, solve_methods: the single-epoch solution of every method, DOPs
+    integrity   monitor: chi-square test, fault detection and exclusion, protection levels
+    velocity    solve_velocity, with_velocity: receiver velocity and clock drift from Doppler
+    methods     method_settings, solve_multi_epoch: what each method computes (the one vocabulary)
+    smoothing   smooth: stls with lag >= 1, the identified Hankel STLS of the WLS fixes in windows
+    doppler_smoothing  doppler_smooth: the smoother method (fixed motion model, measurement domain)
+    phase_rows  phase_pair_rows: time-differenced carrier phase rows of the multi-epoch methods
+    kinematic   kinematic_smooth: fixes tied to Doppler velocities (position domain)
+    kalman      run_kalman: the kf method, extended Kalman filter with an RTS smoother
+    run         Run, process: the one run of a file, part by part, every method (forked processes
+                for the parts of a day file)
     parts       part_epochs, solve_part: one part of a file on the whole file's axes, solved
     memory      release_memory, map_large_blocks: the C heap of a run in parts
     navigation  navigation_files, keep_navigation: the navigation files of a run (kept in a worker)
-    smoothing_stream  StreamSmoother: the smoothing of parts with the whole file's schedule
+    ephemerides system_records: broadcast ephemerides of one system behind one interface
     identification  identify_trajectory: kernel identification and prediction of a trajectory
+    window_solve  (see module)
+    integrity_table  (see module)
 
-The CLI calls :func:`process`.
+The CLI and :func:`gnss_cli.solve` both run :class:`~gnss_cli.pipeline.run.Run`.
 """
 
 from gnss_cli.pipeline.epochs import load_epochs
-from gnss_cli.pipeline.processing import process
 from gnss_cli.pipeline.results import (
     EpochData,
     EpochStatus,
@@ -30,11 +37,12 @@ from gnss_cli.pipeline.results import (
     solver_epoch_status,
     window_epoch_status,
 )
+from gnss_cli.pipeline.run import Run, process
 from gnss_cli.pipeline.smoothing import smooth
-from gnss_cli.pipeline.snapshot import ITERATED_METHODS, WEIGHTED_METHODS, run, solve_method
+from gnss_cli.pipeline.snapshot import ITERATED_METHODS, WEIGHTED_METHODS, solve_method, solve_methods
 
 __all__ = [
-    "load_epochs", "process", "run", "solve_method", "smooth",
+    "load_epochs", "process", "Run", "solve_method", "solve_methods", "smooth",
     "EpochData", "EpochStatus", "MethodSolution", "Progress", "RunResult", "WindowModel",
     "solver_epoch_status", "window_epoch_status", "ITERATED_METHODS", "WEIGHTED_METHODS",
 ]

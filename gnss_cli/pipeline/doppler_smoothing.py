@@ -8,7 +8,7 @@ interpolation of the velocities, exact for velocities polynomial of degree ``l``
 epoch and system and one clock drift per epoch. Observations: every pseudorange the WLS solution
 used (its satellites, elevation mask, weights and FDE exclusions) and the range rates of those
 satellites, of every epoch, 1-3 satellites included, and with carrier phase in the file
-(``smoothing.carrier_phase``) the time-differenced phase of consecutive epochs
+(``measurements`` with ``phase``) the time-differenced phase of consecutive epochs
 (:mod:`gnss_cli.pipeline.phase_rows`; on the Yamatogawa walk 2.72 -> 2.49 m 3D RMS, on the urban
 tst2 set 2.52 -> 1.37 m) (such an epoch is ``ok`` and ``n_sat`` says how
 many pseudoranges it had; with a single satellite its clock absorbs the pseudorange and the
@@ -222,7 +222,7 @@ def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: Process
     """
     t = data.time_gps_s
     fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
-    if not fix.any() or data.range_rate_m_s is None or not config.kalman.doppler:
+    if not fix.any() or data.range_rate_m_s is None or not config.uses("doppler"):
         return None
     segs = [s for s in segments(t, data.usable.any(axis=1), gap_factor) if s.size >= 2 and fix[s].any()]
     nominal = nominal_trajectory(t, np.where(fix[:, None], wls.x_ecef_m, np.nan))
@@ -346,11 +346,11 @@ def doppler_smooth(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     """
     if wls.excluded is not None:
         data = replace(data, usable=data.usable & ~wls.excluded)
-    lag = config.smoothing.lag
+    lag = config.smoother.lag
     run = solve_doppler_segments(data, wls, config, lag, gap_factor=gap_factor, factors=factors)
     if run is None:
-        if data.range_rate_m_s is None or not config.kalman.doppler:
-            raise ConfigError(f"smoothing.model = 'doppler' needs Doppler observations; {data.obs_path} has none")
+        if data.range_rate_m_s is None or not config.uses("doppler"):
+            raise ConfigError(f"smoother: needs Doppler observations in the measurements; {data.obs_path} has none")
         return replace(wls, method=method), ()
     T = data.time_gps_s.size
     smoothed = np.isfinite(run.x_ecef_m).all(axis=1)
@@ -365,7 +365,7 @@ def doppler_smooth(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         dt = float(np.median(np.diff(data.time_gps_s[seg])))
         models.append(WindowModel(
             segment=k, window=0, start_time_gps_s=float(data.time_gps_s[seg[0]]),
-            end_time_gps_s=float(data.time_gps_s[seg[-1]]), n_epochs=int(seg.size), model="doppler", structure="full",
+            end_time_gps_s=float(data.time_gps_s[seg[-1]]), n_epochs=int(seg.size), model=f"motion {config.smoother.motion}", structure="full", method=method,
             kernel=kernel_record(doppler_kernel(dt, lag)), misfit=run.misfit[k], status="converged",
             message=(f"measurement domain, {run.dof[k]} degrees of freedom; variance factors: pseudoranges "
                      f"{run.factors[0]:.4g}, range rates {run.factors[1]:.4g}"

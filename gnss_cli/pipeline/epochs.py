@@ -240,7 +240,7 @@ def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: 
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
     codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
-    if config.smoothing.carrier_phase and config.smoothing.lag > 0:  # for the doppler model (phase_rows)
+    if config.uses("phase") and any(m in ("smoother", "kf") for m in config.multi_epoch_methods):  # phase_rows of smoother and kf
         phases = [phase_code(c) for c in codes_for(systems, priority)]
         codes += [c for c in phases + [lli_name(c) for c in phases] if c not in codes]
     if config.iono == "iono-free":
@@ -418,7 +418,7 @@ def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: _SatelliteArrays, dopple
     """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
     have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler
     (the wavelengths and the slip check come with it), or when ``smoothing.carrier_phase`` is off."""
-    if not config.smoothing.carrier_phase or doppler_hz is None or arrays.freq is None:
+    if not config.uses("phase") or doppler_hz is None or arrays.freq is None:
         return {}
     selected = select_phases(obs, prs)
     if selected is None:
@@ -426,5 +426,5 @@ def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: _SatelliteArrays, dopple
     cycles, lli = selected
     lam = C_M_S / arrays.freq
     phase = np.where(usable, lam * cycles + C_M_S * arrays.clk, np.nan)
-    slip = phase_slips(t, phase, np.where(usable, -lam * doppler_hz, np.nan), lli, config.smoothing.phase_slip_m)
+    slip = phase_slips(t, phase, np.where(usable, -lam * doppler_hz, np.nan), lli, config.phase_slip_m)
     return {"phase_m": phase, "phase_slip": slip}

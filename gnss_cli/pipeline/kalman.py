@@ -152,7 +152,7 @@ def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingCon
         var[rows] = np.where(mask, lin.var_m2[:, :n], 1.0)
         used[rows] = mask
     out = Measurements(unit, y, var, used)
-    if config.kalman.doppler and data.range_rate_m_s is not None and data.sat_vel_ecef_m_s is not None:
+    if config.uses("doppler") and data.range_rate_m_s is not None and data.sat_vel_ecef_m_s is not None:
         H, yr = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s,
                                   data.range_rate_m_s, nominal)
         sigma = doppler_sigma_m_s(np.where(used, np.sqrt(var), np.nan), config)
@@ -223,7 +223,7 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: Measurements, ini
     for i, nu in zip(seg, res.innovations):
         rows = np.flatnonzero(meas.used[i])
         meas.used[i, rows[np.isnan(nu[: rows.size])]] = False
-    if config.kalman.smoother == "rts":
+    if config.kalman.output == "smoothed":
         return rts_smooth(res, F)
     return res.x, res.P
 

@@ -1,5 +1,5 @@
 """One part of an observation file (consecutive epochs): its epochs on the whole file's axes,
-and its snapshot solution, wherever it runs (:class:`~gnss_cli.pipeline.stream.ChunkedRun`,
+and its snapshot solution, wherever it runs (:class:`~gnss_cli.pipeline.run.Run`,
 in this process or a forked one)."""
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ import xarray as xr
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.observables import align_pseudoranges, select_pseudoranges
 from gnss_cli.pipeline.epochs import Coverage, EpochSetup, build_epochs, finish_epochs
-from gnss_cli.pipeline.processing import with_velocity
+from gnss_cli.pipeline.methods import with_settings
 from gnss_cli.pipeline.results import EpochData, RunResult
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts
+from gnss_cli.pipeline.velocity import with_velocity
 
 __all__ = ["part_epochs", "solve_part", "split_epochs"]
 
@@ -41,4 +42,4 @@ def solve_part(obs: xr.Dataset, setup: EpochSetup, systems: list[str], sv: np.nd
     its status counts."""
     data, part_cov = part_epochs(obs, setup, systems, sv, used)
     solutions = solve_methods(data, config)
-    return finish(with_velocity(RunResult(data, solutions), config)), part_cov, status_counts(solutions)
+    return finish(with_velocity(with_settings(RunResult(data, solutions), config), config)), part_cov, status_counts(solutions)

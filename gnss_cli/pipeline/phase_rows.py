@@ -45,7 +45,7 @@ def phase_pair_rows(data: EpochData, rows: dict[str, F64], config: ProcessingCon
     difference ``P_t - P_{t-1}`` of the lines of sight over one epoch is ~1e-4: the pair solved for
     its displacement alone, for the variance factor).
     """
-    if data.phase_m is None or data.phase_slip is None or not config.smoothing.carrier_phase:
+    if data.phase_m is None or data.phase_slip is None or not config.uses("phase"):
         return None
     w_pr = rows["w"]
     q = np.where(w_pr > 0, rows["y"] + data.phase_m - data.pr_corrected_m, np.nan)
@@ -57,7 +57,7 @@ def phase_pair_rows(data: EpochData, rows: dict[str, F64], config: ProcessingCon
     sigma_pr = np.where(w_pr > 0, 1.0 / np.sqrt(np.where(w_pr > 0, w_pr, 1.0)), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # epochs without a used row
-        sigma = config.smoothing.phase_sigma_m * sigma_pr / np.nanmedian(sigma_pr, axis=1, keepdims=True)
+        sigma = config.phase_sigma_m * sigma_pr / np.nanmedian(sigma_pr, axis=1, keepdims=True)
     used &= np.isfinite(sigma)
     P6 = np.zeros((T, n, 6))
     P6[1:, :, :3] = -rows["P"][:-1]

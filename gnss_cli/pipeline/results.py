@@ -11,7 +11,8 @@ and :func:`window_epoch_status` are the one place where they become epoch status
 value                   meaning
 ======================  ==========================================================================
 ``ok``                  solved: Gauss-Newton converged (ls, wls), the one linear step succeeded
-                        (tls, dls, mtls, stls, wtls), or the epoch was smoothed (stls with lag)
+                        (tls, dls, mtls, stls, wtls), or the epoch was solved by a multi-epoch
+                        method (stls with lag, smoother, kf)
 ``iteration_limit``     ls/wls: no convergence within ``max_iterations`` (position left empty)
 ``too_few_satellites``  fewer usable satellites than ``min_satellites`` or than 3 + clocks
 ``rank_deficient``      solver: the (weighted) design matrix is rank deficient
@@ -40,7 +41,8 @@ included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from typing import Any
+from dataclasses import dataclass, field, fields, replace
 from enum import Enum
 
 import numpy as np
@@ -124,7 +126,8 @@ class WindowModel:
     n_epochs : int
         Epochs in the window.
     model : str
-        ``identify``, ``pva`` or ``static``.
+        ``identified`` (``stls``: a kernel identified in the window) or the ``smoother``'s fixed
+        motion model (``motion quadrature``, ...).
     structure : str
         ``shared`` or ``full`` (the fixed models are shared).
     kernel : KernelRecord or None
@@ -148,11 +151,13 @@ class WindowModel:
     misfit: float | None
     status: str
     message: str
+    method: str = "stls"
+    """The method whose rows the window supplies (``stls``, ``smoother``)."""
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""
         out: dict[str, object] = {
-            "segment": self.segment, "window": self.window, "start_time_gps_s": self.start_time_gps_s,
+            "method": self.method, "segment": self.segment, "window": self.window, "start_time_gps_s": self.start_time_gps_s,
             "end_time_gps_s": self.end_time_gps_s, "n_epochs": self.n_epochs, "model": self.model,
             "structure": self.structure,
         }
@@ -304,16 +309,47 @@ class MethodSolution:
 
 @dataclass(frozen=True)
 class RunResult:
-    """A whole run: the prepared epochs, one solution per method, and the smoothing models.
+    """A whole run: the prepared epochs, one solution per method, the window models and what ran.
 
-    ``models`` holds one :class:`WindowModel` per smoothing window when the stls rows are
-    the behavioral smoothing (``[smoothing] lag > 0``), else it is empty.
+    ``models`` holds one :class:`WindowModel` per window of the multi-epoch methods that fit
+    models (``stls`` with ``lag >= 1``: each window's identified kernel; ``smoother``: one per
+    segment), else it is empty. ``settings`` holds each method's resolved settings
+    (:class:`~gnss_cli.pipeline.methods.MethodSettings`).
     """
 
     epochs: EpochData
     solutions: dict[str, MethodSolution] = field(default_factory=dict)
     models: tuple[WindowModel, ...] = ()
+    settings: dict[str, Any] = field(default_factory=dict)
 
     @property
     def warnings(self) -> tuple[str, ...]:
         return self.epochs.warnings
+
+
+def take_solution(sol: MethodSolution, rows: NDArray[np.intp] | slice, copy: bool = False) -> MethodSolution:
+    """The epochs ``rows`` of ``sol`` (every per-epoch array; copies with ``copy``)."""
+    return replace(sol, **{f.name: (getattr(sol, f.name)[rows].copy() if copy else getattr(sol, f.name)[rows])
+                           for f in fields(MethodSolution) if isinstance(getattr(sol, f.name), np.ndarray)})
+
+
+def take_result(result: RunResult, rows: slice, copy: bool = False) -> RunResult:
+    """The epochs ``rows`` of ``result`` (no window models): views, or copies with ``copy``
+    (that do not keep the whole of ``result``'s arrays alive)."""
+    epochs = replace(result.epochs, **{f: (getattr(result.epochs, f)[rows].copy() if copy else getattr(result.epochs, f)[rows])
+                                       for f in EPOCH_AXIS_FIELDS if getattr(result.epochs, f) is not None})
+    return RunResult(epochs, {m: take_solution(s, rows, copy) for m, s in result.solutions.items()},
+                     settings=result.settings)
+
+
+def concat_results(parts: list[RunResult]) -> RunResult:
+    """The epochs of ``parts`` one after the other (one satellite axis, the same methods), their models joined."""
+    first = parts[0]
+    if len(parts) == 1:
+        return first
+    epochs = replace(first.epochs, **{f: np.concatenate([getattr(p.epochs, f) for p in parts])
+                                      for f in EPOCH_AXIS_FIELDS if getattr(first.epochs, f) is not None})
+    sols = {m: replace(s, **{f.name: np.concatenate([getattr(p.solutions[m], f.name) for p in parts])
+                             for f in fields(MethodSolution) if isinstance(getattr(s, f.name), np.ndarray)})
+            for m, s in first.solutions.items()}
+    return RunResult(epochs, sols, tuple(w for p in parts for w in p.models), first.settings)

@@ -1,22 +1,18 @@
-"""Behavioral smoothing: per-epoch WLS fixes projected onto a kernel model over sliding windows.
+"""The ``stls`` method with ``lag >= 1``: the paper's identified Hankel STLS over sliding windows.
 
 The per-epoch WLS fixes ``x_t`` and their position covariances ``Sigma_t`` are rotated to a
 local ENU frame (origin: the first solved fix of each segment), split into segments of
 uniformly sampled, solved epochs, cut into sliding windows (:mod:`gnss_cli.behavior.windows`)
-and projected onto a linear time-invariant behavior (DESIGN.md section 5), as configured in
-``[smoothing]`` (:class:`~gnss_cli.config.SmoothingConfig`):
-
-- ``model="identify"``: the kernel is identified in each window by weighted Hankel STLS
-  (``stls(..., structure=kernel)``; the shared kernel keeps a fixed root at ``z = 1`` so the
-  result does not depend on the ENU origin);
-- ``model="pva"`` / ``model="static"``: the fixed kernels ``(z-1)^3 I`` / ``(z-1) I``; the
-  trajectory is the ``Sigma^{-1}``-weighted projection of the fixes onto the behavior.
+and, in each window, a kernel ``R(z)`` of lag ``L`` is identified by weighted Hankel STLS and the
+fixes are projected onto its behavior (DESIGN.md section 5), as configured in ``[stls]``
+(:class:`~gnss_cli.config.StlsConfig`): ``stls(..., structure=kernel)``; the shared kernel keeps a
+fixed root at ``z = 1`` so the result does not depend on the ENU origin.
 
 Each window is fitted with a single descent from the better of the WTLS and polynomial
 starts (``stls(..., max_starts=1, restarts=False)``). The extra starts and restarts of the
 default ``stls`` changed the 3D RMS of the simulated flights (1 m noise) by little: 1.39
 instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up to
-:data:`BATCH_MAX_EPOCHS` epochs with a shared or fixed kernel are fitted all at once
+:data:`BATCH_MAX_EPOCHS` epochs with a shared kernel are fitted all at once
 (:mod:`gnss_cli.behavior.batch`, the same algorithm with a leading window axis): a day of
 1 s epochs is twelve thousand 15-epoch windows, and one at a time their cost would be the
 Python overhead of many tiny array operations. Full kernels and longer windows go one at a
@@ -38,12 +34,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.behavior import STATUS_MESSAGES, KernelRepresentation, SingularGramError, StlsStatus, misfit, stls
-from gnss_cli.behavior.batch import identify_windows, project_windows
+from gnss_cli.behavior import STATUS_MESSAGES, SingularGramError, StlsStatus, stls
+from gnss_cli.behavior.batch import identify_windows
 from gnss_cli.behavior.multi_epoch import behavior_basis, epoch_information, shared_behavior_bases, window_covs
 from gnss_cli.behavior.records import KernelRecord, kernel_record, shared_kernel_records
 from gnss_cli.behavior.windows import segments, windows
-from gnss_cli.config import ProcessingConfig, SmoothingConfig
+from gnss_cli.config import ProcessingConfig, StlsConfig
 from gnss_cli.errors import GnssError, UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.geometry import linearize
@@ -58,14 +54,13 @@ from gnss_cli.pipeline.results import (
 from gnss_cli.solvers.dop import dop_from_cov
 
 __all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "BATCH_MAX_EPOCHS",
-           "FIXED_KERNELS", "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
+           "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
 
 F64 = NDArray[np.float64]
 
 #: Windows up to this many epochs are fitted together (:mod:`gnss_cli.behavior.batch`, dense
 #: per-window factors); longer ones (e.g. ``window=0``) one at a time by the banded O(T) STLS.
 BATCH_MAX_EPOCHS = 64
-FIXED_KERNELS = {"static": ([-1.0, 1.0], "fixed kernel (z-1) I"), "pva": ([-1.0, 3.0, -3.0, 1.0], "fixed kernel (z-1)^3 I")}
 _OK, FALLBACK = EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value
 
 
@@ -108,22 +103,14 @@ def _failed(message: str) -> Fit:
     return Fit(None, None, None, None, message, None)
 
 
-def _fit_group(segs: list[Segment], jobs: list[WindowJob], model: str, lag: int, tol: float,
-               max_iter: int) -> list[Fit]:
-    """Fixed or identified shared kernels for windows of equal length, all at once."""
+def _fit_group(segs: list[Segment], jobs: list[WindowJob], lag: int, tol: float, max_iter: int) -> list[Fit]:
+    """Identified shared kernels for windows of equal length, all at once."""
     n_t = jobs[0].b - jobs[0].a
     w = np.stack([segs[j.segment].w[j.a : j.b] for j in jobs])
     cov = np.stack([segs[j.segment].cov[j.a : j.b] for j in jobs])
-    if model in FIXED_KERNELS:
-        coef, message = FIXED_KERNELS[model]
-        mis, w_hat = project_windows(w, coef, cov)
-        r = np.broadcast_to(np.asarray(coef), (len(jobs), len(coef))).copy()
-        status = np.where(np.isfinite(mis), int(StlsStatus.DIRECT), int(StlsStatus.INFEASIBLE))
-        messages = [message if st > 0 else STATUS_MESSAGES[StlsStatus.INFEASIBLE] for st in status]
-    else:
-        fits = identify_windows(w, lag, cov, fixed_roots=(1.0,), tol=tol, max_iter=max_iter)
-        mis, w_hat, r, status = fits.misfit, fits.w_hat, fits.r, fits.status
-        messages = [STATUS_MESSAGES[StlsStatus(int(st))] for st in status]
+    fits = identify_windows(w, lag, cov, fixed_roots=(1.0,), tol=tol, max_iter=max_iter)
+    mis, w_hat, r, status = fits.misfit, fits.w_hat, fits.r, fits.status
+    messages = [STATUS_MESSAGES[StlsStatus(int(st))] for st in status]
     ok = np.flatnonzero(status >= 0)
     rec_of = dict(zip(ok.tolist(), shared_kernel_records(r[ok], 3) if ok.size else []))
     basis_of = dict(zip(ok.tolist(), shared_behavior_bases(r[ok], n_t, 3) if ok.size else []))
@@ -136,22 +123,16 @@ def _fit_group(segs: list[Segment], jobs: list[WindowJob], model: str, lag: int,
     return out
 
 
-def _fit_single(seg: Segment, job: WindowJob, opts: SmoothingConfig) -> Fit:
+def _fit_single(seg: Segment, job: WindowJob, opts: StlsConfig) -> Fit:
     """One window with the banded per-series path (full kernels and long windows)."""
     w, cov = seg.w[job.a : job.b], seg.cov[job.a : job.b]
     try:
-        if opts.model in FIXED_KERNELS:
-            coef, message = FIXED_KERNELS[opts.model]
-            ker = KernelRepresentation.shared(coef, 3)
-            m, w_hat = misfit(w, ker, cov)
-            st = StlsStatus.DIRECT
-        else:
-            fixed = (1.0,) if opts.kernel == "shared" else ()
-            res = stls(w, opts.effective_lag, opts.full_order, cov, tol=opts.tolerance, max_iter=opts.max_iterations,
-                       structure=opts.kernel, fixed_roots=fixed, max_starts=1, restarts=False)
-            if res.status < 0:
-                raise SingularGramError(res.message)
-            ker, m, w_hat, st, message = res.kernel, res.misfit, res.w_hat, res.status, res.message
+        fixed = (1.0,) if opts.kernel == "shared" else ()
+        res = stls(w, opts.lag, opts.full_order, cov, tol=opts.tolerance, max_iter=opts.max_iterations,
+                   structure=opts.kernel, fixed_roots=fixed, max_starts=1, restarts=False)
+        if res.status < 0:
+            raise SingularGramError(res.message)
+        ker, m, w_hat, st, message = res.kernel, res.misfit, res.w_hat, res.status, res.message
         basis = behavior_basis(ker.normalized(), job.b - job.a) if ker.p == ker.q else None
     except (GnssError, np.linalg.LinAlgError) as exc:
         return _failed(str(exc))
@@ -164,7 +145,7 @@ def segment_frame(wls: MethodSolution, epochs: NDArray[np.intp], origin: F64) ->
     rot = ecef2enu_rotation(float(lat), float(lon))
     cov_enu = np.einsum("ij,tjk,lk->til", rot, wls.cov_m2[epochs, :3, :3], rot)
     # einsum, not a (T, 3) @ (3, 3) matmul: BLAS rounds a row differently with the number of rows,
-    # and a part of a file must give the rows of the whole file (pipeline/smoothing_stream.py)
+    # and the rows must not depend on the number of epochs a piece holds (pipeline/run.py)
     return Segment(epochs, origin, rot, np.einsum("tj,ij->ti", wls.x_ecef_m[epochs] - origin, rot),
                    0.5 * (cov_enu + cov_enu.transpose(0, 2, 1)))
 
@@ -189,27 +170,26 @@ def window_jobs(segment: int, n: int, length: int, step: int | None = None) -> l
 
 
 def _schedule(data: EpochData, wls: MethodSolution, solved: NDArray[np.bool_], status: NDArray[np.str_],
-              opts: SmoothingConfig, step: int | None, gap_factor: float) -> tuple[list[Segment], list[WindowJob]]:
+              opts: StlsConfig, step: int | None, gap_factor: float) -> tuple[list[Segment], list[WindowJob]]:
     """Segments in their ENU frames and their windows; epochs of too short segments fall back to WLS."""
     segs: list[Segment] = []
     jobs: list[WindowJob] = []
     for si, n in framed_segments(data, wls, solved, status, opts.min_window(), gap_factor, segs):
-        jobs += window_jobs(si, n, opts.window_epochs, step)
+        jobs += window_jobs(si, n, opts.window, step)
     return segs, jobs
 
 
-def fit_all(segs: list[Segment], jobs: list[WindowJob], opts: SmoothingConfig) -> list[Fit]:
-    """Every window's fit: equal-length shared/fixed windows batched, the others one at a time."""
+def fit_all(segs: list[Segment], jobs: list[WindowJob], opts: StlsConfig) -> list[Fit]:
+    """Every window's fit: equal-length shared-kernel windows batched, the others one at a time."""
     fits: list[Fit | None] = [None] * len(jobs)
     by_length: dict[int, list[int]] = {}
     for k, job in enumerate(jobs):
-        if (opts.model == "identify" and opts.kernel == "full") or job.b - job.a > BATCH_MAX_EPOCHS:
+        if opts.kernel == "full" or job.b - job.a > BATCH_MAX_EPOCHS:
             fits[k] = _fit_single(segs[job.segment], job, opts)
         else:
             by_length.setdefault(job.b - job.a, []).append(k)
     for group in by_length.values():
-        batch = _fit_group(segs, [jobs[k] for k in group], opts.model, opts.effective_lag, opts.tolerance,
-                           opts.max_iterations)
+        batch = _fit_group(segs, [jobs[k] for k in group], opts.lag, opts.tolerance, opts.max_iterations)
         for k, fit in zip(group, batch):
             fits[k] = fit
     assert all(f is not None for f in fits)
@@ -225,7 +205,7 @@ def smooth(
     gap_factor: float = 1.5,
     method: str = "stls",
 ) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
-    """Smooth per-epoch WLS fixes with the behavioral (kernel) model of ``config.smoothing``.
+    """The identified Hankel STLS of the per-epoch WLS fixes (``config.stls``, ``lag >= 1``).
 
     Parameters
     ----------
@@ -234,7 +214,7 @@ def smooth(
     wls : MethodSolution
         Per-epoch WLS fixes of ``data`` with covariances ``cov_m2`` (m^2).
     config : ProcessingConfig
-        ``config.smoothing`` (lag >= 1, model, kernel, order, window, tolerance,
+        ``config.stls`` (lag >= 1, kernel, order, window, tolerance,
         max_iterations; see ``gnss_cli/configs/default.toml``) and the weights, masks and atmosphere
         models of the clock solve.
     step : int, optional
@@ -259,9 +239,9 @@ def smooth(
     Raises
     ------
     ConfigError
-        Invalid smoothing options (:meth:`SmoothingConfig.validated`).
+        Invalid options (:meth:`StlsConfig.validated`).
     UsageError
-        ``config.smoothing.lag`` is 0, or ``wls`` does not match ``data``.
+        ``config.stls.lag`` is 0, or ``wls`` does not match ``data``.
 
     Notes
     -----
@@ -269,21 +249,15 @@ def smooth(
     ``R H_{l+1}(w^) = 0`` with ``w_t = E (x_t - x_origin)`` the ENU position of the fix and
     ``Sigma_t = E C_t E^T`` its rotated WLS covariance.
     """
-    opts = config.smoothing.resolved(False).validated()  # "auto" smooths the fixes with "identify" here
-    config = replace(config, smoothing=opts)
+    opts = config.stls.validated()
     if opts.lag < 1:
-        raise UsageError(f"smoothing.lag: expected an integer >= 1 to smooth, received {opts.lag}")
+        raise UsageError(f"stls.lag: expected an integer >= 1 for the identified Hankel STLS, received {opts.lag}")
     T = data.time_gps_s.size
     if wls.x_ecef_m.shape != (T, 3):
         raise UsageError(f"wls: expected positions of shape ({T}, 3), received {wls.x_ecef_m.shape}")
     solved = (wls.status == _OK) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
-    if opts.window_ladder:
-        from gnss_cli.pipeline.window_ladder import ladder_schedule
-
-        segs, jobs, fits = ladder_schedule(data, wls, solved, status, opts, gap_factor)
-        return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     return smooth_windows(data, wls, config, segs, jobs, status, method)
 
@@ -296,7 +270,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
     ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
     (default: its index). ``fits``: the windows' fits when already computed (one per job)."""
-    opts = config.smoothing
+    opts = config.stls
     T = data.time_gps_s.size
     x_s = wls.x_ecef_m.copy()
     smoothed = np.zeros(T, dtype=bool)
@@ -312,8 +286,8 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             segment=job.segment if segment_ids is None else segment_ids[job.segment], window=job.window,
             start_time_gps_s=float(data.time_gps_s[seg.epochs[job.a]]),
             end_time_gps_s=float(data.time_gps_s[seg.epochs[job.b - 1]]), n_epochs=int(job.b - job.a),
-            model=opts.model, structure=opts.structure, kernel=fit.kernel, misfit=fit.misfit,
-            status=window_status_word(fit.status), message=fit.message,
+            model="identified", structure=opts.kernel, kernel=fit.kernel, misfit=fit.misfit,
+            status=window_status_word(fit.status), message=fit.message, method=method,
         ))
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:

@@ -23,26 +23,21 @@ step at the robust WLS fix with the a-priori weights.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-import xarray as xr
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.errors import NoSolutionError
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize, width_groups
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
-from gnss_cli.pipeline.epochs import load_epochs
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
-from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status
+from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
 from gnss_cli.solvers.robust import IrlsResult, irls_batch
 
-__all__ = ["solve_method", "solve_methods", "status_counts", "status_summary", "run", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
+__all__ = ["solve_method", "solve_methods", "status_counts", "status_summary", "solver_options", "WEIGHTED_METHODS", "ITERATED_METHODS"]
 
 F64 = NDArray[np.float64]
 
@@ -323,33 +318,6 @@ class _Accumulator:
             sigma_m=np.where(bad[:, None], np.nan, self.sigma),
             robust_weights=np.where(bad[:, None], np.nan, self.robust_w),
         )
-
-
-def run(
-    obs_path: str | Path,
-    nav_paths: Sequence[str | Path],
-    config: ProcessingConfig,
-    progress: Progress | None = None,
-    obs: list[xr.Dataset] | None = None,
-) -> RunResult:
-    """Read, validate and solve every epoch with every configured method (``obs``: the
-    observation file already read, a one-element list :func:`~gnss_cli.pipeline.epochs.load_epochs`
-    empties; else it is read here).
-
-    Raises
-    ------
-    InputError
-        Bad input files.
-    NoSolutionError
-        No epoch could be solved by any method.
-    """
-    if progress:
-        progress("reading", 0.0)
-    data = load_epochs(obs_path, nav_paths, config, given=obs)
-    solutions = solve_methods(data, config, progress)
-    if not any((s.status == EpochStatus.OK).any() for s in solutions.values()):
-        raise NoSolutionError(f"{Path(obs_path).name}: no epoch could be solved ({status_summary(solutions)})")
-    return RunResult(data, solutions)
 
 
 def solve_methods(data: EpochData, config: ProcessingConfig, progress: Progress | None = None) -> dict[str, MethodSolution]:

@@ -18,7 +18,7 @@ shape, scaled so that a typical satellite of the epoch has ``doppler_sigma_m_s``
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,12 +26,12 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
 from gnss_cli.gnss.geometry import width_groups
-from gnss_cli.pipeline.results import EpochData
+from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult
 from gnss_cli.solvers import solve_batch
 
 F64 = NDArray[np.float64]
 
-__all__ = ["VelocitySolution", "doppler_sigma_m_s", "solve_velocity"]
+__all__ = ["VelocitySolution", "doppler_sigma_m_s", "solve_velocity", "with_velocity"]
 
 
 @dataclass(frozen=True)
@@ -101,3 +101,18 @@ def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: Proc
         gdop_vel=q_trace,
         n_used=mask.sum(axis=1),
     )
+
+
+def with_velocity(result: RunResult, config: ProcessingConfig) -> RunResult:
+    """Every solution without a velocity of its own gets the Doppler velocity at its fixes (a file with Doppler)."""
+    if result.epochs.range_rate_m_s is None:
+        return result
+    out: dict[str, MethodSolution] = {}
+    for m, s in result.solutions.items():
+        if s.vel_ecef_m_s is None:
+            sigma = s.sigma_m if s.sigma_m is not None else result.solutions.get("wls", s).sigma_m
+            vel = solve_velocity(result.epochs, s.x_ecef_m, sigma if sigma is not None else result.epochs.usable * 1.0, config)
+            if vel is not None:
+                s = replace(s, vel_ecef_m_s=vel.vel_ecef_m_s, clock_drift_m_s=vel.clock_drift_m_s, gdop_vel=vel.gdop_vel)
+        out[m] = s
+    return replace(result, solutions=out)

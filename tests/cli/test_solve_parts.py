@@ -1,9 +1,10 @@
-"""A long file solved part by part (``[processing] chunk_epochs``) writes the bytes of the whole-file run.
+"""A long file solved part by part (``[processing] chunk_epochs``): the single-epoch rows are the
+bytes of the whole-file run; the multi-epoch methods, solved in overlapping pieces, are within a
+millimetre to decimetres of it (their margins, :data:`~gnss_cli.pipeline.run.MARGIN_EPOCHS`).
 
-Every case runs ``gnss-solve`` twice into ``--out-dir`` (with ``--model-out`` when smoothing):
-once with ``chunk_epochs = 0`` (the whole file at once) and once in parts of 50 epochs
-(``stream_above_epochs = 50``), and
-compares every output file byte for byte. The parts really are parts: :class:`ChunkedRun`
+Every case runs ``gnss-solve`` twice into ``--out-dir`` (with ``--model-out`` for multi-epoch
+methods): once with ``chunk_epochs = 0`` (the whole file at once) and once in parts of 50 epochs
+(``stream_above_epochs = 50``). The parts really are parts: :class:`~gnss_cli.pipeline.run.Run`
 yields several of them for the same configuration.
 """
 
@@ -22,7 +23,7 @@ from gnss_cli.config import load_config
 from gnss_cli.errors import RinexFormatError
 from gnss_cli.io.obs_chunks import iter_obs_chunks
 from gnss_cli.io.rinex import read_obs
-from gnss_cli.pipeline.stream import RESTART, ChunkedRun, streamable
+from gnss_cli.pipeline.run import RESTART, Run
 from gnss_cli.report import VELOCITY_COLUMNS
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
 
@@ -58,7 +59,7 @@ def gapped(flight: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _solve(args: list[object], out: Path, chunk: int, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
     cfg = out.parent / f"{out.name}.toml"
     cfg.write_text(f"[processing]\nchunk_epochs = {chunk}\nstream_above_epochs = {chunk}\n")
-    extra = ["--model-out", out / "models.json"] if "--lag" in args else []
+    extra = ["--model-out", out / "models.json"] if {"--lag", "smoother", "kf"} & set(map(str, args)) else []
     with pytest.raises(SystemExit) as exc:
         run_app(app, "gnss-solve", [str(a) for a in [*args, "--out-dir", out, "--config", cfg, "-q", *extra]])
     _, err = capsys.readouterr()
@@ -122,110 +123,112 @@ def _same_bytes(args: list[object], tmp_path: Path, capsys: pytest.CaptureFixtur
     return whole
 
 
+def _run(obs: Path, nav: Path, chunk: int = CHUNK, **overrides: object) -> Run:
+    return Run(obs, [nav], replace(load_config(None, overrides), chunk_epochs=chunk, stream_above_epochs=chunk))
+
+
 def _n_parts(obs: Path, nav: Path, **overrides: object) -> int:
-    cfg = load_config(None, overrides)
-    assert streamable(cfg)
-    return sum(p is not RESTART for p in ChunkedRun(obs, [nav], cfg, CHUNK).parts())
+    return sum(p is not RESTART for p in _run(obs, nav, **overrides).parts())
 
 
-@pytest.mark.parametrize("extra", [["--method", "wls"], ["--method", "stls", "--lag", "3"]], ids=["wls", "stls-lag3"])
+def _positions(out: dict[str, bytes]):  # type: ignore[no-untyped-def]
+    import io
+
+    import pandas as pd
+
+    return pd.read_csv(io.BytesIO(out["positions.csv"]))
+
+
+def _close_to_whole(args: list[object], tmp_path: Path, capsys: pytest.CaptureFixture[str], tol_m: float,
+                    chunk: int = CHUNK) -> tuple[object, object]:
+    """The multi-epoch rows in parts: the same epochs, statuses and satellites; positions within ``tol_m``."""
+    tmp_path.mkdir(exist_ok=True)
+    whole = _positions(_solve(args, tmp_path / "whole", 0, capsys))
+    parts = _positions(_solve(args, tmp_path / "parts", chunk, capsys))
+    assert list(whole.columns) == list(parts.columns) and len(whole) == len(parts)
+    assert (whole["status"] == parts["status"]).all() and (whole["method"] == parts["method"]).all()
+    np.testing.assert_array_equal(whole["tow_s"], parts["tow_s"])
+    xyz = ["x_m", "y_m", "z_m"]
+    d = np.linalg.norm(whole[xyz].to_numpy() - parts[xyz].to_numpy(), axis=1)
+    assert np.nanmax(d) <= tol_m, (np.nanmax(d), tol_m)
+    return whole, parts
+
+
+@pytest.mark.parametrize("extra", [["--method", "wls"], ["--method", "ls,wls,tls"]], ids=["wls", "ls-wls-tls"])
 def test_rtklib_0759_in_parts_is_the_whole_run(rinex_dir: Path, extra: list[str], tmp_path: Path, capsys) -> None:
     d = rinex_dir / "rtklib-0759"
     out = _same_bytes([d / "07590920.05o", d / "07590920.05n", *extra], tmp_path, capsys)
-    assert out["positions.csv"].count(b"\n") == 121  # 120 epochs and the header
+    assert out["positions.csv"].count(b"\n") == 120 * len(extra[1].split(",")) + 1  # 120 epochs per method, the header
     assert _n_parts(d / "07590920.05o", d / "07590920.05n") == 3
 
 
 def test_sample_in_parts_is_the_whole_run(tmp_path: Path, capsys) -> None:
-    _same_bytes([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "wls,stls", "--lag", "3"], tmp_path, capsys)
+    _same_bytes([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "wls,stls,dls"], tmp_path, capsys)
 
 
-@pytest.mark.parametrize("extra", [["--method", "wls,tls"], ["--method", "ls,wls,stls", "--lag", "3", "--model", "identify"],
-                                   ["--method", "stls", "--lag", "3", "--model", "pva"]], ids=["wls-tls", "stls-lag3", "pva"])
-def test_simulated_flight_with_doppler_in_parts_is_the_whole_run(flight: Path, extra: list[str], tmp_path: Path,
-                                                                 capsys) -> None:
-    out = _same_bytes([flight / "obs.rnx", flight / "nav.rnx", "--reference-csv", flight / "truth.csv", *extra],
-                      tmp_path, capsys)
+def test_simulated_flight_with_doppler_in_parts_is_the_whole_run(flight: Path, tmp_path: Path, capsys) -> None:
+    out = _same_bytes([flight / "obs.rnx", flight / "nav.rnx", "--reference-csv", flight / "truth.csv", "--method",
+                       "wls,tls"], tmp_path, capsys)
     header = out["positions.csv"].split(b"\n", 1)[0].decode().split(",")
     rows = out["positions.csv"].split(b"\n")[1:3]
     velocity = [rows[0].decode().split(",")[header.index(c)] for c in VELOCITY_COLUMNS]
     assert all(velocity), "the simulated file has Doppler: the velocity columns are filled"
     assert {"errors.csv", "satellites.csv", "summary.csv"} <= set(out)
     assert _n_parts(flight / "obs.rnx", flight / "nav.rnx") == 12
-    one = list(ChunkedRun(flight / "obs.rnx", [flight / "nav.rnx"], load_config(), CHUNK, whole_epochs=601).parts())
+    one = list(_run(flight / "obs.rnx", flight / "nav.rnx", chunk=601).parts())
     assert len(one) == 1 and one[0].epochs.time_gps_s.size == 601  # not above the threshold: whole
 
 
-def test_doppler_model_in_parts_is_the_whole_run_within_a_millimetre(flight: Path, tmp_path: Path, capsys) -> None:
-    """The default --lag 3 on a file with Doppler (model doppler) goes in overlapping pieces with
-    the whole file's variance factors: the same epochs, statuses and satellites, positions
-    within 1 mm (measured on a 2 h flight in parts of 1200: 0.7 mm at most)."""
-    import pandas as pd
-
-    args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,stls", "--lag", "3"]
-    whole = _solve(args, tmp_path / "whole", 0, capsys)
-    parts = _solve(args, tmp_path / "parts", CHUNK, capsys)
-    assert b'"model": "doppler"' in whole["models.json"] and b'"model": "doppler"' in parts["models.json"]
-    w, p = (pd.read_csv(__import__("io").BytesIO(o["positions.csv"])) for o in (whole, parts))
-    assert list(w.columns) == list(p.columns) and len(w) == len(p) == 2 * 601
-    assert (w["status"] == p["status"]).all() and (w["n_sat"] == p["n_sat"]).all()
-    np.testing.assert_array_equal(w["tow_s"], p["tow_s"])
-    d = np.linalg.norm(w[["x_m", "y_m", "z_m"]].to_numpy() - p[["x_m", "y_m", "z_m"]].to_numpy(), axis=1)
-    assert np.max(d) <= 1e-3
-    # 12 parts of 50 read; a piece is handed out once 300 epochs follow it
-    assert _n_parts(flight / "obs.rnx", flight / "nav.rnx", **{"methods": "stls", "smoothing.lag": 3}) == 7
+def test_multi_epoch_methods_in_parts_are_near_the_whole_run(flight: Path, tmp_path: Path, capsys) -> None:
+    """smoother and kf in overlapping pieces with the whole file's variance factors: within 1 mm
+    of the whole run (every epoch has 300 epochs of margin or the file's end on either side);
+    the identified STLS windows start where the piece starts, so their alignment changes: within
+    the noise, and no worse against the truth."""
+    args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,smoother,kf"]
+    _close_to_whole(args, tmp_path / "fixed", capsys, 1e-3)
+    whole, parts = _close_to_whole([flight / "obs.rnx", flight / "nav.rnx", "--method", "stls", "--lag", "3",
+                                    "--reference-csv", flight / "truth.csv"], tmp_path / "stls", capsys, 1.0)
+    rms = [float(np.sqrt(np.mean(f["err_3d_m"] ** 2))) for f in (whole, parts)]
+    assert rms[1] < 1.1 * rms[0], rms
+    # 12 parts of 50 read; a piece is handed out once 300 epochs follow it (parts 7 to 11), the
+    # rest with the last part
+    assert _n_parts(flight / "obs.rnx", flight / "nav.rnx", methods="smoother") == 6
 
 
-def test_doppler_model_with_carrier_phase_in_parts(rinex_dir: Path, tmp_path: Path, capsys) -> None:
+def test_smoother_with_carrier_phase_in_parts(rinex_dir: Path, tmp_path: Path, capsys) -> None:
     """tst2 (986 epochs, 1 Hz, L1 phase) in parts of 300: the pieces carry their phase pairs. The
     phase ties a piece's epochs rigidly, so a piece averages its pseudoranges over itself and
     its margins instead of the whole segment: positions move by up to about half a metre
     (0.56 m measured), the same epochs and statuses, and no worse against the truth."""
-    import pandas as pd
-
     d = rinex_dir / "tst2-2020155-urban-static"
-    args = [d / "2020_06_03_TST_03.obs.gz", *sorted(d.glob("hksc155d.20?")), "--method", "stls", "--lag", "3"]
-    whole = _solve(args, tmp_path / "whole", 0, capsys)
-    parts = _solve(args, tmp_path / "parts", 300, capsys)
-    w, p = (pd.read_csv(__import__("io").BytesIO(o["positions.csv"])) for o in (whole, parts))
-    assert len(w) == len(p) == 986 and (w["status"] == p["status"]).all() and (w["status"] == "ok").all()
+    args = [d / "2020_06_03_TST_03.obs.gz", *sorted(d.glob("hksc155d.20?")), "--method", "smoother"]
+    w, p = _close_to_whole(args, tmp_path, capsys, 1.0, chunk=300)
+    assert len(w) == 986 and (w["status"] == "ok").all()
     xyz = ["x_m", "y_m", "z_m"]
-    assert np.max(np.linalg.norm(w[xyz].to_numpy() - p[xyz].to_numpy(), axis=1)) < 1.0
     truth = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
     rms = [float(np.sqrt(np.mean(np.sum((f[xyz].to_numpy() - truth) ** 2, axis=1)))) for f in (w, p)]
     assert rms[1] < 1.1 * rms[0], rms
 
 
-@pytest.mark.parametrize("model", ["identify", "pva"])
-def test_segments_and_short_segments_across_parts(gapped: Path, model: str, tmp_path: Path, capsys) -> None:
-    out = _same_bytes([gapped / "obs.rnx", gapped / "nav.rnx", "--method", "stls", "--lag", "3", "--model", model],
-                      tmp_path, capsys)
-    text = out["positions.csv"].decode()
-    assert "fallback_wls" in text  # the three epochs between the second and third gap
-    assert b'"segment": 2' in out["models.json"]
+def test_segments_and_short_segments_across_parts(gapped: Path, tmp_path: Path, capsys) -> None:
+    args = [gapped / "obs.rnx", gapped / "nav.rnx", "--method", "stls", "--lag", "3"]
+    _close_to_whole(args, tmp_path, capsys, 1.0)
+    out = _solve(args, tmp_path / "again", CHUNK, capsys)
+    assert "fallback_wls" in out["positions.csv"].decode()  # the three epochs between the second and third gap
+    assert b'"segment": 2' in out["models.json"] and b'"method": "stls"' in out["models.json"]
 
 
 def test_a_system_unusable_all_through_is_dropped_and_the_parts_restart(flight: Path, tmp_path: Path, capsys) -> None:
     galileo = sorted({s for s in read_obs(flight / "obs.rnx")["sv"].values.astype(str) if s.startswith("E")})
-    args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,stls", "--lag", "3", "--model", "identify",
-            "--exclude", ",".join(galileo)]
+    args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,tls", "--exclude", ",".join(galileo)]
     out = _same_bytes(args, tmp_path, capsys)
     assert b"tdop_E" not in out["positions.csv"]  # one clock: the Galileo clock column is gone
-    cfg = load_config(None, {"exclude": galileo})
-    parts = list(ChunkedRun(flight / "obs.rnx", [flight / "nav.rnx"], cfg, CHUNK).parts())
+    parts = list(_run(flight / "obs.rnx", flight / "nav.rnx", exclude=galileo).parts())
     assert sum(p is RESTART for p in parts) == 1
     after = parts[parts.index(RESTART) + 1:]
     assert all(p.epochs.systems == ("G",) for p in after)
-
-
-def test_kf_and_whole_segment_windows_need_the_whole_file() -> None:
-    assert not streamable(load_config(None, {"methods": "wls,kf"}))
-    assert not streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3, "smoothing.window": 0}))
-    assert streamable(load_config(None, {"methods": "stls", "smoothing.lag": 3}))
-    # the static model's window ladder starts with the whole segment; a fixed length streams
-    static = {"methods": "stls", "smoothing.lag": 1, "smoothing.model": "static"}
-    assert not streamable(load_config(None, static))
-    assert streamable(load_config(None, {**static, "smoothing.window": 15}))
+    one = list(_run(flight / "obs.rnx", flight / "nav.rnx", chunk=0, exclude=galileo, methods="wls,smoother").parts())
+    assert one.count(RESTART) == 1 and one[-1].epochs.systems == ("G",)  # a file of one part restarts too
 
 
 def _concat_equal(path: Path, codes: list[str]) -> int:

@@ -1,31 +1,35 @@
-"""The run of a long observation file in parts of at most N epochs, in bounded memory.
+"""The run of ``gnss-solve``: one path for every observation file and every method.
 
-:class:`ChunkedRun` gives the rows of :func:`~gnss_cli.pipeline.processing.process` part by
-part, equal to the whole file's run: every part is solved on the whole file's satellite axis
-and clock columns (the numbers of a least-squares solve depend, at the last bit, on the size
-of its arrays), and the behavioral smoothing (``--lag``) runs over the parts with the whole
-file's schedule (:class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`); the doppler model
-(the default ``auto`` on a file with Doppler) runs in overlapping pieces whose middles equal
-the whole segment's solution to well below a millimetre, not bit for bit
-(:class:`~gnss_cli.pipeline.doppler_stream.DopplerStreamSmoother`).
+:class:`Run` hands out the rows of a run part by part; :func:`process` joins them into one
+:class:`~gnss_cli.pipeline.results.RunResult` (the Python API). A file of at most
+``stream_above_epochs`` epochs is one part; a longer one is read and solved in parts of
+``chunk_epochs`` epochs, so that memory stays that of a part whatever the file's length.
 
-The file is read twice: a first pass collects what the whole file decides (its satellites
-with a pseudorange, its systems, its epoch times for the segments' nominal step), the second
-reads, solves and hands out the parts. A file of one part is read once and run as a whole,
-or, with snapshot methods only and epochs enough (a day at 30 s), cut in one part per core:
-the parts are read (:func:`~gnss_cli.io.obs_chunks.split_obs`) and solved at once in processes
-forked from this one (:class:`~gnss_cli.parallel.Forked`), which send back their survey,
-receive the whole file's axes, and hand back their parts' finished tables; the rows are those
-of one process, bit for bit, as every part's are.
-The clock columns are the systems with a usable observation; a system that has pseudoranges
-and broadcast records but turns out unusable all through the file (every satellite excluded,
-masked or unhealthy) is only known at the end: the parts are then handed out again from the
-start (:data:`RESTART`), without it.
+Every part is solved on the whole file's satellite axis and clock columns (the numbers of a
+least-squares solve depend, at the last bit, on the size of its arrays), so the single-epoch
+rows of a part are those of the whole file at once, bit for bit. The file is then read twice:
+a first pass collects what the whole file decides (its satellites with a pseudorange, its
+systems, its epoch times), the second reads, solves and hands out the parts. The clock columns
+are the systems with a usable observation; a system that has pseudoranges and broadcast
+records but turns out unusable all through the file (every satellite excluded, masked or
+unhealthy) is only known at the end: the parts are then handed out again from the start
+(:data:`RESTART`), without it.
 
-Methods that need the whole file at once are run as a whole: ``kf`` (the RTS smoother runs
-backwards over the file), ``--model kinematic`` smoothing, windows of a whole segment
-(``window = 0``) and windows chosen from the data (``window = "auto"`` with ``--model static``:
-the ladder starts with the whole segment): :func:`streamable`.
+The multi-epoch methods (``stls`` with ``lag >= 1``, ``smoother``, ``kf``) run on the parts'
+WLS solutions in overlapping pieces (:class:`MultiEpoch`): each piece is the epochs not yet
+handed out plus :data:`MARGIN_EPOCHS` epochs on either side, and only its middle is handed out.
+A file of one part is one piece: the whole file at once. In a longer file an epoch's estimate
+differs from the whole file's only through observations more than a margin away, whose pull
+fades with the distance (carrier-phase differences tie a piece rigidly: there the pseudoranges
+of a piece are averaged over the piece instead of the whole segment; tst2 in parts of 300
+epochs: up to 0.56 m from the whole run); the variance factors of the measurement kinds are the
+whole file's, from a pass of WLS through the parts before the first piece.
+
+A file of one part with single-epoch methods only and epochs enough (a day at 30 s) is cut in
+one part per core: the parts are read (:func:`~gnss_cli.io.obs_chunks.split_obs`) and solved
+at once in processes forked from this one (:class:`~gnss_cli.parallel.Forked`), which send
+back their survey, receive the whole file's axes and hand back their parts' finished tables;
+the rows are those of one process, bit for bit.
 """
 
 from __future__ import annotations
@@ -46,19 +50,23 @@ from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
     Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, used_systems,
 )
-from gnss_cli.pipeline.processing import process, with_velocity
-from gnss_cli.pipeline.doppler_stream import DopplerStreamSmoother
 from gnss_cli.pipeline.memory import map_large_blocks, release_memory
-from gnss_cli.pipeline.results import EpochData, EpochStatus, Progress, RunResult
-from gnss_cli.pipeline.smoothing_stream import StreamSmoother
+from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
+from gnss_cli.pipeline.results import (
+    EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
+)
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts, status_summary
+from gnss_cli.pipeline.velocity import with_velocity
 
-__all__ = ["ChunkedRun", "PART_MIN_EPOCHS", "RESTART", "streamable"]
+__all__ = ["Run", "MultiEpoch", "process", "PART_MIN_EPOCHS", "MARGIN_EPOCHS", "RESTART"]
 
 PART_MIN_EPOCHS = 500
 """A file of one part is split into one part per process only where every part keeps at least
 this many epochs (a day at 30 s: two parts on two cores; an hour at 30 s: one process)."""
+MARGIN_EPOCHS = 300
+"""Epochs a piece of the multi-epoch methods solves on either side of those it hands out (5 min at 1 Hz)."""
+
 
 class _Restart:
     def __repr__(self) -> str:
@@ -66,29 +74,85 @@ class _Restart:
 
 
 RESTART = _Restart()
-"""Yielded by :meth:`ChunkedRun.parts` when the parts handed out so far are void and follow again from the start."""
+"""Yielded by :meth:`Run.parts` when the parts handed out so far are void and follow again from the start."""
 
 
-def streamable(config: ProcessingConfig) -> bool:
-    """Whether :class:`ChunkedRun` can run ``config`` part by part (else the run needs the whole file)."""
-    if "kf" in config.methods:
-        return False
-    lag = config.smoothing
-    return lag.lag == 0 or (lag.model != "kinematic" and not lag.window_ladder and lag.window_epochs > 0)
+def process(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
+            progress: Progress | None = None) -> RunResult:
+    """Read, validate and solve every epoch with every configured method: :class:`Run`'s parts joined.
+
+    Returns
+    -------
+    RunResult
+        Every epoch of the file, one solution per method of ``config.methods`` (in that order),
+        the window models of the multi-epoch methods, each method's resolved settings and the
+        run's warnings (``RunResult.warnings``).
+
+    Raises
+    ------
+    InputError
+        Bad input files.
+    NoSolutionError
+        No epoch could be solved by any method.
+    """
+    run = Run(obs_path, nav_paths, config, progress)
+    parts: list[RunResult] = []
+    for part in run.parts():
+        if part is RESTART:
+            parts.clear()
+        else:
+            parts.append(part)
+    result = concat_results(parts)
+    return replace(result, epochs=replace(result.epochs, warnings=run.warnings))
 
 
-def _smoother(config: ProcessingConfig, has_doppler: bool, nominal_step_s: float,
-              factors: tuple[float, ...] | None) -> StreamSmoother | DopplerStreamSmoother:
-    """The smoother of the parts: the doppler model in overlapping pieces with the whole file's
-    variance ``factors``, the window models exactly."""
-    config = replace(config, smoothing=config.smoothing.resolved(has_doppler and config.kalman.doppler))
-    if config.smoothing.model == "doppler":
-        return DopplerStreamSmoother(config, factors=factors)
-    return StreamSmoother(config, nominal_step_s)
+class MultiEpoch:
+    """The multi-epoch methods of ``config`` over the parts of a file, in overlapping pieces.
+
+    :meth:`push` takes the next part (its single-epoch solutions, WLS among them) and returns
+    the epochs now final with every method of ``config.methods``, or None while a piece is
+    still incomplete. ``factors``: the whole file's variance factors of the measurement kinds
+    (None: each piece estimates its own, which for a file of one piece is the whole file's).
+    """
+
+    def __init__(self, config: ProcessingConfig, factors: tuple[float, ...] | None = None,
+                 margin_epochs: int = MARGIN_EPOCHS) -> None:
+        self.config = config
+        self.factors = factors
+        self.margin = int(margin_epochs)
+        self.kept: RunResult | None = None
+        self.pending = 0  # index in ``kept`` of the first epoch not yet handed out
+
+    def push(self, part: RunResult | None, last: bool = False) -> RunResult | None:
+        """Add ``part`` (None: nothing more) and return the epochs now final, or None.
+        ``last``: the file ends with this part."""
+        if part is None and self.kept is None:
+            return None
+        buf = self.kept if part is None else part if self.kept is None else concat_results([self.kept, part])
+        del part
+        T = buf.epochs.time_gps_s.size
+        end = T if last else T - self.margin  # epochs [pending, end) are handed out now
+        if end <= self.pending:
+            self.kept = buf
+            return None
+        start = self.pending
+        out = take_result(buf, slice(start, end))
+        solutions = dict(out.solutions)
+        models = []
+        t = buf.epochs.time_gps_s
+        first, final = (t[start], t[end - 1]) if end > start else (np.inf, -np.inf)
+        for m in self.config.multi_epoch_methods:
+            sol, found = solve_multi_epoch(m, buf.epochs, buf.solutions["wls"], self.config, self.factors)
+            solutions[m] = take_solution(sol, slice(start, end))
+            models += [w for w in found if first <= w.start_time_gps_s <= final]  # each window once
+        keep_from = max(0, end - self.margin)
+        self.kept = None if last else take_result(buf, slice(keep_from, None), copy=True)
+        self.pending = end - keep_from
+        return replace(out, solutions={m: solutions[m] for m in self.config.methods}, models=tuple(models))
 
 
 class _Survey:
-    """What the whole observation file decides: satellites, systems, epoch times, parts."""
+    """What the whole observation file decides: satellites, systems, epoch times."""
 
     def __init__(self) -> None:
         self.obs_sv: set[str] = set()
@@ -121,40 +185,37 @@ class _Survey:
             self.times += other.times
 
 
-class ChunkedRun:
-    """``process(obs_path, nav_paths, config)`` in parts of at most ``chunk_epochs`` epochs;
-    a file of at most ``whole_epochs`` epochs (default ``chunk_epochs``) is run whole.
+class Run:
+    """The run of one observation file with ``config``, handed out part by part (module docstring).
 
-    Iterate :meth:`parts`: each item is a :class:`RunResult` of consecutive epochs (the
-    smoothing's window models finished with them in ``models``), or :data:`RESTART`. After
-    the iteration :attr:`warnings` holds the run's warnings (the parts carry none).
+    Iterate :meth:`parts`: each item is a :class:`~gnss_cli.pipeline.results.RunResult` of
+    consecutive epochs with every method of ``config.methods`` (the window models finished
+    with them in ``models``, each method's settings in ``settings``), or :data:`RESTART`.
+    After the iteration :attr:`warnings` holds the run's warnings (the parts carry none).
 
-    Raises (during the iteration) what :func:`~gnss_cli.pipeline.processing.process` raises.
+    ``config.chunk_epochs`` (0: the whole file at once) and ``config.stream_above_epochs`` set the
+    parts; ``config.processes`` the processes of a file of one part (single-epoch methods).
+
+    Raises (during the iteration) :class:`~gnss_cli.errors.InputError` for bad input files and
+    :class:`~gnss_cli.errors.NoSolutionError` when no epoch could be solved by any method.
     """
 
     def __init__(self, obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
-                 chunk_epochs: int, progress: Progress | None = None, whole_epochs: int | None = None,
-                 processes: int = 1) -> None:
-        if not streamable(config):
-            raise ValueError("ChunkedRun: this configuration needs the whole file (see streamable)")
+                 progress: Progress | None = None) -> None:
         self.obs_path, self.nav_paths, self.config = obs_path, list(nav_paths), config
-        self.chunk_epochs = int(chunk_epochs)
-        self.whole_epochs = max(int(whole_epochs if whole_epochs is not None else chunk_epochs), 1)
+        whole = 1 << 62 if config.chunk_epochs == 0 else max(config.stream_above_epochs, config.chunk_epochs)
+        self.chunk_epochs = config.chunk_epochs or whole
+        self.whole_epochs = max(whole, 1)
         self.progress = progress
-        self.processes = int(processes)
+        self.processes = int(config.processes)
         self.warnings: tuple[str, ...] = ()
         self._notes: list[str] = []  # warnings of the run itself (a process refused)
 
     def parts(self, finish: Callable[[RunResult], Any] | None = None) -> Iterator[Any]:
         """The parts in order (each ``finish(part)`` when ``finish`` is given), or :data:`RESTART`.
 
-        A file of one part whose epochs make at least two parts of :data:`PART_MIN_EPOCHS` is
-        cut in ``processes`` parts (``0``: one per core; ``1``: never) when only snapshot methods
-        run: the parts are solved and ``finish``-ed at once in forked processes
-        (:class:`~gnss_cli.parallel.Forked`), the first in this one, and handed out in order.
-        Their rows are those of the whole file at once, bit for bit, as every part's are.
-        ``finish`` runs where the part is solved (its value, not the part, comes back from a
-        forked process, pickled): it must return something that pickles.
+        ``finish`` runs where the part is solved (in a forked process its value, not the part,
+        comes back, pickled): it must return something that pickles.
         """
         finish = finish if finish is not None else _same
         setup = signal_setup(self.obs_path, self.nav_paths, self.config)
@@ -173,16 +234,16 @@ class ChunkedRun:
         second = next(chunks, None)
         if second is None:  # one part: the whole file
             workers = self._workers(held[0].sizes["time"])
-            if workers > 1:
-                pieces = split_epochs(held.pop(), workers)
-                survey = _Survey()
-                for piece in pieces:
-                    survey.add(piece, setup)
-                yield from self._solve(setup, survey, finish, pieces)
-                return
-            result = process(self.obs_path, self.nav_paths, self.config, self.progress, obs=held)
-            self.warnings = result.warnings
-            yield finish(result)
+            pieces = split_epochs(held.pop(), workers) if workers > 1 else held
+            survey = _Survey()
+            for piece in pieces:
+                survey.add(piece, setup)
+
+            def reread() -> list[xr.Dataset]:  # a restart (rare): the file read again
+                whole = next(iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs))
+                return split_epochs(whole, workers) if workers > 1 else [whole]
+
+            yield from self._solve(setup, survey, finish, pieces, reparse=reread)
             return
         map_large_blocks()
         survey = _Survey()
@@ -204,9 +265,10 @@ class ChunkedRun:
         children = fork_all([partial(self._part_worker, split, k, setup, finish) for k in range(1, len(split))], talk=True)
         if isinstance(children, OSError):  # no process to be had: the parts one after the other, here
             self._refused(children)
-            pieces = [split.parse(k) for k in range(len(split))]
-            survey = _whole_survey(split, [_Survey.of(ds, setup) for ds in pieces])
-            yield from self._solve(setup, survey, finish, [ds for ds in pieces if ds is not None])
+            parsed = [split.parse(k) for k in range(len(split))]
+            survey = _whole_survey(split, [_Survey.of(ds, setup) for ds in parsed])
+            yield from self._solve(setup, survey, finish, [ds for ds in parsed if ds is not None],
+                                   reparse=lambda: [ds for ds in map(split.parse, range(len(split))) if ds is not None])
             return
         try:
             first = split.parse(0)
@@ -252,9 +314,7 @@ class ChunkedRun:
                 continue
             out, part_cov, part_counts = outcome
             cov = part_cov if cov is None else cov.merge(part_cov)
-            for m, c in part_counts.items():
-                for w, n in c.items():
-                    counts.setdefault(m, {})[w] = counts.get(m, {}).get(w, 0) + n
+            _add_counts(counts, part_counts)
             if self.progress:
                 self.progress(f"part {k + 1} of {len(outcomes)} solved", (k + 1) / len(outcomes))
             yield out
@@ -271,7 +331,7 @@ class ChunkedRun:
         """Processes for a file of one part of ``n_epochs`` epochs (1: this one alone)."""
         from gnss_cli.parallel import can_fork, cores
 
-        if self.processes == 1 or self.config.smoothing.lag or not can_fork():
+        if self.processes == 1 or self.config.multi_epoch_methods or not can_fork():
             return 1
         wanted = self.processes if self.processes > 0 else cores()
         return max(1, min(wanted, n_epochs // PART_MIN_EPOCHS))
@@ -296,30 +356,30 @@ class ChunkedRun:
                pieces: list[xr.Dataset] | None = None, first_pass: Callable[..., Any] | None = None,
                reparse: Callable[[], list[xr.Dataset]] | None = None) -> Iterator[Any]:
         """Solve and hand out the parts on the whole file's axes, again from the start (after
-        :data:`RESTART`) while the systems in use change. ``first_pass(systems, sv, used)``: the
-        first pass when the parts are already being read elsewhere (:meth:`_run_split`), and
-        ``reparse()`` their datasets for a second pass."""
+        :data:`RESTART`) while the systems in use change. ``pieces``: the file's datasets already
+        read (else the parts are read from the file), taken out of the list as they are solved
+        in this process; ``first_pass(systems, sv, used)``: the first pass when the parts are
+        already being read elsewhere (:meth:`_run_split`); ``reparse()``: the datasets again for
+        another pass."""
         systems, sv = self._axes(setup, survey)
-        t = np.concatenate(survey.times)
-        dt = np.diff(t)
-        nominal = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
         sys_of = np.array([s[0] for s in sv])
         used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
+        n_epochs = int(sum(t.size for t in survey.times))
         while True:
-            factors = self._doppler_factors(setup, systems, sv, used, t.size, pieces)
             if first_pass is not None:
                 cov, counts = yield from first_pass(systems, sv, used)
                 first_pass = None
             elif pieces is not None and len(pieces) > 1 and self.processes != 1:
                 cov, counts = yield from self._pass_forked(setup, systems, sv, used, finish, pieces)
             else:
-                cov, counts = yield from self._pass(setup, systems, sv, used, nominal, t.size, finish, factors, pieces)
+                factors = self._variance_factors(setup, systems, sv, used, n_epochs) if pieces is None else None
+                cov, counts = yield from self._pass(setup, systems, sv, used, n_epochs, finish, factors, pieces)
             warnings = file_warnings(setup, sv, systems, cov)
             actual = used_systems(sv, systems, cov)
             if actual == used:
                 break
             used = actual
-            if pieces is None and reparse is not None:
+            if reparse is not None:
                 pieces = reparse()
             yield RESTART
         if not any(c.get(EpochStatus.OK.value, 0) for c in counts.values()):
@@ -327,19 +387,24 @@ class ChunkedRun:
         self.warnings = tuple(warnings) + tuple(self._notes)
 
     def _epochs(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
-                pieces: list[xr.Dataset] | None = None) -> Iterator[tuple[EpochData, Coverage]]:
-        """The parts' epochs on the whole file's satellite axis, and each part's coverage (the
-        parts read from the file, or ``pieces`` of it already read)."""
-        source = pieces if pieces is not None else iter_obs_chunks(self.obs_path, setup.systems, setup.codes,
-                                                                   self.chunk_epochs)
-        for obs in source:
-            yield part_epochs(obs, setup, systems, sv, used)
+                pieces: list[xr.Dataset] | None = None) -> Iterator[tuple[EpochData, Coverage, bool]]:
+        """The parts' epochs on the whole file's satellite axis, each part's coverage, and whether
+        it is the last part (the parts read from the file, or ``pieces`` of it already read, taken
+        out of that list so that each dataset is freed once its epochs are built)."""
+        source = _taken(pieces) if pieces is not None else \
+            iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.chunk_epochs)
+        obs = next(source, None)
+        while obs is not None:
+            after = next(source, None)  # a dataset ahead (not yet its epochs): is this part the last?
+            data, part_cov = part_epochs(obs, setup, systems, sv, used)
             del obs
+            yield data, part_cov, after is None
+            obs = after
 
     def _pass_forked(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
                      finish: Callable[[RunResult], Any], pieces: list[xr.Dataset]):  # type: ignore[no-untyped-def]
-        """:meth:`_pass` of snapshot methods with the ``pieces`` solved at once: every piece but the
-        first in a forked process, the first here; returns the coverage and the status counts."""
+        """:meth:`_pass` of single-epoch methods with the ``pieces`` solved at once: every piece but
+        the first in a forked process, the first here; returns the coverage and the status counts."""
         from gnss_cli.parallel import fork_all
 
         if self.progress:
@@ -357,64 +422,63 @@ class ChunkedRun:
                 if hasattr(child, "cancel"):
                     child.cancel()
 
-    def _doppler_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
-                         n_epochs: int, pieces: list[xr.Dataset] | None = None) -> tuple[float, ...] | None:
-        """The whole file's variance factors of the doppler smoothing model (a pass of WLS over the
-        parts), so that every piece weighs as the whole file would; None for another model."""
+    def _variance_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
+                          n_epochs: int) -> tuple[float, ...] | None:
+        """The whole file's variance factors of the measurement kinds (a pass of WLS over the
+        parts), so that every piece of ``smoother`` weighs as the whole file would; None when
+        no method needs them."""
         config = self.config
-        if not config.smoothing.lag or config.smoothing.model not in ("auto", "doppler"):
+        if "smoother" not in config.multi_epoch_methods:
             return None
         from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
 
         totals = np.zeros(6)  # misfit and degrees of freedom: pseudoranges, range rates, phase pairs
         done = 0
         wls_only = replace(config, methods=("wls",))
-        for k, (data, _) in enumerate(self._epochs(setup, systems, sv, used, pieces)):
-            if k == 0 and config.smoothing.resolved(data.range_rate_m_s is not None and config.kalman.doppler).model != "doppler":
-                return None
+        for k, (data, _, _) in enumerate(self._epochs(setup, systems, sv, used)):
             if self.progress:
-                self.progress(f"part {k + 1}: weighing pseudoranges and range rates", done / max(n_epochs, 1))
+                self.progress(f"part {k + 1}: weighing the measurements", done / max(n_epochs, 1))
             totals += free_misfit_totals(data, solve_methods(data, wls_only)["wls"], config)
             done += data.time_gps_s.size
             del data
             release_memory()
         return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
 
-    def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], nominal: float,
-              n_epochs: int, finish: Callable[[RunResult], Any], factors: tuple[float, ...] | None = None,
+    def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], n_epochs: int,
+              finish: Callable[[RunResult], Any], factors: tuple[float, ...] | None = None,
               pieces: list[xr.Dataset] | None = None):  # type: ignore[no-untyped-def]
         """One pass of reading, solving and handing out; returns the coverage and the status counts."""
         config = self.config
-        lag = config.smoothing.lag
-        others = tuple(m for m in config.methods if m != "stls") if lag else config.methods
-        snapshot = replace(config, methods=others + (() if "wls" in others or not lag else ("wls",)))
-        smoother: StreamSmoother | DopplerStreamSmoother | None = None
+        snapshot = snapshot_config(config)
+        multi = MultiEpoch(config, factors) if config.multi_epoch_methods else None
         cov: Coverage | None = None
         counts: dict[str, dict[str, int]] = {}
         done = 0
-        for k, (data, part_cov) in enumerate(self._epochs(setup, systems, sv, used, pieces)):
+        for k, (data, part_cov, last) in enumerate(self._epochs(setup, systems, sv, used, pieces)):
             cov = part_cov if cov is None else cov.merge(part_cov)
             if self.progress:
-                self.progress(f"part {k + 1}: solving", done / max(n_epochs, 1))
+                self.progress(f"part {k + 1}: solving" if pieces is None else "solving", done / max(n_epochs, 1))
             solutions = solve_methods(data, snapshot)
-            for m, c in status_counts(solutions).items():
-                for w, n in c.items():
-                    counts.setdefault(m, {})[w] = counts.get(m, {}).get(w, 0) + n
+            _add_counts(counts, status_counts(solutions))
             done += data.time_gps_s.size
-            if lag and smoother is None:  # the model "auto" resolves on the file's Doppler
-                smoother = _smoother(config, data.range_rate_m_s is not None, nominal, factors)
-            parts = [RunResult(data, solutions)]
+            part = RunResult(data, solutions)
             del data, solutions
-            out = smoother.push(parts) if smoother is not None else parts.pop()
+            if multi is not None and self.progress:
+                self.progress(f"{', '.join(config.multi_epoch_methods)}: solving", done / max(n_epochs, 1))
+            out = multi.push(part, last) if multi is not None else part
+            del part
             if out is not None:
-                yield finish(with_velocity(out, config))
+                yield finish(with_velocity(with_settings(out, config), config))
             del out  # before the next part is read: one part in memory at a time
             release_memory()
-        out = smoother.push([], last=True) if smoother is not None else None  # the last segment ends
-        if out is not None:
-            yield finish(with_velocity(out, config))
         assert cov is not None
         return cov, counts
+
+
+def _add_counts(counts: dict[str, dict[str, int]], more: dict[str, dict[str, int]]) -> None:
+    for m, c in more.items():
+        for w, n in c.items():
+            counts.setdefault(m, {})[w] = counts.get(m, {}).get(w, 0) + n
 
 
 def _whole_survey(split: ObsRuns, surveys: list[_Survey | None]) -> _Survey:
@@ -425,6 +489,12 @@ def _whole_survey(split: ObsRuns, surveys: list[_Survey | None]) -> _Survey:
     for part_survey in surveys:
         survey.merge(part_survey)
     return survey
+
+
+def _taken(items: list[Any]) -> Iterator[Any]:
+    """The items of ``items``, each taken out of the list as it is handed out."""
+    while items:
+        yield items.pop(0)
 
 
 def _same(part: RunResult) -> RunResult:

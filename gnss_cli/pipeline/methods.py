@@ -1,0 +1,139 @@
+"""What each method of a run computes, resolved from the configuration and the file's measurements.
+
+One vocabulary (DESIGN.md section 6), written into ``summary.csv``, the report, ``--model-out``
+and the closing stderr lines, so that a number can always be traced to the estimator behind it:
+
+========  ==============================================================================
+method    estimator
+========  ==============================================================================
+ls ...    the single-epoch family (``ls wls tls dls mtls wtls``, and ``stls`` with lag 0)
+stls      with ``[stls] lag >= 1``: the paper's identified Hankel STLS -- a kernel identified
+          from the WLS fixes by weighted Hankel STLS in sliding windows, the fixes projected
+          onto its behavior
+smoother  a batch least-squares smoother of whole segments in the measurement domain with
+          a fixed motion model (``[smoother] motion``)
+kf        an extended Kalman filter with a Rauch-Tung-Striebel smoother (``[kalman]``)
+========  ==============================================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+
+from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
+from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel
+
+__all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "snapshot_config",
+           "solve_multi_epoch", "SINGLE_EPOCH_ESTIMATORS"]
+
+SINGLE_EPOCH_ESTIMATORS = {
+    "ls": "least squares", "wls": "weighted least squares", "tls": "total least squares",
+    "dls": "data least squares", "mtls": "mixed LS-TLS", "stls": "structured TLS", "wtls": "weighted TLS",
+}
+"""The estimator of each single-epoch method key (one epoch at a time)."""
+
+
+@dataclass(frozen=True)
+class MethodSettings:
+    """The resolved settings of one method of a run (strings, as written to the tables).
+
+    Attributes
+    ----------
+    method : the method key (``--method``).
+    estimator : what computes the rows, in words.
+    model : motion model or kernel (``motion cv``, ``kernel shared r(z) I3``); empty for single epochs.
+    lag : the kernel's or quadrature rule's lag (epochs), empty where none.
+    window : ``1 epoch``, ``15 epochs`` or ``whole segments``.
+    measurements : the measurement kinds used, ``+``-joined (``pseudorange+doppler``).
+    integrity : how the rows are tested (``fde``, ``check``, ``gate``, ``off``, ...).
+    """
+
+    method: str
+    estimator: str
+    model: str
+    lag: str
+    window: str
+    measurements: str
+    integrity: str
+
+    def to_dict(self) -> dict[str, str]:
+        return asdict(self)
+
+    def line(self) -> str:
+        """One line for stderr: ``estimator (model, lag L, window, measurements; integrity)``."""
+        parts = [p for p in (self.model, f"lag {self.lag}" if self.lag else "", self.window, self.measurements) if p]
+        return f"{self.estimator} ({', '.join(parts)}; integrity {self.integrity})"
+
+
+def resolved_measurements(config: ProcessingConfig, has_doppler: bool, has_phase: bool) -> tuple[str, ...]:
+    """The measurement kinds the multi-epoch methods use: ``config.measurements`` (empty: every
+    kind) among those the observation file has; the phase needs the Doppler's wavelengths."""
+    present = {"pseudorange": True, "doppler": has_doppler, "phase": has_phase}
+    return tuple(k for k in MEASUREMENT_KINDS if present[k] and config.uses(k))
+
+
+def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool) -> dict[str, MethodSettings]:
+    """The :class:`MethodSettings` of every method of ``config.methods`` for a file with (or
+    without) Doppler and carrier phase."""
+    kinds = "+".join(resolved_measurements(config, has_doppler, has_phase))
+    snapshot_integrity = config.integrity + (f", robust {config.robust}" if config.robust != "off" else "")
+    tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
+    out: dict[str, MethodSettings] = {}
+    for m in config.methods:
+        if m == "stls" and config.stls.lag > 0:
+            s = config.stls
+            kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
+            window = f"{s.window} epochs" if s.window else "whole segments"
+            out[m] = MethodSettings(m, "identified Hankel STLS", f"{kernel} identified per window", str(s.lag), window,
+                                    "pseudorange (WLS fixes)", tested)
+        elif m == "smoother":
+            motion = config.smoother.motion
+            lag = str(config.smoother.lag) if motion == "quadrature" else ""
+            out[m] = MethodSettings(m, "fixed-model batch smoother", f"motion {motion}", lag, "whole segments", kinds,
+                                    "off" if config.integrity == "off" else "residual gate")
+        elif m == "kf":
+            k = config.kalman
+            estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
+            gate = f"innovation gate {k.innovation_gate:g} sigma" if k.innovation_gate > 0 else "off"
+            out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds, gate)
+        else:
+            integrity = snapshot_integrity if m in ("ls", "wls") else tested
+            out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
+                                    "pseudorange", integrity)
+    return out
+
+
+def with_settings(result: RunResult, config: ProcessingConfig) -> RunResult:
+    """``result`` with the resolved settings of each of its methods (:func:`method_settings`)."""
+    epochs = result.epochs
+    settings = method_settings(config, epochs.range_rate_m_s is not None, epochs.phase_m is not None)
+    return replace(result, settings={m: settings[m] for m in result.solutions if m in settings})
+
+
+def snapshot_config(config: ProcessingConfig) -> ProcessingConfig:
+    """``config`` with its single-epoch methods only, and WLS when a multi-epoch method needs it."""
+    multi = config.multi_epoch_methods
+    methods = tuple(m for m in config.methods if m not in multi)
+    if multi and "wls" not in methods:
+        methods += ("wls",)
+    return replace(config, methods=methods)
+
+
+def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config: ProcessingConfig,
+                      factors: tuple[float, ...] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+    """One multi-epoch method over the epochs ``data``, from their ``wls`` solution: its rows and
+    its window models. ``factors``: the variance factors of the measurement kinds when they were
+    estimated on the whole file (a file solved in pieces), else they are estimated on ``data``."""
+    if method == "stls":
+        from gnss_cli.pipeline.smoothing import smooth
+
+        return smooth(data, wls, config)
+    if method == "smoother":
+        from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
+
+        return doppler_smooth(data, wls, config, method="smoother", factors=factors)
+    if method == "kf":
+        from gnss_cli.pipeline.kalman import run_kalman
+
+        return run_kalman(data, wls, config), ()
+    raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
