@@ -39,7 +39,7 @@ from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario  
 
 SEEDS = (11, 12, 13, 14, 15)
 RINEX = REPO.parent / "shared" / "rinex"
-VARIANTS = {"kf": {}, "kf (no smoother)": {"kalman.smoother": "none"}, "kf (no Doppler)": {"kalman.doppler": False}}
+VARIANTS = {"kf": {}, "kf (filtered)": {"kalman.output": "filtered"}, "kf (no Doppler)": {"measurements": "pseudorange"}}
 
 
 def simulate(out: Path, errors: str, seed: int, duration_s: float = 600.0) -> Path:

@@ -30,7 +30,7 @@ app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTI
 
 @app.command()
 def solve(
-    files: list[Path] = typer.Argument(..., help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
+    files: Optional[list[Path]] = typer.Argument(None, help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
     method: Method = None,
     systems: Systems = None,
     iono: Iono = None,
@@ -76,7 +76,7 @@ def solve(
 
         sys.stdout.write(config_toml(run_config(config, values)))
         return
-    if len(files) < 2:
+    if not files or len(files) < 2:
         raise UsageError("expected OBS NAV [NAV ...]: an observation file and at least one navigation file")
     from gnss_cli.io.compression import prefetch
 

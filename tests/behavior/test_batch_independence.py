@@ -1,7 +1,7 @@
 """A window's batched STLS fit does not depend on the other windows of its batch, to the bit.
 
-A long file solved in parts batches its smoothing windows differently than the whole file
-(:mod:`gnss_cli.pipeline.smoothing_stream`), and the descent shrinks its batch to the windows
+A window's batch depends on the length of the segment it is cut from (a piece of a long file
+holds fewer windows than the whole file), and the descent shrinks its batch to the windows
 still active, down to one. numpy sums in another order over an axis of length one (einsum)
 and BLAS rounds a row of a matrix product differently with the number of rows, so the
 batched code avoids both (:func:`gnss_cli.behavior.batch_projection.einsum_windows`).

@@ -14,11 +14,12 @@ from gnss_cli.config import load_config, packaged_defaults
 SOLVE_KEYS = {
     "--method": ("processing", "methods"), "--systems": ("processing", "systems"), "--iono": ("processing", "iono"),
     "--tropo": ("processing", "tropo"), "--elevation-mask": ("processing", "elevation_mask_deg"),
-    "--lag": ("smoothing", "lag"), "--model": ("smoothing", "model"), "--kernel": ("smoothing", "kernel"),
-    "--order": ("smoothing", "order"), "--window": ("smoothing", "window"), "--time-system": ("processing", "time_system"),
+    "--kernel": ("stls", "kernel"), "--order": ("stls", "order"), "--window": ("stls", "window"),
+    "--motion": ("smoother", "motion"), "--measurements": ("processing", "measurements"),
+    "--time-system": ("processing", "time_system"),
     "--integrity": ("processing", "integrity"), "--snr-mask": ("processing", "snr_mask_dbhz"),
     "--robust": ("processing", "robust"),
-    "--kf-model": ("kalman", "model"), "--smoother": ("kalman", "smoother"),
+    "--kf-model": ("kalman", "model"), "--kf-output": ("kalman", "output"),
 }
 SIMULATE_KEYS = {
     "--trajectory": ("simulate", "trajectory"), "--duration": ("simulate", "duration_s"),
@@ -43,6 +44,9 @@ def test_solve_flags_defer_to_the_packaged_configuration() -> None:
         param = options[flag]
         assert param.default is None, flag  # type: ignore[attr-defined]
         assert param.show_default == _as_flag(toml[table][key]), flag  # type: ignore[attr-defined]
+    lag = options["--lag"]  # one flag for two keys: stls.lag and smoother.lag
+    assert lag.default is None  # type: ignore[attr-defined]
+    assert lag.show_default == f"stls {toml['stls']['lag']}, smoother {toml['smoother']['lag']}"  # type: ignore[attr-defined]
 
 
 def test_packaged_values_are_what_a_run_uses() -> None:
@@ -50,8 +54,10 @@ def test_packaged_values_are_what_a_run_uses() -> None:
     assert cfg.methods == tuple(toml["processing"]["methods"])
     assert cfg.elevation_mask_deg == toml["processing"]["elevation_mask_deg"]
     assert cfg.iono == toml["processing"]["iono"] and cfg.tropo == toml["processing"]["tropo"]
-    for key in ("lag", "model", "kernel", "order", "window", "tolerance", "max_iterations"):
-        assert getattr(cfg.smoothing, key) == toml["smoothing"][key], key
+    for key in ("lag", "kernel", "order", "window", "tolerance", "max_iterations"):
+        assert getattr(cfg.stls, key) == toml["stls"][key], key
+    for key in ("motion", "lag"):
+        assert getattr(cfg.smoother, key) == toml["smoother"][key], key
     assert cfg.doppler_sigma_m_s == toml["processing"]["doppler_sigma_m_s"]
     for key, value in toml["kalman"].items():
         assert getattr(cfg.kalman, key) == value, key
@@ -65,4 +71,7 @@ def test_simulate_flags_show_the_packaged_simulate_defaults() -> None:
         param = options[flag]
         assert param.default is None, flag  # type: ignore[attr-defined]
         assert param.show_default == _as_flag(toml[table][key]), flag  # type: ignore[attr-defined]
+    lag = options["--lag"]  # one flag for two keys: stls.lag and smoother.lag
+    assert lag.default is None  # type: ignore[attr-defined]
+    assert lag.show_default == f"stls {toml['stls']['lag']}, smoother {toml['smoother']['lag']}"  # type: ignore[attr-defined]
     assert built_in.duration_s == toml["simulate"]["duration_s"] and built_in.seed == toml["simulate"]["seed"]

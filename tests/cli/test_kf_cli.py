@@ -1,4 +1,4 @@
-"""gnss-solve --method kf, --kf-model, --smoother and the velocity columns."""
+"""gnss-solve --method kf, --kf-model, --kf-output and the velocity columns."""
 
 from __future__ import annotations
 
@@ -41,20 +41,20 @@ def test_kf_rows_with_velocity_on_a_static_sample(capsys):
     assert "kf: " in err and "epochs solved" in err
 
 
-def test_kf_model_and_smoother_flags(capsys):
+def test_kf_model_and_output_flags(capsys):
     base = [SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "kf", "-q"]
     rows = {}
-    for flags in ([], ["--smoother", "none"], ["--kf-model", "ca"]):
+    for flags in ([], ["--kf-output", "filtered"], ["--kf-model", "ca"]):
         code, out, err = invoke(base + flags, capsys)
         assert code == 0, err
         rows[" ".join(flags)] = _csv(out)[["x_m", "y_m", "z_m"]].to_numpy()
-    assert not np.allclose(rows[""], rows["--smoother none"], atol=1e-3, rtol=0)
+    assert not np.allclose(rows[""], rows["--kf-output filtered"], atol=1e-3, rtol=0)
     assert not np.allclose(rows[""], rows["--kf-model ca"], atol=1e-6, rtol=0)  # (30 s steps: ca and cv differ by ~0.1 mm)
 
 
 def test_kf_flags_need_the_kf_method(capsys):
-    code, _, err = invoke([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--smoother", "none"], capsys)
-    assert code == 2 and "--smoother: only with --method kf" in err
+    code, _, err = invoke([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--kf-output", "filtered"], capsys)
+    assert code == 2 and "--kf-output: only with --method kf" in err
 
 
 def test_all_is_the_single_epoch_family(capsys):

@@ -1,6 +1,6 @@
 """A file of one part solved in several processes (``--processes``) writes the bytes of one process.
 
-The parts are cut where :data:`~gnss_cli.pipeline.stream.PART_MIN_EPOCHS` allows (lowered here
+The parts are cut where :data:`~gnss_cli.pipeline.run.PART_MIN_EPOCHS` allows (lowered here
 so that a 10 min simulated flight makes two or three parts), read and solved at once in forked
 processes, and handed out in order. Every case compares the output files of ``--processes N`` with
 those of ``--processes 1`` byte for byte, and counts the forked processes, so that a case cannot pass
@@ -16,14 +16,14 @@ from pathlib import Path
 import pytest
 
 import gnss_cli.parallel as parallel
-import gnss_cli.pipeline.stream as stream
+import gnss_cli.pipeline.run as stream
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
 from gnss_cli.errors import RinexFormatError
 from gnss_cli.io import compression
 from gnss_cli.io.obs_chunks import split_obs
 
-from test_solve_stream import flight, same_outputs  # noqa: F401 - the module's fixture
+from test_solve_parts import flight, same_outputs  # noqa: F401 - the module's fixture
 
 ESBC = Path(__file__).resolve().parents[2].parent / "shared" / "rinex" / "esbc-2020177"
 ESBC_REF = "3582104.922,532590.196,5232755.366"

@@ -1,9 +1,8 @@
-"""``[smoothing] model = "doppler"`` (the default ``auto`` on a file with Doppler): pseudoranges and range
-rates of whole segments in the measurement domain, positions and velocities tied by the kinematic kernel."""
+"""The ``smoother`` method (``--motion quadrature``): pseudoranges and range rates of whole segments in
+the measurement domain, positions and velocities tied by the kinematic kernel."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -16,11 +15,10 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.doppler_smoothing import doppler_smooth
-from gnss_cli.report import models_json
 
 from flight_scenarios import simulate_flight
 
-BASE = {"methods": "wls,stls", "smoothing.lag": 3, "iono": "none", "tropo": "none"}
+BASE = {"methods": "wls,smoother", "smoother.lag": 3, "iono": "none", "tropo": "none"}
 
 
 def _err(x: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -42,12 +40,13 @@ def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
     below the snapshot GDOP; velocities better than the per-epoch Doppler velocities."""
     res = process(noisy / "obs.rnx", [noisy / "nav.rnx"], load_config(None, BASE))
     ref = reference_from_csv(noisy / "truth.csv", res.epochs.time_gps_s)
-    wls, stls = res.solutions["wls"], res.solutions["stls"]
+    wls, stls = res.solutions["wls"], res.solutions["smoother"]
     ident = process(noisy / "obs.rnx", [noisy / "nav.rnx"],
-                    load_config(None, {**BASE, "smoothing.model": "identify"})).solutions["stls"]
+                    load_config(None, {**BASE, "methods": "wls,stls", "stls.lag": 3})).solutions["stls"]
     assert (stls.status == "ok").all()
-    assert len(res.models) == 1 and res.models[0].model == "doppler" and "measurement domain" in res.models[0].message
-    assert json.loads(models_json(load_config(None, BASE).smoothing, res.models))["model"] == "doppler"  # not "auto"
+    assert len(res.models) == 1 and res.models[0].model == "motion quadrature" and res.models[0].method == "smoother"
+    assert "measurement domain" in res.models[0].message
+    assert res.settings["smoother"].measurements == "pseudorange+doppler"
     assert _rms(stls.x_ecef_m, ref) < 0.5 * _rms(ident.x_ecef_m, ref)
     assert _rms(stls.x_ecef_m, ref) < 0.2 * _rms(wls.x_ecef_m, ref)
     assert np.all(stls.gdop < wls.gdop)
@@ -63,7 +62,7 @@ def test_noise_free_flight_gives_the_truth_to_a_centimetre(tmp_path: Path) -> No
     d = simulate_flight(tmp_path, "none")
     res = process(d / "obs.rnx", [d / "nav.rnx"], load_config(None, BASE))
     ref = reference_from_csv(d / "truth.csv", res.epochs.time_gps_s)
-    err = _err(res.solutions["stls"].x_ecef_m, ref)
+    err = _err(res.solutions["smoother"].x_ecef_m, ref)
     assert np.sqrt(np.mean(err**2)) <= 0.01 and err.max() <= 0.02
 
 
@@ -91,10 +90,8 @@ def test_epochs_with_one_to_three_satellites_get_positions(noisy: Path) -> None:
     assert np.all(np.isfinite(sol.gdop[few]))
 
 
-def test_auto_without_doppler_identifies_and_doppler_needs_it(noisy: Path) -> None:
-    cfg = load_config(None, {**BASE, "kalman.doppler": False})
-    res = process(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
-    assert res.models and all(m.model == "identify" for m in res.models)
+def test_the_quadrature_needs_doppler(noisy: Path) -> None:
+    cfg = load_config(None, BASE)
     data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
     wls = solve_method(data, "wls", cfg)
     with pytest.raises(ConfigError, match="needs Doppler"):
@@ -104,28 +101,9 @@ def test_auto_without_doppler_identifies_and_doppler_needs_it(noisy: Path) -> No
 def test_lag_selects_the_kinematic_rule(noisy: Path) -> None:
     """The model record's kernel is the lag's rule: lag 1 the trapezoid (two blocks), lag 3 four."""
     for lag, blocks in ((1, 2), (3, 4)):
-        res = process(noisy / "obs.rnx", [noisy / "nav.rnx"], load_config(None, {**BASE, "smoothing.lag": lag}))
+        res = process(noisy / "obs.rnx", [noisy / "nav.rnx"], load_config(None, {**BASE, "smoother.lag": lag}))
         rec = res.models[0].kernel
         assert rec is not None and np.asarray(rec.kernel_R).shape == (3, 6 * blocks)
-
-
-def test_window_ladder_rejects_what_a_fixed_window_cannot_fit(tmp_path: Path) -> None:
-    """Noise-free flight, fixed kernel (z-1)^3 I without Doppler: fixed 15-epoch windows bend the
-    turns and ramps (measured 1.06 m 3D RMS over 600 s), the chi-square ladder shortens the
-    windows there (0.024 m)."""
-    from gnss_cli.pipeline.window_solve import solve_in_windows
-
-    d = simulate_flight(tmp_path, "none")
-    cfg = load_config(None, {**BASE, "kalman.doppler": False})
-    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
-    wls = solve_method(data, "wls", cfg)
-    ref = reference_from_csv(d / "truth.csv", data.time_gps_s)
-    pva = np.array([-1.0, 3.0, -3.0, 1.0])
-    fixed = solve_in_windows(data, wls, cfg, pva, (15,))
-    ladder = solve_in_windows(data, wls, cfg, pva)
-    assert fixed is not None and ladder is not None
-    assert _rms(ladder.x_ecef_m, ref) < 0.1 and _rms(fixed.x_ecef_m, ref) > 5 * _rms(ladder.x_ecef_m, ref)
-    assert (np.abs(ladder.window) > 15).any() and (np.abs(ladder.window) < 15).any()
 
 
 def test_a_faulty_satellite_is_excluded_by_the_residual_gate(noisy: Path) -> None:

@@ -65,8 +65,8 @@ def test_kf_smoother_beats_wls_and_its_sd_predicts_the_error(flight):
 
 def test_doppler_improves_the_kf_and_the_filter_alone_is_between(flight):
     with_doppler, _, _ = _errors(flight, **MATCHED)
-    without, _, _ = _errors(flight, **MATCHED, **{"kalman.doppler": False})
-    filtered, _, _ = _errors(flight, **MATCHED, **{"kalman.smoother": "none"})
+    without, _, _ = _errors(flight, **MATCHED, **{"measurements": "pseudorange"})
+    filtered, _, _ = _errors(flight, **MATCHED, **{"kalman.output": "filtered"})
     assert _rms(with_doppler["kf"]) < 0.85 * _rms(without["kf"])  # measured 0.91 m against 1.33 m
     assert _rms(with_doppler["kf"]) < _rms(filtered["kf"]) < 0.6 * _rms(with_doppler["wls"])
 

@@ -1,4 +1,4 @@
-"""Time-differenced carrier phase in the ``"doppler"`` smoothing model (``smoothing.carrier_phase``).
+"""Time-differenced carrier phase in the ``smoother`` method (``measurements`` with ``phase``).
 
 The simulator writes no carrier phase, so the phase is made here from a noise-free flight of the
 same seed (same orbits, trajectory and receiver clock): its corrected pseudorange is the exact
@@ -23,7 +23,7 @@ from gnss_cli.pipeline.results import EpochData
 
 from flight_scenarios import simulate_flight
 
-BASE = {"methods": "wls,stls", "smoothing.lag": 3, "iono": "none", "tropo": "none"}
+BASE = {"methods": "wls,smoother", "smoother.lag": 3, "iono": "none", "tropo": "none"}
 L1_M = 299792458.0 / 1575.42e6
 
 
@@ -51,7 +51,7 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
 
 def _with_phase(data: EpochData, phase: np.ndarray, cfg, lli: np.ndarray | None = None) -> EpochData:  # type: ignore[no-untyped-def]
     lli = np.zeros(phase.shape) if lli is None else lli
-    slip = phase_slips(data.time_gps_s, phase, data.range_rate_m_s, lli, cfg.smoothing.phase_slip_m)
+    slip = phase_slips(data.time_gps_s, phase, data.range_rate_m_s, lli, cfg.phase_slip_m)
     return replace(data, phase_m=np.where(data.usable, phase, np.nan), phase_slip=slip)
 
 
@@ -73,7 +73,7 @@ def test_exact_phase_averages_the_pseudorange_noise(flights) -> None:  # type: i
     run = solve_doppler_segments(data, wls, cfg, 3)
     assert run is not None and run.phase and run.factors[2] < 1e-3  # exact differences: a tiny factor
     assert _rms(run.x_ecef_m, ref) < 0.5 * without
-    off = load_config(None, {**BASE, "smoothing.carrier_phase": False})
+    off = load_config(None, {**BASE, "measurements": "pseudorange,doppler"})
     assert _rms(doppler_smooth(data, wls, off)[0].x_ecef_m, ref) == pytest.approx(without, abs=1e-9)
 
 
@@ -108,11 +108,13 @@ def test_loss_of_lock_indicator_breaks_the_difference(flights) -> None:  # type:
     assert data.phase_slip is not None and data.phase_slip[40, 2] and not data.phase_slip[41, 3]
 
 
-@pytest.mark.parametrize(("key", "value"), [("phase_sigma_m", 0.0), ("phase_slip_m", -1.0),
-                                            ("carrier_phase", "yes"), ("phase_sigma_m", "0.02")])
-def test_bad_phase_settings_are_config_errors(key: str, value: object) -> None:
-    with pytest.raises(ConfigError, match=f"smoothing.{key}"):
-        load_config(None, {**BASE, f"smoothing.{key}": value})
+@pytest.mark.parametrize(("key", "value", "message"), [("phase_sigma_m", 0.0, "phase_sigma_m"),
+                                                       ("phase_slip_m", -1.0, "phase_slip_m"),
+                                                       ("phase_sigma_m", "0.02x", "bad value"),
+                                                       ("measurements", "pseudorange,phaze", "measurements")])
+def test_bad_phase_settings_are_config_errors(key: str, value: object, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_config(None, {**BASE, key: value})
 
 
 def test_reader_gives_the_indicators_of_the_file(tmp_path: Path) -> None:

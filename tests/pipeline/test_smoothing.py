@@ -1,5 +1,5 @@
-"""Kinematic positioning by behavioral smoothing: multi-epoch DOP, static and flight
-simulations, real static and kinematic data."""
+"""The identified Hankel STLS (``stls --lag L``): multi-epoch DOP, a simulated flight, real static
+and kinematic data."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from gnss_cli.behavior.multi_epoch import behavior_basis, epoch_information, mul
 from gnss_cli.behavior.windows import segments, windows
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
-from gnss_cli.config import ProcessingConfig, SmoothingConfig, load_config
+from gnss_cli.config import ProcessingConfig, StlsConfig, load_config
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, smooth, solve_method
@@ -49,7 +49,7 @@ def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _smoothing(cfg: ProcessingConfig, **options: object) -> ProcessingConfig:
-    return dataclasses.replace(cfg, smoothing=dataclasses.replace(SmoothingConfig(), **options))
+    return dataclasses.replace(cfg, stls=dataclasses.replace(StlsConfig(), **options))
 
 
 def _rms_3d(x: np.ndarray, ref: np.ndarray) -> float:
@@ -171,79 +171,13 @@ def test_multi_epoch_cov_of_stacked_windows_equals_one_at_a_time() -> None:
         np.testing.assert_allclose(both[k], multi_epoch_cov(bases[k], infos[k], hs[k], cvs[k]), rtol=1e-12, atol=1e-14)
 
 
-# ------------------------------------------------------------------ simulated static receiver
-def test_static_multi_epoch_gdop_and_convergence(static_set) -> None:  # type: ignore[no-untyped-def]
-    cfg, data, ls, wls, ref = static_set
-    mean_gdop, rms = [], []
-    for window in (4, 16, 64, 0):
-        sol, models = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window=window))
-        assert (sol.status == "ok").all()
-        assert all(m.status == "direct" for m in models)
-        assert np.all(sol.gdop <= ls.gdop * (1 + 1e-9))
-        assert np.all(sol.pdop <= ls.pdop * (1 + 1e-9))
-        mean_gdop.append(float(np.mean(sol.gdop)))
-        rms.append(_rms_3d(sol.x_ecef_m, ref))
-    rms_ls = _rms_3d(ls.x_ecef_m, ref)
-    assert all(a > b for a, b in zip(mean_gdop, mean_gdop[1:])), mean_gdop
-    assert all(a > b for a, b in zip(rms, rms[1:])), rms
-    assert rms[0] < rms_ls
-    # whole segment of 601 epochs: noise averages out to about 1/sqrt(601) of the snapshot error
-    assert rms[-1] < 0.15 * rms_ls, (rms, rms_ls)
-
-
-def test_static_auto_window_takes_each_whole_segment(static_set) -> None:  # type: ignore[no-untyped-def]
-    """A receiver that does not move passes the chi-square test over the whole run: the ladder
-    gives what ``window = 0`` gives."""
-    cfg, data, ls, wls, ref = static_set
-    auto, models = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window="auto"))
-    whole, _ = smooth(data, wls, _smoothing(cfg, lag=1, model="static", window=0))
-    assert [m.n_epochs for m in models] == [data.time_gps_s.size]
-    np.testing.assert_allclose(auto.x_ecef_m, whole.x_ecef_m, rtol=1e-12, atol=0)  # numpy 1.x: last bits
-    np.testing.assert_array_equal(auto.status, whole.status)
-
-
-def test_static_auto_window_stops_at_a_move(static_set) -> None:  # type: ignore[no-untyped-def]
-    """The receiver moves 20 m east half-way: the chosen windows reach at most a few epochs
-    across the move, each side is averaged over long windows."""
-    cfg, data, ls, wls, ref = static_set
-    T = data.time_gps_s.size
-    lat, lon, _ = ecef2geodetic(ref[0])
-    east = ecef2enu_rotation(float(lat), float(lon))[0]
-    moved = np.arange(T) >= T // 2
-    truth = ref + 20.0 * moved[:, None] * east
-    shifted = dataclasses.replace(wls, x_ecef_m=wls.x_ecef_m + 20.0 * moved[:, None] * east)
-    sol, models = smooth(data, shifted, _smoothing(cfg, lag=1, model="static", window="auto"))
-    t0 = data.time_gps_s[T // 2]
-    # a window may reach a few epochs across the move: with the fixes' stated covariance (about
-    # 4 m east here) a 20 m step over k epochs adds about 25 k to the misfit
-    across = [min(t0 - m.start_time_gps_s, m.end_time_gps_s - t0 + 1) for m in models
-              if m.start_time_gps_s < t0 <= m.end_time_gps_s]
-    assert max(across, default=0) <= 8, across
-    from scipy.stats import chi2
-
-    assert all(m.misfit <= chi2.isf(1e-3, 3 * (m.n_epochs - 1)) for m in models)
-    assert max(m.n_epochs for m in models) >= T // 4
-    ok = sol.status == "ok"
-    assert ok.sum() >= T - 4
-    err = np.linalg.norm(sol.x_ecef_m[ok] - truth[ok], axis=1)
-    fixed, _ = smooth(data, shifted, _smoothing(cfg, lag=1, model="static", window=15))
-    # beyond 30 epochs of the move each side is its own average, up to the few epochs of the
-    # other side that a long window may take in (4 of 75 epochs: 1.1 m)
-    far = np.abs(np.flatnonzero(ok) - T // 2) > 30
-    assert err[far].max() < 1.5, err[far].max()
-    assert np.median(err) < 0.3, np.median(err)
-    # near the move, the fixed 15-epoch windows mix both positions (up to 10 m off); the ladder less
-    assert err.max() < 0.5 * np.linalg.norm(fixed.x_ecef_m - truth, axis=1).max(), err.max()
-
-
 # ------------------------------------------------------------------ simulated flight
 def test_flight_stls_lag3_identify_beats_ls(flight_dir: Path, tmp_path: Path) -> None:
-    """The identified shared kernel over windows of the fixes (``--model identify``; the default
-    ``auto`` is ``doppler`` on this file, tests/pipeline/test_doppler_smoothing.py)."""
+    """The identified shared kernel over windows of the fixes."""
     d = flight_dir
     model_out = tmp_path / "models.json"
     rows = _cli_positions([str(d / "obs.rnx"), str(d / "nav.rnx"), "--method", "ls,stls", "--lag", "3",
-                           "--model", "identify", "--reference-csv", str(d / "truth.csv"), "--iono", "none",
+                           "--reference-csv", str(d / "truth.csv"), "--iono", "none",
                            "--tropo", "none", "--model-out", str(model_out)])
     err = {m: g["err_3d_m"].to_numpy() for m, g in rows.items()}
     assert (rows["stls"]["status"] == "ok").all()
@@ -253,8 +187,10 @@ def test_flight_stls_lag3_identify_beats_ls(flight_dir: Path, tmp_path: Path) ->
     assert ratio <= 0.6
     assert np.all(rows["stls"]["gdop"].to_numpy() <= rows["ls"]["gdop"].to_numpy() * (1 + 1e-6) + 1e-3)
     models = json.loads(model_out.read_text())
-    assert models["lag"] == 3 and len(models["windows"]) > 10
+    assert models["methods"]["stls"]["lag"] == "3" and len(models["windows"]) > 10
+    assert models["methods"]["stls"]["estimator"] == "identified Hankel STLS"
     w0 = models["windows"][0]
+    assert w0["method"] == "stls" and w0["model"] == "identified"
     assert {"kernel_R", "order", "poles", "misfit", "status"} <= set(w0)
     # the shared kernel keeps its root at z = 1
     assert np.isclose(sum(w0["shared_coefficients"]), 0.0, atol=1e-9)
@@ -265,7 +201,7 @@ def test_lag_without_stls_is_a_usage_error(flight_dir: Path, capsys: pytest.Capt
     with pytest.raises(SystemExit) as exc:
         run_app(app, "gnss-solve", [str(d / "obs.rnx"), str(d / "nav.rnx"), "--method", "wls", "--lag", "3", "-q"])
     assert exc.value.code == 2
-    assert "--lag: needs --method stls" in capsys.readouterr().err
+    assert "--lag: only with --method stls or smoother" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------ real data
@@ -275,12 +211,11 @@ def test_rtklib_0759_static_and_lag3(rinex_dir: Path) -> None:
         pytest.skip("rtklib-0759 missing")
     base = [str(d / "07590920.05o"), str(d / "07590920.05n"), "--method", "ls,stls",
             "--reference", ",".join(str(v) for v in RTKLIB_0759_ECEF_M)]
-    rows = _cli_positions([*base, "--lag", "1", "--model", "static"])
-    rms = {m: float(np.sqrt(np.mean(g["err_3d_m"] ** 2))) for m, g in rows.items()}
-    print(f"rtklib-0759 static: stls {rms['stls']:.3f} m, LS {rms['ls']:.3f} m")
-    assert rms["stls"] <= rms["ls"]
     rows = _cli_positions([*base, "--lag", "3"])
     assert len(rows["stls"]) == 120 and (rows["stls"]["status"] == "ok").all()
+    rms = {m: float(np.sqrt(np.mean(g["err_3d_m"] ** 2))) for m, g in rows.items()}
+    print(f"rtklib-0759 static: stls lag 3 {rms['stls']:.3f} m, LS {rms['ls']:.3f} m")
+    assert rms["stls"] <= rms["ls"]
 
 
 def _read_rtklib_pos_ecef(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -70,7 +70,7 @@ def test_yamatogawa_lag3_track_follows_the_reference(rinex_dir):
     d = rinex_dir / "yamatogawa-2010006-kinematic"
     if not d.is_dir():
         pytest.skip("yamatogawa-2010006-kinematic missing")
-    cfg = load_config(None, {"methods": "stls", "smoothing.lag": 3})
+    cfg = load_config(None, {"methods": "stls", "stls.lag": 3})
     result = process(d / "yamatogawa_rover.obs", [d / "brdc0060.10n"], cfg)
     ref = _rtklib_pos(d / "rtk_ref_rover.pos", result.epochs.time_gps_s)
     figs = run_figures(result, ref, cfg.elevation_mask_deg)

@@ -214,7 +214,7 @@ def test_smoothed_stls_rows_use_the_multi_epoch_covariance(rinex_dir) -> None:  
     """With --lag the stls sd columns come from the window's multi-epoch covariance: more
     constraints than one epoch, so never larger than the WLS fix's."""
     folder = rinex_dir / "rtklib-0759"
-    cfg = load_config(overrides={"methods": "wls,stls", "smoothing.lag": 3})
+    cfg = load_config(overrides={"methods": "wls,stls", "stls.lag": 3})
     result = process(folder / "07590920.05o", [folder / "07590920.05n"], cfg)
     table = positions_table(result)
     wls = table[table["method"] == "wls"].reset_index(drop=True)
