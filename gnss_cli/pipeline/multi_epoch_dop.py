@@ -54,6 +54,8 @@ __all__ = ["DopColumns", "MOTION_KERNELS", "motion_kernel", "multi_epoch_dops"]
 
 F64 = NDArray[np.float64]
 
+_EPOCH_BLOCK = 8192
+
 #: Scalar kernel coefficients ``[r_0 .. r_lag]`` (ascending powers) of each motion model; the
 #: current ``[smoothing] model`` words ``pva``, ``doppler`` and ``kinematic`` are aliases.
 MOTION_KERNELS: dict[str, tuple[float, ...]] = {
@@ -89,7 +91,8 @@ class DopColumns:
     cond : ``(T,)`` condition number of the window's clock-reduced geometry (``s_max / s_min`` of
         the stacked rows); inf for a degenerate window.
     degenerate : ``(T,)`` the epoch's window (or snapshot) geometry is rank deficient.
-    n_degenerate_windows : distinct degenerate windows.
+    n_degenerate_windows : distinct degenerate windows of epochs with a position (a snapshot is a
+        window of one epoch).
     """
 
     gdop: F64
@@ -265,7 +268,7 @@ def multi_epoch_dops(
     ``G_N = [blkdiag(A_t^pos) O, blkdiag(C_t)]`` over the window's epochs, ``O`` the orthonormal
     behavior basis of the kernel over ``N`` epochs; epoch ``t``'s block of ``(G_N^T G_N)^+`` is
     computed with each epoch's clocks eliminated and the stacked clock-reduced rows factored by
-    an SVD (:func:`~gnss_cli.behavior.multi_epoch.target_covs`). With identical geometry at every
+    QR (an SVD for a nearly singular window; :func:`~gnss_cli.behavior.multi_epoch.target_covs`). With identical geometry at every
     epoch and the static kernel, ``PDOP_N = PDOP_1 / sqrt(N)`` and ``TDOP_N^2 - 1/n =
     (TDOP_1^2 - 1/n) / N`` (each clock keeps the ``1/n`` of its own epoch's pseudoranges).
 
@@ -284,7 +287,10 @@ def multi_epoch_dops(
     T, k = a.shape[0], c.shape[2]
     kers, kid = _kernel_list(kernels, T)
     segs = [np.asarray(s, dtype=np.intp) for s in segments]
-    root, h, clock_var = epoch_information_root(a, u.astype(np.float64), c)
+    root, h, clock_var = np.empty((T, 3, 3)), np.empty((T, k, 3)), np.empty((T, k))
+    for e0 in range(0, T, _EPOCH_BLOCK):  # bounded temporaries: a day of multi-GNSS rows is (86400, 40, 3)
+        blk = slice(e0, min(T, e0 + _EPOCH_BLOCK))
+        root[blk], h[blk], clock_var[blk] = epoch_information_root(a[blk], u[blk].astype(np.float64), c[blk])
     seg_of, start, length, local = _plan(segs, kers, kid, int(window_epochs), T)
     frames = _frames(segs, x, kernel_frames)
     # the basis of each epoch's window: distinct (kernel, length, frame's segment) triples
@@ -335,6 +341,7 @@ def _columns(root: F64, h: F64, clock_var: F64, segs: list[NDArray[np.intp]],
     first = np.where(seg_of >= 0, offset[np.maximum(seg_of, 0)] + start, offset[-1] + start)
     d_of = np.array([3] + [0 if b is None else b.shape[-1] for b in bases])[epoch_basis + 1]
     all_bases = [np.eye(3)[None, None]] + [np.zeros((0, 0, 3, 0)) if b is None else b[None] for b in bases]
+    has_x = np.isfinite(x).all(axis=1)
     n_degenerate = 0
     for n_len, d in sorted(set(zip(length.tolist(), d_of.tolist()))):
         members = np.flatnonzero((length == n_len) & (d_of == d))
@@ -345,7 +352,7 @@ def _columns(root: F64, h: F64, clock_var: F64, segs: list[NDArray[np.intp]],
         spans = flat[(keys // (len(bases) + 1))[:, None] + np.arange(n_len)]
         res = target_covs(root, h, clock_var, spans, stack, basis_of, window_of, position[members], rcond=rcond)
         cov[members], determined[members], cond[members], full_rank[members] = res.cov, res.determined, res.cond, res.full_rank
-        n_degenerate += int(np.unique(window_of[~res.full_rank]).size)
+        n_degenerate += int(np.unique(window_of[~res.full_rank & has_x[members]]).size)
     return _dop_columns(cov, determined, cond, ~full_rank, clock_var, x, length, n_degenerate)
 
 

@@ -234,6 +234,10 @@ def test_epochs_without_position_are_nan_and_their_rows_still_count() -> None:
     assert np.isnan(got.gdop[2]) and np.isnan(got.tdops[2]).all() and got.window_epochs[2] == 0
     assert np.all(np.isfinite(np.delete(got.gdop, 2)))
     _check(got, _dense(a_pos, clocks, used, lat, lon, [2, 3, 4], _poly_blocks(3, 0), 3), 3)
+    # an unsolved epoch outside the segments, without rows: NaN, and not a degenerate window
+    x[5], used[5] = np.nan, False
+    out = multi_epoch_dops(a_pos, None, used, x, [np.arange(5)], motion_kernel("static"), 3)
+    assert np.isnan(out.gdop[5]) and np.isnan(out.cond[5]) and not out.degenerate[5] and out.n_degenerate_windows == 0
 
 
 # ------------------------------------------------------------------ (5) degenerate windows
@@ -287,3 +291,48 @@ def test_invalid_arguments_raise_usage_errors() -> None:
     bad[1, 2] = np.nan
     with pytest.raises(UsageError, match="non-finite"):
         multi_epoch_dops(bad, None, used, x, [], ker, 3)
+
+
+def test_epoch_blocks_do_not_change_the_result(monkeypatch: pytest.MonkeyPatch) -> None:
+    import gnss_cli.pipeline.multi_epoch_dop as mod
+
+    rng = np.random.default_rng(21)
+    a_pos, clocks, x, _, _ = _scene(rng, 11, 8, k=2)
+    used = rng.random((11, 8)) > 0.1
+    whole = multi_epoch_dops(a_pos, clocks, used, x, [np.arange(11)], motion_kernel("ca"), 5)
+    monkeypatch.setattr(mod, "_EPOCH_BLOCK", 3)
+    parts = multi_epoch_dops(a_pos, clocks, used, x, [np.arange(11)], motion_kernel("ca"), 5)
+    np.testing.assert_allclose(parts.gdop, whole.gdop, rtol=1e-13)
+    np.testing.assert_allclose(parts.tdops, whole.tdops, rtol=1e-13)
+
+
+# ------------------------------------------------------------------ real data: the snapshot is the LS DOP
+@pytest.mark.parametrize("folder, obs, nav", [
+    ("yamatogawa-2010006-kinematic", "yamatogawa_rover.obs", "brdc0060.10n"),
+    ("kms3-2022159-rinex4", "KMS300DNK_R_20221591000_01H_30S_MO.crx", "KMS300DNK_R_20221591000_01H_MN.rnx.gz"),
+])
+def test_snapshot_rows_are_the_ls_dops_and_windows_only_lower_them(rinex_dir, folder: str, obs: str, nav: str) -> None:
+    """The LS DOPs are unit-weight ``(A^T A)^-1``: rebuilt here from the satellites LS used (its
+    finite residuals) and plain line-of-sight vectors (no Earth rotation during the signal's
+    flight: ~5e-6 rad, hence the 1e-4 tolerance)."""
+    from gnss_cli.behavior.windows import segments
+    from gnss_cli.config import load_config
+    from gnss_cli.pipeline import load_epochs, solve_method
+
+    cfg = load_config(overrides={"methods": "ls"})
+    data = load_epochs(rinex_dir / folder / obs, [rinex_dir / folder / nav], cfg)
+    ls = solve_method(data, "ls", cfg)
+    used = np.isfinite(ls.residuals_m)
+    los = data.sat_ecef_m - ls.x_ecef_m[:, None, :]
+    a_pos = -los / np.linalg.norm(los, axis=2, keepdims=True)
+    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    clocks = np.eye(len(data.systems))[sysidx]
+    solved = np.isfinite(ls.x_ecef_m).all(axis=1)
+    snap = multi_epoch_dops(a_pos, clocks, used, ls.x_ecef_m, [], motion_kernel("ca"), 15)
+    for name in ("gdop", "pdop", "hdop", "vdop", "tdop"):
+        np.testing.assert_allclose(getattr(snap, name)[solved], getattr(ls, name)[solved], rtol=1e-4)
+    if ls.tdops is not None:
+        np.testing.assert_allclose(snap.tdops[solved], ls.tdops[solved], rtol=1e-4)
+    multi = multi_epoch_dops(a_pos, clocks, used, ls.x_ecef_m, segments(data.time_gps_s, solved), motion_kernel("ca"), 15)
+    assert np.all(multi.pdop[solved] <= snap.pdop[solved] * (1 + 1e-9)) and np.median(multi.pdop[solved] / snap.pdop[solved]) < 0.8
+    assert np.all(np.isnan(multi.gdop[~solved])) and not multi.degenerate.any()
