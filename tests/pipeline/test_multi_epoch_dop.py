@@ -205,6 +205,18 @@ def test_static_kernel_over_identical_geometry(k: int) -> None:
 
 
 # ------------------------------------------------------------------ (4) short windows: the snapshot
+def test_a_kernel_without_recursion_gives_the_snapshot() -> None:
+    """``r_lag = 0`` (an identification that failed that way): no behavior basis, the snapshot DOP."""
+    rng = np.random.default_rng(22)
+    a_pos, _, x, _, _ = _scene(rng, 6, 7)
+    used = np.ones((6, 7), dtype=bool)
+    flat = KernelRepresentation.shared([-1.0, 1.0, 0.0], 3)
+    got = multi_epoch_dops(a_pos, None, used, x, [np.arange(6)], [flat] * 3 + [motion_kernel("cv")] * 3, 5)
+    snap = multi_epoch_dops(a_pos, None, used, x, [], flat, 5)
+    assert got.window_epochs.tolist() == [1, 1, 1, 5, 5, 5]
+    np.testing.assert_array_equal(got.gdop[:3], snap.gdop[:3])
+
+
 def test_windows_shorter_than_the_kernel_needs_fall_back_to_the_snapshot() -> None:
     rng = np.random.default_rng(16)
     n_t, n_sv = 10, 7
