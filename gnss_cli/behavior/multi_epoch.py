@@ -10,12 +10,15 @@ snapshot GDOP.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.behavior.kernel import KernelRepresentation
 
-__all__ = ["behavior_basis", "shared_behavior_bases", "epoch_information", "multi_epoch_cov", "window_covs"]
+__all__ = ["behavior_basis", "shared_behavior_bases", "epoch_information", "multi_epoch_cov", "window_covs",
+           "epoch_information_root", "TargetCovs", "target_covs"]
 
 F64 = NDArray[np.float64]
 
@@ -191,3 +194,171 @@ def window_covs(bases: F64, spans: NDArray[np.intp], info: F64, h: F64, cv: F64)
             except np.linalg.LinAlgError:
                 out.append(None)
         return out
+
+
+def epoch_information_root(p_m: F64, weight: F64, clock_cols: F64 | None = None) -> tuple[F64, F64, F64]:
+    """Square-root form of :func:`epoch_information`: ``root_t^T root_t = info_t``, without forming ``info``.
+
+    Parameters
+    ----------
+    p_m, weight, clock_cols : ndarrays
+        As for :func:`epoch_information`: ``(T, n, 3)``, ``(T, n)`` (0 for unused rows, whose
+        position entries may then be NaN), ``(T, n, k)`` or None (one clock for every row).
+
+    Returns
+    -------
+    root : ndarray, shape (T, 3, 3)
+        Upper triangular R factor of the clock-reduced rows ``sqrt(w_i) (a_i - h_{j(i)})``.
+    h : ndarray, shape (T, k, 3)
+        ``P^T W c_j / (c_j^T W c_j)`` (``k = 1`` without ``clock_cols``).
+    clock_var : ndarray, shape (T, k)
+        ``1 / (c_j^T W c_j)``; 0 for a clock without weighted rows.
+
+    Notes
+    -----
+    Eliminating clock ``j`` subtracts its weighted mean row from each of its rows; the QR of
+    the reduced rows gives the position information's factor with the condition number of
+    the rows, not of the normal matrix (STYLE: covariance from the R factor).
+    """
+    w = np.asarray(weight, dtype=np.float64)
+    on = w > 0
+    p = np.where(on[..., None], p_m, 0.0)
+    c = np.ones((*w.shape, 1)) if clock_cols is None else np.broadcast_to(clock_cols, (*w.shape, clock_cols.shape[-1]))
+    cw = c * np.where(on, w, 0.0)[..., None]
+    sw = cw.sum(axis=1)
+    inv = np.where(sw > 0, 1.0 / np.where(sw > 0, sw, 1.0), 0.0)
+    h = np.einsum("tnk,tni->tki", cw, p) * inv[..., None]
+    reduced = np.sqrt(np.where(on, w, 0.0))[..., None] * (p - np.einsum("tnk,tki->tni", c, h))
+    if reduced.shape[1] < 3:  # QR needs as many rows as columns for a (3, 3) factor
+        reduced = np.concatenate([reduced, np.zeros((w.shape[0], 3 - reduced.shape[1], 3))], axis=1)
+    return np.linalg.qr(reduced, mode="r")[:, :3], h, inv
+
+
+@dataclass(frozen=True, slots=True)
+class TargetCovs:
+    """(position, clocks) covariance blocks of target epochs of multi-epoch windows.
+
+    Attributes
+    ----------
+    cov : ``(M, 3 + k, 3 + k)`` blocks of ``(G_N^T W G_N)^+`` for ``[x_t (ECEF), clocks_t]``;
+        NaN where the target is not determined. A clock without rows has 0 on its diagonal.
+    determined : ``(M,)`` the target's position is an estimable function of the window's data.
+    cond : ``(M,)`` condition number ``s_max / s_min`` of the window's clock-reduced stacked
+        geometry (the square root of its information's); inf when it is rank deficient.
+    full_rank : ``(M,)`` every trajectory of the window's behavior is observed (``s_min`` above
+        the rank tolerance).
+    """
+
+    cov: F64
+    determined: NDArray[np.bool_]
+    cond: F64
+    full_rank: NDArray[np.bool_]
+
+
+def _inverse_factors(stacked: F64, tol: float) -> tuple[F64, F64, F64]:
+    """``X`` with ``X X^T = (S^T S)^+`` for stacked rows ``S`` ``(b, m, d)``, the null vectors of ``S``
+    (``(b, d, d)``, zero columns elsewhere) and ``||S||_F ||S^+||_F`` (inf when rank deficient).
+
+    QR first (``X = R^-1``); the windows whose condition number reaches ``1 / tol`` go through an
+    SVD of ``R`` (``X = V diag(1/s)`` with ``s <= tol s_max`` dropped)."""
+    b, _, d = stacked.shape
+    r = np.linalg.qr(stacked, mode="r")
+    fro = np.linalg.norm(r, axis=(1, 2))
+    x = np.zeros((b, d, d))
+    null = np.zeros((b, d, d))
+    cond = np.full(b, np.inf)
+    diag = np.abs(np.diagonal(r, axis1=1, axis2=2))
+    fast = np.flatnonzero(diag.min(axis=1) > tol * fro)
+    if fast.size:
+        x[fast] = np.linalg.inv(r[fast])
+        cond[fast] = fro[fast] * np.linalg.norm(x[fast], axis=(1, 2))
+    slow = np.flatnonzero(~(cond * tol < 1.0))
+    if slow.size:
+        _, sv, vt = np.linalg.svd(r[slow])
+        v = np.swapaxes(vt, -1, -2)
+        kept = sv > tol * sv[:, :1]
+        inv_s = np.where(kept, 1.0 / np.where(kept, sv, 1.0), 0.0)
+        x[slow] = v * inv_s[:, None, :]
+        null[slow] = np.where(kept[:, None, :], 0.0, v)
+        cond[slow] = np.where(kept.all(axis=1), fro[slow] * np.linalg.norm(inv_s, axis=1), np.inf)
+    return x, null, cond
+
+
+def target_covs(root: F64, h: F64, clock_var: F64, spans: NDArray[np.intp], bases: F64, basis_of: NDArray[np.intp],
+                window_of: NDArray[np.intp], position: NDArray[np.intp], *, rcond: float | None = None,
+                chunk: int = 4096) -> TargetCovs:
+    """(position, clocks) covariance of chosen epochs of windows, each window with its behavior basis.
+
+    Parameters
+    ----------
+    root, h, clock_var : ndarrays
+        Per-epoch geometry from :func:`epoch_information_root`: ``(T, 3, 3)``, ``(T, k, 3)``, ``(T, k)``.
+    spans : ndarray of int, shape (B, N)
+        Epoch indices (into ``root``) of each window, in time order.
+    bases : ndarray, shape (U, N, 3, d)
+        Behavior bases: a window's positions are ``x_t = O_t x0`` (ECEF directions; orthonormal
+        columns, e.g. :func:`behavior_basis` rotated to ECEF; ``I_3`` with ``N = 1`` is the snapshot).
+    basis_of : ndarray of int, shape (B,)
+        Index into ``bases`` of each window's basis.
+    window_of, position : ndarrays of int, shape (M,)
+        Target epochs: window index and position in it (``0 <= position < N``).
+    rcond : float, optional
+        Singular values of the stacked geometry up to ``rcond * s_max`` count as zero
+        (default ``max(3 N, d) * eps``, as :func:`numpy.linalg.matrix_rank`).
+    chunk : int
+        Windows factored at once (memory ``chunk * N * 3 * d`` floats).
+
+    Returns
+    -------
+    TargetCovs
+        ``cond`` is the Frobenius-norm condition number ``||S||_F ||S^+||_F`` of the window's
+        stacked rows (between the 2-norm one and ``d`` times it).
+
+    Notes
+    -----
+    Eliminating each epoch's clocks leaves ``x0`` observed through the stacked rows
+    ``S = [root_t O_t]_t`` (``3 N x d``), ``S^T S = sum_t O_t^T M_t O_t``; with ``S = Q R``,
+    ``C_t = O_t R^-1 R^-T O_t^T``. A window whose ``R`` is (nearly) singular is factored by an SVD
+    ``R = U diag(s) V^T`` and ``C_t = O_t V diag(s)^-2 V^T O_t^T`` over the kept ``s`` (the
+    pseudo-inverse): a target ``x_t`` is still determined when ``O_t`` is orthogonal to the null
+    vectors, and then every generalized inverse gives this ``C_t``. The clock blocks are those of
+    :func:`multi_epoch_cov`.
+    """
+    n_b, n_ep = spans.shape
+    n_t, d = position.size, bases.shape[-1]
+    k = clock_var.shape[-1]
+    cov = np.full((n_t, 3 + k, 3 + k), np.nan)
+    determined = np.zeros(n_t, dtype=bool)
+    cond = np.full(n_t, np.inf)
+    full_rank = np.zeros(n_t, dtype=bool)
+    tol = rcond if rcond is not None else max(3 * n_ep, d) * np.finfo(np.float64).eps
+    order = np.argsort(window_of, kind="stable")
+    cuts = np.searchsorted(window_of[order], np.arange(0, n_b + chunk, chunk))
+    for c, w0 in enumerate(range(0, n_b, chunk)):
+        sel = order[cuts[c] : cuts[c + 1]]
+        if not sel.size:
+            continue
+        w1 = min(n_b, w0 + chunk)
+        basis = bases[0] if bases.shape[0] == 1 else bases[basis_of[w0:w1]]  # one basis: broadcast, no copies
+        stacked = np.matmul(root[spans[w0:w1]], basis).reshape(w1 - w0, 3 * n_ep, d)
+        x, null, kappa = _inverse_factors(stacked, tol)
+        win = window_of[sel] - w0
+        o = bases[basis_of[window_of[sel]], position[sel]]  # (m, 3, d)
+        y = np.matmul(o, x[win])  # O_t X, X X^T = (S^T S)^+
+        c_pos = np.matmul(y, np.swapaxes(y, -1, -2))
+        # determined: O_t has no component along the null vectors of S
+        hidden = np.max(np.abs(np.matmul(o, null[win])), axis=(1, 2))
+        ok = hidden <= 1e-8 * np.maximum(np.max(np.abs(o), axis=(1, 2)), np.finfo(np.float64).tiny)
+        epoch = spans[window_of[sel], position[sel]]
+        ch = np.einsum("tij,tcj->tic", c_pos, h[epoch])  # C_t h_tc
+        blk = np.empty((sel.size, 3 + k, 3 + k))
+        blk[:, :3, :3] = c_pos
+        blk[:, :3, 3:] = -ch
+        blk[:, 3:, :3] = -np.swapaxes(ch, -1, -2)
+        blk[:, 3:, 3:] = np.einsum("tci,tid->tcd", h[epoch], ch)
+        blk[:, 3 + np.arange(k), 3 + np.arange(k)] += clock_var[epoch]
+        cov[sel] = np.where(ok[:, None, None], blk, np.nan)
+        determined[sel] = ok
+        full_rank[sel] = np.isfinite(kappa[win])
+        cond[sel] = kappa[win]
+    return TargetCovs(cov, determined, cond, full_rank)
