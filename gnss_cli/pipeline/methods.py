@@ -123,17 +123,25 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
                       factors: tuple[float, ...] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """One multi-epoch method over the epochs ``data``, from their ``wls`` solution: its rows and
     its window models. ``factors``: the variance factors of the measurement kinds when they were
-    estimated on the whole file (a file solved in pieces), else they are estimated on ``data``."""
+    estimated on the whole file (a file solved in pieces), else they are estimated on ``data``.
+
+    The DOP columns of every multi-epoch row are geometry: the unit-weight pseudorange geometry
+    over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
+    for ``stls`` the window's identified kernel), never the covariance of all the measurements,
+    which stays in ``cov_m2`` (``sde_m``... columns)."""
     if method == "stls":
         from gnss_cli.pipeline.smoothing import smooth
 
         return smooth(data, wls, config)
+    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
+
     if method == "smoother":
         from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
 
-        return doppler_smooth(data, wls, config, method="smoother", factors=factors)
+        sol, models = doppler_smooth(data, wls, config, method="smoother", factors=factors)
+        return with_geometry_dops(data, sol, config, config.smoother.motion), models
     if method == "kf":
         from gnss_cli.pipeline.kalman import run_kalman
 
-        return run_kalman(data, wls, config), ()
+        return with_geometry_dops(data, run_kalman(data, wls, config), config, config.kalman.model), ()
     raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")

@@ -15,9 +15,8 @@ Motion models (:data:`MOTION_KERNELS`, shared kernels ``r(z) I_3``):
 
 ``static``      ``(z - 1) I``      the receiver does not move;
 ``cv``          ``(z - 1)^2 I``    constant velocity (``kf`` with ``model = "cv"``);
-``ca``          ``(z - 1)^3 I``    constant acceleration (the smoother's ``pva``, ``kf`` ``ca``);
-``quadrature``  ``(z - 1)^3 I``    the lag-L velocity quadrature of the measurement-domain smoother
-                                   (``doppler``, and ``kinematic``).
+``ca``          ``(z - 1)^3 I``    constant acceleration (``smoother --motion ca``, ``kf`` ``ca``);
+``quadrature``  ``(z - 1)^3 I``    the lag-L velocity quadrature of ``smoother --motion quadrature``.
 
 Why ``(z - 1)^3 I`` for the quadrature: its velocities are free inputs observed only by the range
 rates, so with the pseudoranges alone its position behavior is every trajectory -- the geometry
@@ -40,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,18 +50,20 @@ from gnss_cli.errors import UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["DopColumns", "MOTION_KERNELS", "motion_kernel", "multi_epoch_dops"]
+__all__ = ["DopColumns", "MOTION_KERNELS", "DOP_WINDOW_EPOCHS", "motion_kernel", "multi_epoch_dops", "with_geometry_dops"]
 
 F64 = NDArray[np.float64]
 
 _EPOCH_BLOCK = 8192
 
-#: Scalar kernel coefficients ``[r_0 .. r_lag]`` (ascending powers) of each motion model; the
-#: current ``[smoothing] model`` words ``pva``, ``doppler`` and ``kinematic`` are aliases.
+#: Scalar kernel coefficients ``[r_0 .. r_lag]`` (ascending powers) of each motion model.
 MOTION_KERNELS: dict[str, tuple[float, ...]] = {
     "static": (-1.0, 1.0), "cv": (1.0, -2.0, 1.0), "ca": (-1.0, 3.0, -3.0, 1.0), "quadrature": (-1.0, 3.0, -3.0, 1.0),
-    "pva": (-1.0, 3.0, -3.0, 1.0), "doppler": (-1.0, 3.0, -3.0, 1.0), "kinematic": (-1.0, 3.0, -3.0, 1.0),
 }
+DOP_WINDOW_EPOCHS = 15
+"""Window (epochs) of the geometry DOPs of ``smoother`` and ``kf`` rows, which estimate whole
+segments: the window of ``stls --lag L`` (``[stls] window``), so that the DOP columns of the
+three multi-epoch methods describe the same span of geometry."""
 
 
 def motion_kernel(motion: str) -> KernelRepresentation:
@@ -381,3 +383,34 @@ def _dop_columns(cov: F64, determined: NDArray[np.bool_], cond: F64, degenerate:
     return DopColumns(**out, tdops=tdops, window_epochs=np.where(has_x, length, 0).astype(np.int64),
                       cond=np.where(has_x, cond, np.nan), degenerate=degenerate & has_x,
                       n_degenerate_windows=n_degenerate)
+
+
+def with_geometry_dops(data: Any, sol: Any, config: Any, motion: str,
+                       window_epochs: int = DOP_WINDOW_EPOCHS, gap_factor: float = 1.5) -> Any:
+    """``sol`` (a multi-epoch method's :class:`~gnss_cli.pipeline.results.MethodSolution` on the
+    epochs ``data``) with its DOP columns replaced by the geometry of :func:`multi_epoch_dops`
+    under the fixed ``motion`` model: the pseudoranges the method used (finite residuals) at its
+    positions, windows of ``window_epochs`` within the runs of uniformly sampled epochs with a
+    position. Degenerate windows are counted in ``data``-independent terms: their epochs keep
+    inf DOPs (an empty CSV cell)."""
+    from dataclasses import replace
+
+    from gnss_cli.behavior.windows import segments
+    from gnss_cli.gnss.geometry import linearize
+
+    has = np.all(np.isfinite(sol.x_ecef_m), axis=1)
+    rows = np.flatnonzero(has)
+    if not rows.size:
+        return sol
+    T, n = data.time_gps_s.size, data.sv.size
+    k = sol.clocks_m.shape[1] if sol.clocks_m is not None else 1
+    lin = linearize(data, rows, sol.x_ecef_m[rows], np.zeros((rows.size, k)), config)
+    A_pos = np.zeros((T, n, 3))
+    clock_cols = np.zeros((T, n, k))
+    A_pos[rows] = lin.A[:, :n, :3]
+    clock_cols[rows] = lin.A[:, :n, 3:]
+    used = np.isfinite(sol.residuals_m) & has[:, None]
+    d = multi_epoch_dops(A_pos, clock_cols, used, sol.x_ecef_m, segments(data.time_gps_s, has, gap_factor),
+                         motion_kernel(motion), window_epochs)
+    tdops = None if sol.tdops is None else d.tdops
+    return replace(sol, gdop=d.gdop, pdop=d.pdop, hdop=d.hdop, vdop=d.vdop, tdop=d.tdop, tdops=tdops)

@@ -348,3 +348,34 @@ def test_snapshot_rows_are_the_ls_dops_and_windows_only_lower_them(rinex_dir, fo
     multi = multi_epoch_dops(a_pos, clocks, used, ls.x_ecef_m, segments(data.time_gps_s, solved), motion_kernel("ca"), 15)
     assert np.all(multi.pdop[solved] <= snap.pdop[solved] * (1 + 1e-9)) and np.median(multi.pdop[solved] / snap.pdop[solved]) < 0.8
     assert np.all(np.isnan(multi.gdop[~solved])) and not multi.degenerate.any()
+
+
+def test_dop_columns_of_smoother_and_kf_rows_are_geometry(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The DOP columns of smoother and kf rows do not depend on the Doppler (only the pseudorange
+    geometry and the motion model), never exceed the snapshot DOP, and shrink from cv to static."""
+    from pathlib import Path
+
+    from gnss_cli.pipeline import process
+    from gnss_cli.config import load_config
+
+    sample = Path(__file__).resolve().parents[2] / "sample_rinex" / "static"
+    runs = {}
+    for kinds in ("pseudorange", "pseudorange,doppler"):
+        cfg = load_config(None, {"methods": "wls,kf", "measurements": kinds, "integrity": "off"})
+        runs[kinds] = process(sample / "obs.rnx", [sample / "nav.rnx"], cfg).solutions
+    for m in ("kf",):
+        a, b = runs["pseudorange"][m], runs["pseudorange,doppler"][m]
+        assert not np.allclose(a.x_ecef_m, b.x_ecef_m, atol=1e-4, rtol=0)  # the Doppler changes the estimate ...
+        np.testing.assert_allclose(a.gdop, b.gdop, rtol=1e-6)  # ... not the geometry (lines of sight move by cm)
+        np.testing.assert_allclose(a.pdop, b.pdop, rtol=1e-6)
+        assert np.all(a.gdop <= runs["pseudorange"]["wls"].gdop * (1 + 1e-9))
+    kf = runs["pseudorange"]["kf"]
+    cv_pdop = kf.pdop
+    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
+    from gnss_cli.pipeline import load_epochs
+
+    cfg = load_config(None, {"methods": "wls,kf"})
+    data = load_epochs(sample / "obs.rnx", [sample / "nav.rnx"], cfg)
+    static_pdop = with_geometry_dops(data, kf, cfg, "static").pdop
+    # a static receiver's behavior is smaller than constant velocity's: more geometry per position
+    assert np.all(static_pdop <= cv_pdop * (1 + 1e-9)) and np.mean(static_pdop) < np.mean(cv_pdop)
