@@ -155,7 +155,8 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
 
 INTEGRITY_COLUMNS = ["n_excluded", "excluded", "test_stat", "hpl_m", "vpl_m"]
 """Appended after every other column: FDE exclusions (the WLS set, for every method), the
-chi-square statistic and the protection levels (ls/wls rows; README "Integrity")."""
+chi-square statistic (every snapshot method) and the protection levels (ls/wls rows; README
+"Integrity")."""
 
 
 def _add_integrity_columns(df: pd.DataFrame, s, sv: NDArray[np.str_]) -> None:  # type: ignore[no-untyped-def]

@@ -1,5 +1,7 @@
-"""Integrity monitoring of the snapshot ls/wls fixes: chi-square test, fault detection and
-exclusion (FDE), protection levels, GDOP limit.
+"""Integrity monitoring of the snapshot fixes: chi-square test, fault detection and exclusion
+(FDE), protection levels, GDOP limit for ls/wls (:func:`monitor`); the chi-square test and GDOP
+limit for the methods solved once at the WLS fix, tls, dls, mtls, stls and wtls
+(:func:`monitor_fixes`: the test at each method's own fix, last paragraph).
 
 At the converged fix of an epoch, with the used satellite rows ``A`` (``n x (3 + k)``), the
 observed-minus-computed ``q``, the pseudorange variances ``sigma_i^2`` (``W = diag(1/sigma^2)``)
@@ -46,6 +48,15 @@ Epochs that still fail get ``integrity_fail``; epochs that pass but have ``GDOP 
 get ``gdop_limit``; epochs that pass with a horizontal protection level above
 ``alert_limit_h_m`` get ``hpl_limit`` (an epoch without redundancy has no protection level and
 is not limited). All keep their position.
+
+The other methods take one step at the final WLS fix with the WLS epoch's satellites (after its
+exclusions) and weights. Their fix gets the same test at its own estimate (:func:`check_fixes`):
+``T = sum_i r_i^2 / sigma_i^2`` with ``r_i`` the observed minus modelled pseudorange at the
+method's position and clocks (the physical model, not the method's own misfit: an
+errors-in-variables estimator also moves ``A``), the WLS sigmas, ``dof = n - (3 + k)`` and the
+same threshold; then the method's own GDOP against ``max_gdop``. Nothing is excluded for them
+(they have the WLS set); ``dof = 0`` passes as above; ``hpl_limit`` comes from the WLS epoch (no
+protection levels of their own). With ``integrity = "off"`` they keep the WLS epoch's word.
 """
 
 from __future__ import annotations
@@ -62,7 +73,8 @@ from gnss_cli.gnss.geometry import linearize, width_groups
 from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
-__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality"]
+__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality",
+           "FixCheck", "check_fixes", "monitor_fixes"]
 
 F64 = NDArray[np.float64]
 Solver = Callable[[EpochData, F64, F64], MethodSolution]
@@ -247,3 +259,86 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     status[ok & ~failed & ~(sol.gdop <= config.max_gdop)] = EpochStatus.GDOP_LIMIT.value
     status[ok & ~failed & (sol.gdop <= config.max_gdop) & (hpl > config.alert_limit_h_m)] = EpochStatus.HPL_LIMIT.value
     return replace(sol, status=status, excluded=excluded, test_stat=stat, hpl_m=hpl, vpl_m=vpl)
+
+
+@dataclass
+class FixCheck:
+    """The residual test of given fixes of ``t`` epochs: statistic, degrees of freedom, pass,
+    and the pseudorange residuals ``(t, n)`` (m, NaN for satellites not used)."""
+
+    stat: F64
+    dof: NDArray[np.int64]
+    passed: NDArray[np.bool_]
+    residuals_m: F64
+
+
+def check_fixes(data: EpochData, x: F64, clocks: F64, sigma_m: F64, config: ProcessingConfig) -> FixCheck:
+    """The chi-square test of fixes that were not fitted by this test (tls, dls, mtls, stls, wtls).
+
+    At each fix ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m) the residuals are those
+    of the physical model, observed minus modelled pseudorange ``r_i = rho_i - rho_hat_i(x, clocks)``
+    (:func:`~gnss_cli.gnss.geometry.linearize`: Sagnac, ionosphere, troposphere at the fix), for
+    the satellites the method used: those with a finite ``sigma_m`` (``(t, n)``, m, the a-priori
+    sigmas of the WLS weights, ``W = diag(1/sigma^2)``). The satellite set is kept as it is (no
+    elevation mask at the fix: the mask chose it at the linearization point). Statistic
+    ``T = r^T W r``, ``dof = n - (3 + k)``, threshold :func:`chi2_threshold` (``integrity_pfa``),
+    as :func:`check_epochs` does for ls/wls, where ``r`` is the fit's own residual.
+
+    An errors-in-variables estimator (TLS, DLS, MTLS) also perturbs the geometry ``A`` and
+    minimizes its own misfit; that misfit is not tested here. The test is on what the fix
+    predicts for the pseudoranges: a fix far from the truth leaves large pseudorange residuals
+    whatever its own misfit was. At a common linearization point WLS minimizes ``r^T W r`` of
+    the linear model, so its statistic is (to first order) a lower bound of every other
+    method's with the same satellites and weights.
+    """
+    T, n = x.shape[0], data.sv.size
+    used = np.isfinite(sigma_m)
+    unmasked = replace(config, elevation_mask_deg=-90.0)
+    stat, resid = np.full(T, np.nan), np.full((T, n), np.nan)
+    dof = np.zeros(T, dtype=np.int64)
+    for idx, width in width_groups(used, _BLOCK):
+        sub = replace(take_epochs(data, idx), usable=used[idx])
+        lin = linearize(sub, np.arange(idx.size), x[idx], clocks[idx], unmasked, width=width)
+        w_rows, k = lin.sat_rows, len(data.systems)
+        sat = lin.mask[:, :w_rows]
+        r = np.where(sat, lin.q[:, :w_rows], np.nan)
+        resid[idx] = lin.scatter(r, n)
+        sigma = np.take_along_axis(sigma_m[idx], np.maximum(lin.sv_index, 0), axis=1)
+        stat[idx] = np.sum(np.where(sat, (np.nan_to_num(r) / sigma) ** 2, 0.0), axis=1)
+        n_clocks = k - lin.mask[:, w_rows:].sum(axis=1) if k > 1 else 1
+        dof[idx] = sat.sum(axis=1) - 3 - n_clocks
+    thr = np.array([chi2_threshold(int(d), config.integrity_pfa) for d in dof])
+    return FixCheck(stat=stat, dof=dof, passed=stat <= thr, residuals_m=resid)
+
+
+def monitor_fixes(data: EpochData, sol: MethodSolution, wls_status: NDArray[np.str_],
+                  config: ProcessingConfig) -> MethodSolution:
+    """Test the ``ok`` epochs of a method solved once at the WLS fix (:func:`check_fixes`) and
+    check their GDOP; ``wls_status``: the WLS epochs' words, whose ``hpl_limit`` carries over
+    (the protection levels are those of ls/wls only).
+
+    Statuses in the order of :func:`monitor`: ``integrity_fail`` when the test at the method's
+    own fix fails, else ``gdop_limit`` when the method's GDOP is above ``max_gdop``, else
+    ``hpl_limit`` where the WLS epoch has it, else ``ok``. An epoch without redundancy
+    (``dof = 0``) passes the test, as for ls/wls. The method's own test decides, not the WLS
+    epoch's word: a WLS ``integrity_fail`` or ``gdop_limit`` epoch is ``ok`` for a method whose
+    fix passes both (rare: the WLS statistic is a lower bound, except for a robust WLS fix).
+    Nothing is excluded: the method used the WLS epoch's satellites, after its exclusions.
+    The residuals and the statistic of the tested epochs are returned with the solution.
+    """
+    T = sol.status.size
+    rows = np.flatnonzero(sol.status == EpochStatus.OK)
+    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    sigma = sol.sigma_m if sol.sigma_m is not None else np.full(sol.residuals_m.shape, np.nan)
+    chk = check_fixes(take_epochs(data, rows), sol.x_ecef_m[rows], clocks[rows], sigma[rows], config)
+    stat, residuals = np.full(T, np.nan), sol.residuals_m.copy()
+    stat[rows], residuals[rows] = chk.stat, chk.residuals_m
+    failed = np.zeros(T, dtype=bool)
+    failed[rows] = ~chk.passed
+    status = sol.status.copy()
+    ok = status == EpochStatus.OK
+    status[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
+    wide = ok & ~failed & ~(sol.gdop <= config.max_gdop)
+    status[wide] = EpochStatus.GDOP_LIMIT.value
+    status[ok & ~failed & ~wide & (wls_status == EpochStatus.HPL_LIMIT)] = EpochStatus.HPL_LIMIT.value
+    return replace(sol, status=status, test_stat=stat, residuals_m=residuals)

@@ -20,11 +20,13 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 
+import numpy as np
+
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel
 
 __all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "snapshot_config",
-           "solve_multi_epoch", "SINGLE_EPOCH_ESTIMATORS"]
+           "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
 
 SINGLE_EPOCH_ESTIMATORS = {
     "ls": "least squares", "wls": "weighted least squares", "tls": "total least squares",
@@ -90,12 +92,13 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             motion = config.smoother.motion
             lag = str(config.smoother.lag) if motion == "quadrature" else ""
             out[m] = MethodSettings(m, "fixed-model batch smoother", f"motion {motion}", lag, "whole segments", kinds,
-                                    "off" if config.integrity == "off" else "residual gate")
+                                    "off" if config.integrity == "off" else "residual gate, check")
         elif m == "kf":
             k = config.kalman
             estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
-            gate = f"innovation gate {k.innovation_gate:g} sigma" if k.innovation_gate > 0 else "off"
-            out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds, gate)
+            gate = f"innovation gate {k.innovation_gate:g} sigma, " if k.innovation_gate > 0 else ""
+            out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds,
+                                    "off" if config.integrity == "off" else gate + "check")
         else:
             integrity = snapshot_integrity if m in ("ls", "wls") else tested
             out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
@@ -129,19 +132,36 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
     for ``stls`` the window's identified kernel), never the covariance of all the measurements,
     which stays in ``cov_m2`` (``sde_m``... columns)."""
+    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
+
     if method == "stls":
         from gnss_cli.pipeline.smoothing import smooth
 
-        return smooth(data, wls, config)
-    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
-
-    if method == "smoother":
+        sol, models = smooth(data, wls, config)
+    elif method == "smoother":
         from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
 
         sol, models = doppler_smooth(data, wls, config, method="smoother", factors=factors)
-        return with_geometry_dops(data, sol, config, config.smoother.motion), models
-    if method == "kf":
+        sol = with_geometry_dops(data, sol, config, config.smoother.motion)
+    elif method == "kf":
         from gnss_cli.pipeline.kalman import run_kalman
 
-        return with_geometry_dops(data, run_kalman(data, wls, config), config, config.kalman.model), ()
-    raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
+        sol, models = with_geometry_dops(data, run_kalman(data, wls, config), config, config.kalman.model), ()
+    else:
+        raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
+    return tested(data, sol, wls, config), models
+
+
+def tested(data: EpochData, sol: MethodSolution, wls: MethodSolution, config: ProcessingConfig) -> MethodSolution:
+    """A multi-epoch method's rows after the residual test of WLS at their own estimates
+    (:func:`~gnss_cli.pipeline.integrity.monitor_fixes`, unless ``integrity = "off"``): the
+    chi-square statistic of the pseudoranges the method used (those with a residual), with the
+    WLS sigmas and the WLS epoch's degrees of freedom, then the GDOP limit. An ``ok`` epoch that
+    fails becomes ``integrity_fail`` (``gdop_limit``), keeping its position."""
+    if config.integrity == "off" or wls.sigma_m is None:
+        return sol
+    from gnss_cli.pipeline.integrity import monitor_fixes
+
+    sigma = np.where(np.isfinite(sol.residuals_m), wls.sigma_m, np.nan)
+    checked = monitor_fixes(data, replace(sol, sigma_m=sigma), wls.status, config)
+    return replace(checked, sigma_m=sol.sigma_m)

@@ -12,7 +12,8 @@ value                   meaning
 ======================  ==========================================================================
 ``ok``                  solved: Gauss-Newton converged (ls, wls), the one linear step succeeded
                         (tls, dls, mtls, stls, wtls), or the epoch was solved by a multi-epoch
-                        method (stls with lag, smoother, kf)
+                        method (stls with lag, smoother, kf); and the fix passed its integrity
+                        test and GDOP limit where it has them
 ``iteration_limit``     ls/wls: no convergence within ``max_iterations`` (position left empty)
 ``too_few_satellites``  fewer usable satellites than ``min_satellites`` or than 3 + clocks
 ``rank_deficient``      solver: the (weighted) design matrix is rank deficient
@@ -22,9 +23,12 @@ value                   meaning
 ``degenerate_data``     solver: degenerate data (e.g. a zero augmented matrix)
 ``fallback_wls``        stls with lag: the segment was too short or the window fit failed;
                         the WLS fix, covariance and DOPs are kept
-``integrity_fail``      ls/wls: the chi-square test of the residuals fails and no satellite can
-                        be excluded any more (``integrity = "check"``: it fails); position kept
-``gdop_limit``          ls/wls: GDOP above ``max_gdop`` (position kept)
+``integrity_fail``      the chi-square test of the residuals fails: ls/wls when no satellite can
+                        be excluded any more (``integrity = "check"``: when it fails); every other
+                        method (tls ... wtls, stls with lag, smoother, kf) when it fails at the
+                        method's own fix; position kept
+``gdop_limit``          GDOP above ``max_gdop`` (position kept; for tls ... wtls their own GDOP,
+                        with ``integrity`` check or fde)
 ``hpl_limit``           ls/wls: the test passes but the horizontal protection level exceeds
                         ``alert_limit_h_m`` (position kept)
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
@@ -262,7 +266,9 @@ class MethodSolution:
         configured pseudorange variances (ECEF position, one clock per system), m^2.
     status : ``(T,)`` status words, values of :class:`EpochStatus`.
     iterations : ``(T,)`` Gauss-Newton iterations.
-    residuals_m : ``(T, n)`` post-fit residuals of the used rows (NaN elsewhere).
+    residuals_m : ``(T, n)`` post-fit residuals of the used rows (NaN elsewhere); for tls, dls,
+        mtls, stls and wtls with ``integrity`` check or fde, the observed minus modelled
+        pseudoranges at the method's fix (those of its test statistic).
     """
 
     method: str
@@ -290,7 +296,9 @@ class MethodSolution:
     sigma_m: F64 | None = None
     """``(T, n)`` pseudorange sigma of the used rows (the weights' model), m (NaN elsewhere)."""
     test_stat: F64 | None = None
-    """``(T,)`` chi-square statistic ``sum r_i^2 / sigma_i^2`` of the final residuals (ls/wls)."""
+    """``(T,)`` chi-square statistic ``sum r_i^2 / sigma_i^2`` of the final residuals (ls/wls), or of
+    the pseudorange residuals at the method's fix with the WLS sigmas (the other snapshot methods);
+    not computed (NaN, or None) with ``integrity = "off"``."""
     hpl_m: F64 | None = None
     """``(T,)`` horizontal protection level, m (classic slope-based RAIM; ls/wls)."""
     vpl_m: F64 | None = None

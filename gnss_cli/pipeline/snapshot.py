@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize, width_groups
 from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
-from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
+from gnss_cli.pipeline.integrity import merge_epochs, monitor, monitor_fixes, take_epochs
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
@@ -214,7 +214,13 @@ def _set_status(status: NDArray[np.str_], rows: NDArray[np.intp], converged: NDA
 
 
 def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: MethodSolution) -> MethodSolution:
-    """One step at the WLS fix, with the WLS epoch's satellites (its FDE exclusions apply)."""
+    """One step at the WLS fix, with the WLS epoch's satellites (its FDE exclusions apply).
+
+    The WLS epochs with a fix (``ok`` and the flagged words) are solved. With ``integrity``
+    ``check`` or ``fde`` every solved epoch is then tested at the method's own fix
+    (:func:`~gnss_cli.pipeline.integrity.monitor_fixes`: chi-square test of its pseudorange
+    residuals with the WLS weights, GDOP limit); with ``off`` it keeps the WLS epoch's word.
+    """
     if base.excluded is not None:
         data = replace(data, usable=data.usable & ~base.excluded)
     T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
@@ -230,6 +236,9 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
         lin, res, n_used, enough, ok, _, _ = _linear_step(data, method, config, rows, x, b, width)
         out.record(rows, lin, res, n_used)
         _set_status(status, rows, ok, enough, ok, res.status)
+    if config.integrity != "off":
+        sol = monitor_fixes(data, out.finish(x, b, status, iterations), base.status, config)
+        return replace(sol, excluded=base.excluded)
     status[flagged & (status == EpochStatus.OK)] = base.status[flagged & (status == EpochStatus.OK)]
     return replace(out.finish(x, b, status, iterations), excluded=base.excluded)
 

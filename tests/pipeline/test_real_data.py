@@ -74,8 +74,11 @@ def test_every_method_on_0759_gives_a_row_per_epoch(rinex_dir):
     assert list(r.solutions) == ["ls", "wls", "tls", "dls", "mtls", "stls", "wtls"]
     for name, s in r.solutions.items():
         assert s.status.shape == (120,)
-        # Every method solves every epoch, with finite positions and DOPs.
-        assert np.all(s.status == EpochStatus.OK), (name, np.unique(s.status))
+        # Every method solves every epoch, with finite positions and DOPs. The errors-in-variables
+        # fixes are tested at their own estimate: those that fail the residual test or the GDOP
+        # limit keep their position (tests/pipeline/test_method_integrity.py); the others are ok.
+        kept = ("ok", "integrity_fail", "gdop_limit") if name in ("tls", "dls", "mtls") else ("ok",)
+        assert np.isin(s.status, kept).all(), (name, np.unique(s.status))
         assert np.all(np.isfinite(s.x_ecef_m)) and np.all(np.isfinite(s.gdop))
     # STLS with the realistic (tiny) geometry covariance reduces to WLS.
     dx = np.linalg.norm(r.solutions["stls"].x_ecef_m - r.solutions["wls"].x_ecef_m, axis=1)
