@@ -14,6 +14,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.io.reference import reference_from_csv, reference_from_pos
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.kalman import run_kalman
+from gnss_cli.pipeline.kalman_rows import variance_factors
 from gnss_cli.pipeline.velocity import solve_velocity
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
@@ -112,8 +113,9 @@ def test_a_long_gap_restarts_the_filter_and_a_short_one_is_bridged(flight):
               "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s")
     gapped = replace(data, **{f: getattr(data, f)[keep] for f in fields if getattr(data, f) is not None})
     second = replace(data, **{f: getattr(data, f)[300:] for f in fields if getattr(data, f) is not None})
-    kf_gapped = run_kalman(gapped, solve_method(gapped, "wls", cfg), cfg)
-    kf_second = run_kalman(second, solve_method(second, "wls", cfg), cfg)
+    factors = variance_factors(data, solve_method(data, "wls", cfg), cfg)  # else each estimated on its own data
+    kf_gapped = run_kalman(gapped, solve_method(gapped, "wls", cfg), cfg, factors=factors)
+    kf_second = run_kalman(second, solve_method(second, "wls", cfg), cfg, factors=factors)
     assert np.abs(kf_gapped.x_ecef_m[200:] - kf_second.x_ecef_m).max() < 1e-6  # independent segments
 
     silent = replace(data, usable=data.usable.copy())
