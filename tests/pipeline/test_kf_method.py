@@ -160,7 +160,7 @@ def test_kf_on_the_yamatogawa_walk(rinex_dir):
     t = result.epochs.time_gps_s
     ref = reference_from_pos(d / "rtk_ref_rover.pos", t, np.zeros_like(t))
     rms = {m: _rms(np.linalg.norm(s.x_ecef_m - ref, axis=1)) for m, s in result.solutions.items()}
-    assert rms["kf"] < 0.9 * rms["wls"]  # measured 2.60 m against 3.14 m
+    assert rms["kf"] < 0.9 * rms["wls"]  # measured 2.81 m against 3.14 m (2.60 m before the variance factors)
     # walking speed: the RTK trajectory's horizontal speed against the kf's
     ok = np.isfinite(ref).all(axis=1)
     lat, lon, _ = ecef2geodetic(ref[ok])
@@ -181,7 +181,7 @@ def test_kf_with_its_innovation_gate_in_the_urban_canyon(rinex_dir):
     ok = window & (wls.status == "ok")
     err = {m: np.linalg.norm(s.x_ecef_m - truth, axis=1) for m, s in (("wls", wls), ("kf", kf))}
     assert np.isfinite(err["kf"][window]).all()
-    # measured: kf 2.1 m over the 157 truth epochs (10.8 m without the gate), WLS 6.8 m over its 152 ok ones
+    # measured: kf 2.16 m over the 156 truth epochs (10.7 m without the gate, integrity = "off"), WLS 6.8 m over its 152 ok ones
     assert _rms(err["kf"][window]) < 0.6 * _rms(err["wls"][ok])
     assert (kf.n_sat[window] < wls.n_sat[window]).any()  # the gate rejected some of the WLS satellites
 
