@@ -144,7 +144,6 @@ class KalmanConfig:
     initial_drift_sigma_m_s: float = 1000.0
     gap_s: float = 60.0
     clock_reset_m: float = 1000.0
-    innovation_gate: float = 3.29
 
     def validated(self) -> "KalmanConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
@@ -155,6 +154,4 @@ class KalmanConfig:
                      "initial_drift_sigma_m_s", "gap_s", "clock_reset_m"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"kalman.{name}: expected > 0; received {getattr(self, name)}")
-        if not self.innovation_gate >= 0:
-            raise ConfigError(f"kalman.innovation_gate: expected >= 0 (0 = off); received {self.innovation_gate}")
         return self

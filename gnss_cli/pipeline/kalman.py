@@ -1,4 +1,5 @@
-"""The ``kf`` method: an extended Kalman filter (and RTS smoother) on the pseudoranges and range rates.
+"""The ``kf`` method: an extended Kalman filter (and RTS smoother) on the pseudoranges, range rates and
+time-differenced carrier phase.
 
 State (ECEF, metres and seconds): position, velocity, (acceleration with ``model = "ca"``), one
 receiver clock per system (m) and one clock drift common to every system (m/s: all systems
@@ -7,17 +8,31 @@ share the receiver's oscillator). Motion: constant velocity (``cv``; white accel
 ``jerk_psd_m2_s5``); each clock is a random walk (``clock_psd_m2_s``) driven by the common
 drift, itself a random walk (``drift_psd_m2_s3``).
 
-Measurements: every pseudorange the WLS solution used (same satellites, elevation mask, weights
-and FDE exclusions), row ``[-e, 0, ..., clock one-hot, 0]``; with Doppler (and
-``[kalman] doppler = true``) every range rate of those satellites, row
-``[0, -e + Sagnac, ..., 0, 1]`` (:mod:`gnss_cli.gnss.doppler`) with the sigmas of
-:func:`~gnss_cli.pipeline.velocity.doppler_sigma_m_s`.
+Measurements (``measurements``, :mod:`gnss_cli.pipeline.kalman_rows`: the same information as the
+smoother's): every pseudorange the WLS solution used (same satellites, elevation mask, weights
+and FDE exclusions), row ``[-e, 0, ..., clock one-hot, 0]``; with ``"doppler"`` every range rate
+of those satellites, row ``[0, -e + Sagnac, ..., 0, 1]`` (:mod:`gnss_cli.gnss.doppler`) with the
+sigmas of :func:`~gnss_cli.pipeline.velocity.doppler_sigma_m_s`; with ``"phase"`` the
+time-differenced carrier phase of consecutive epochs of the smoother
+(:func:`~gnss_cli.pipeline.phase_rows.phase_pair_rows`: same pairs, slip screening and sigmas), a
+row on ``x(t) - x(t-1)`` plus a free clock change per system. Each kind's sigmas are scaled by the
+smoother's variance factor of that kind, estimated from the data.
+
+The phase rows by stochastic cloning: with phase the state is augmented with a copy of the
+previous epoch's position (:func:`~gnss_cli.solvers.kalman.clone_transition`), the row is
+``[-e_t, ..., e_{t-1}]`` on ``[x_t, ..., x_{t-1}]`` and the clock changes are eliminated exactly
+(:class:`~gnss_cli.solvers.kalman.FreeRows`); the RTS smoother runs on the augmented state. It is
+exact: the augmented states are a Markov chain whose measurements at ``t`` depend on state ``t``
+alone, and a free clock change equals the smoother's (tying it to the filter's clocks would let
+their random walk, and a receiver's millisecond clock jumps, which the phase need not share, into
+the displacement). Dividing the difference by ``dt`` as a velocity is not: ``x_t - x_{t-1}`` is the
+integral of the velocity over the interval, not ``dt`` times its value at ``t``.
 
 Linearization: the pseudoranges are linearized at a nominal trajectory -- the WLS fixes,
 interpolated in time where WLS has none -- with the corrections and weights evaluated there;
 the filter then works on the linear model ``q - e . x_nom = -e . x + b``. Where the smoothed
 (or filtered) trajectory ends more than 50 m from the nominal one, the pseudoranges are
-linearized again at it and the filter rerun (at most 3 passes; with the innovation gate, the
+linearized again at it and the filter rerun (at most 3 passes; with the gate, the
 gate applies in one more, final pass at the last trajectory, at the epochs whose last pass
 moved them less than 50 m): the neglected curvature is
 ``|dx|^2 / (2 rho)``, below 1e-4 m for 50 m (the corrections and weights change less).
@@ -28,17 +43,28 @@ first WLS fix have no kf position (they keep the WLS status). A clock jump (the 
 difference of the WLS reference clock above ``clock_reset_m``, e.g. a millisecond reset of a
 steered receiver clock) adds a large process noise to every clock at that epoch.
 
-Innovation gate (``innovation_gate``, in sigmas of the predicted innovation; 0 = off): a
-pseudorange or range rate whose innovation is larger is not used at that epoch (``n_sat`` and
-the residuals count only the pseudoranges used), unless more than half of the epoch's rows are
-larger (:func:`~gnss_cli.solvers.kalman.kalman_update`: the motion model failed, not the data).
+Gate: the smoother's (:func:`~gnss_cli.pipeline.kalman_rows.gate_threshold`: the two-sided normal
+quantile of ``integrity_pfa``, off with ``integrity = "off"``), on the filter's innovations
+(:func:`~gnss_cli.solvers.kalman.kalman_update`). A pseudorange or range rate whose innovation
+exceeds it, in sigmas of the predicted innovation, is not used at that epoch, unless more than
+half of the epoch's rows of its kind exceed it (the motion model failed, not the data). A phase
+difference: the largest whose innovation predicted from the prior and the epoch's other phase
+differences exceeds it is not used, one at a time (:func:`~gnss_cli.solvers.kalman.free_update`:
+the smoother's "largest of each pair"). ``n_sat`` and the residuals count only the pseudoranges
+used. What differs from the smoother: a filter tests each row against what the data before it
+(and the motion model) predict, with the variance of that prediction -- the smoother's residuals
+come from a fit to every epoch, the row itself included, and are not divided by their
+redundancy; both statistics are N(0, 1) when the model holds, so the threshold keeps its
+false-alarm probability. The filter's decision at an epoch is final (a later epoch cannot bring
+a row back, the smoother's passes can), and the prediction of a phase difference from the motion
+model alone (metres at 1 s) could not see a slip of one cycle, hence the epoch's other differences.
 
 Per epoch: ``ok`` after an update with at least one pseudorange, ``predicted`` when the epoch
 had no usable measurement (motion model, and smoother, only). ``cov_m2`` is the smoothed
 (filtered with ``smoother = "none"``) covariance of position and clocks; the DOP columns are that
-covariance divided by the median variance of the run's used pseudoranges (so they are the
-multi-epoch DOP of the filter, for a typical satellite's variance), ``gdop_vel`` the velocity and
-drift covariance divided by ``doppler_sigma_m_s^2``.
+covariance divided by the median variance of the run's used pseudoranges, with their factor (so
+they are the multi-epoch DOP of the filter, for a typical satellite's variance), ``gdop_vel`` the
+velocity and drift covariance divided by ``doppler_sigma_m_s^2``.
 """
 
 from __future__ import annotations
@@ -52,10 +78,12 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.geometry import linearize
+from gnss_cli.pipeline.kalman_rows import (PhaseRows, filter_phase_rows, gate_threshold, kinds_config,
+                                           measurement_kinds, variance_factors)
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
 from gnss_cli.pipeline.velocity import doppler_sigma_m_s, solve_velocity
 from gnss_cli.solvers.dop import dop_from_cov
-from gnss_cli.solvers.kalman import kalman_filter, rts_smooth
+from gnss_cli.solvers.kalman import FreeRows, clone_prior, clone_transition, kalman_filter, rts_smooth
 
 F64 = NDArray[np.float64]
 
@@ -66,6 +94,7 @@ _MAX_PASSES = 3
 _CLOCK_RESET_VAR_M2 = 1e12
 _ABSENT_CLOCK_VAR_M2 = 1e8
 _BLOCK = 2048  # epochs per linearization block
+_CLONED = np.arange(3)  # with phase: the previous epoch's position rides along in the state
 
 
 @dataclass(frozen=True)
@@ -124,7 +153,8 @@ def transition(dt_s: float, layout_n_kin: int, k: int, config: ProcessingConfig)
 
 @dataclass
 class Measurements:
-    """Linearized pseudoranges and range rates of every epoch (``(T, n)`` arrays)."""
+    """Linearized pseudoranges and range rates of every epoch (``(T, n)`` arrays), configured variances
+    (the filter scales them by ``factors``: pseudoranges, range rates, phase pairs), phase pairs."""
 
     unit: F64  # line of sight, (T, n, 3)
     y_pr: F64  # q - e . x_nom: equals -e . x + b
@@ -134,6 +164,8 @@ class Measurements:
     y_rr: F64 | None = None
     var_rr: F64 | None = None
     used_rr: NDArray[np.bool_] | None = None
+    phase: PhaseRows | None = None
+    factors: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> Measurements:
@@ -161,20 +193,33 @@ def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingCon
     return out
 
 
-def _rows(meas: Measurements, t: int, lay: _Layout, sysidx: NDArray[np.int64]) -> tuple[F64, F64, F64]:
-    """Measurement rows, values and variances of epoch ``t`` for the state layout."""
+def _rows(meas: Measurements, t: int, lay: _Layout, sysidx: NDArray[np.int64], m: int,
+          first: bool) -> tuple[F64, F64, F64, NDArray[np.int64], FreeRows | None]:
+    """Rows, values, variances (with their factors) and kinds (0 pseudorange, 1 range rate) of epoch
+    ``t`` for a state of ``m`` components (with phase: the cloned position last), and its phase rows
+    (none at the ``first`` epoch of a segment: its clone is itself)."""
     i = np.flatnonzero(meas.used[t])
-    H = np.zeros((i.size, lay.m))
+    H = np.zeros((i.size, m))
     H[:, :3] = -meas.unit[t, i]
     H[np.arange(i.size), lay.clocks[sysidx[i]]] = 1.0
-    y, r = meas.y_pr[t, i], meas.var_pr[t, i]
+    y, r = meas.y_pr[t, i], meas.var_pr[t, i] * meas.factors[0]
+    kind = np.zeros(i.size, dtype=np.int64)
     if meas.used_rr is not None:
         j = np.flatnonzero(meas.used_rr[t])
-        Hd = np.zeros((j.size, lay.m))
+        Hd = np.zeros((j.size, m))
         Hd[:, 3:6] = meas.H_rr[t, j, :3]
         Hd[:, lay.drift] = 1.0
-        H, y, r = np.vstack([H, Hd]), np.concatenate([y, meas.y_rr[t, j]]), np.concatenate([r, meas.var_rr[t, j]])
-    return H, y, r
+        H, y = np.vstack([H, Hd]), np.concatenate([y, meas.y_rr[t, j]])
+        r, kind = np.concatenate([r, meas.var_rr[t, j] * meas.factors[1]]), np.r_[kind, np.ones(j.size, dtype=np.int64)]
+    ph = meas.phase
+    if ph is None or first:
+        return H, y, r, kind, None
+    j = np.flatnonzero(ph.used[t])
+    Hp = np.zeros((j.size, m))
+    Hp[:, :3] = ph.H6[t, j, 3:]
+    Hp[:, lay.m + _CLONED] = ph.H6[t, j, :3]
+    G = (sysidx[j, None] == np.arange(lay.k)).astype(np.float64)
+    return H, y, r, kind, FreeRows(Hp, ph.y[t, j], ph.var_m2[t, j] * meas.factors[2], G)
 
 
 def _segments(t: F64, has_fix: NDArray[np.bool_], gap_s: float) -> list[NDArray[np.intp]]:
@@ -216,22 +261,25 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: Measurements, ini
         if jumps[seg[j]]:
             Q[j][lay.clocks, lay.clocks] += _CLOCK_RESET_VAR_M2
     sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
-    H, y, r = zip(*(_rows(meas, int(i), lay, sysidx) for i in seg))
     m0, P0 = _prior(init, int(seg[0]), lay, config)
+    if meas.phase is not None:
+        F, Q = clone_transition(F, Q, _CLONED)
+        m0, P0 = clone_prior(m0, P0, _CLONED)
+    H, y, r, kind, free = zip(*(_rows(meas, int(i), lay, sysidx, m0.size, j == 0) for j, i in enumerate(seg)))
     gates = None if gate is None else [float(g) if np.isfinite(g) else None for g in gate[seg]]
-    res = kalman_filter(m0, P0, F, Q, H, y, r, gates)
+    res = kalman_filter(m0, P0, F, Q, H, y, r, gates, groups=kind, free=None if meas.phase is None else free)
     for i, nu in zip(seg, res.innovations):
         rows = np.flatnonzero(meas.used[i])
         meas.used[i, rows[np.isnan(nu[: rows.size])]] = False
-    if config.kalman.output == "smoothed":
-        return rts_smooth(res, F)
-    return res.x, res.P
+    x, P = rts_smooth(res, F) if config.kalman.output == "smoothed" else (res.x, res.P)
+    return x[:, :lay.m], P[:, :lay.m, :lay.m]
 
 
 def _prior(init: dict[str, F64], t0: int, lay: _Layout, config: ProcessingConfig) -> tuple[F64, F64]:
     """Mean and covariance of the first state of a segment: the WLS fix and clocks with 4 x their
     covariance (a clock of a system without satellites there: 10 km), the Doppler velocity and
-    drift with 100 x ``doppler_sigma_m_s^2`` where there is one, else zero with the initial sigmas."""
+    drift with 100 x ``doppler_sigma_m_s^2`` where there is one (range rates used), else zero with the
+    initial sigmas."""
     m0 = np.zeros(lay.m)
     P0 = np.zeros((lay.m, lay.m))
     pc = np.r_[0:3, lay.clocks]
@@ -262,30 +310,50 @@ def nominal_trajectory(t: F64, x: F64) -> F64:
     return np.stack([np.interp(t, t[ok], x[ok, i]) for i in range(3)], axis=1)
 
 
-def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -> MethodSolution:
+def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig, *,
+               measurements: frozenset[str] | None = None,
+               factors: tuple[float, float, float] | None = None) -> MethodSolution:
     """The ``kf`` rows: filter (and smooth) every segment with the WLS solution's satellites.
 
     Parameters
     ----------
     data : EpochData
-        The prepared epochs.
+        The prepared epochs (with ``"phase"``: read with their carrier phase).
     wls : MethodSolution
-        The WLS solution: nominal trajectory, initial state, FDE exclusions.
+        The WLS solution: nominal trajectory, initial state, FDE exclusions, variance factors.
     config : ProcessingConfig
-        ``[kalman]`` settings, weights, corrections, ``doppler_sigma_m_s``.
+        ``[kalman]`` settings, weights, corrections, ``doppler_sigma_m_s``, ``phase_sigma_m`` and
+        ``phase_slip_m``, ``integrity`` and ``integrity_pfa`` (the gate).
+    measurements : frozenset of str, optional
+        The kinds used, a subset of ``{"pseudorange", "doppler", "phase"}`` with ``"pseudorange"``
+        (those the file lacks are not used); None: ``[processing] measurements``
+        (:func:`~gnss_cli.pipeline.kalman_rows.measurement_kinds`).
+    factors : tuple of 3 float, optional
+        Variance factors of pseudoranges, range rates and phase pairs, when estimated beforehand;
+        None: estimated from ``data`` as the smoother does
+        (:func:`~gnss_cli.pipeline.kalman_rows.variance_factors`).
 
     Returns
     -------
     MethodSolution
         Method ``kf``; epochs before a segment's first WLS fix keep the WLS status, no position.
+
+    Raises
+    ------
+    ConfigError
+        ``measurements`` has an unknown kind or lacks ``"pseudorange"``.
     """
+    kinds = measurement_kinds(data, config, measurements)
     if wls.excluded is not None:
         data = replace(data, usable=data.usable & ~wls.excluded)
+    factors = variance_factors(data, wls, config) if factors is None else factors
+    rows_config = kinds_config(config, kinds)
     T, k = data.time_gps_s.size, len(data.systems)
     lay = _Layout(3 if config.kalman.model == "ca" else 2, k)
     has_fix = np.isfinite(wls.x_ecef_m).all(axis=1)
     clocks = wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]
-    vel = solve_velocity(data, wls.x_ecef_m, wls.sigma_m if wls.sigma_m is not None else np.ones(data.usable.shape), config)
+    vel = solve_velocity(data, wls.x_ecef_m, wls.sigma_m if wls.sigma_m is not None else np.ones(data.usable.shape),
+                         config) if "doppler" in kinds else None  # without range rates the prior has none either
     tdops = wls.tdops if wls.tdops is not None else np.zeros((T, k))
     init = {"x": wls.x_ecef_m, "clocks": clocks, "cov": wls.cov_m2, "tdops": tdops,
             "vel": vel.vel_ecef_m_s if vel else np.full((T, 3), np.nan),
@@ -297,7 +365,9 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
     P = np.full((T, lay.m, lay.m), np.nan)
 
     def one_pass(gate: F64 | None) -> Measurements:
-        meas = linearized_measurements(data, nominal, config)
+        meas = linearized_measurements(data, nominal, rows_config)
+        meas.phase = filter_phase_rows(data, meas, nominal, rows_config) if "phase" in kinds else None
+        meas.factors = factors
         for seg in segments:
             x[seg], P[seg] = _run_segment(seg, data, meas, init, lay, jumps, config, gate)
         return meas
@@ -311,8 +381,9 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -
         nominal[have] = x[have, :3]
         if moved.max() <= _RELINEARIZE_M:
             break
-    if config.kalman.innovation_gate > 0:  # only where the linearization has settled (else it rejects good data)
-        meas = one_pass(np.where(moved <= _RELINEARIZE_M, config.kalman.innovation_gate, np.nan))
+    gate = gate_threshold(config)
+    if gate is not None:  # only where the linearization has settled (else it rejects good data)
+        meas = one_pass(np.where(moved <= _RELINEARIZE_M, gate, np.nan))
         passes += 1
     return _solution(data, wls, meas, x, P, lay, passes, config)
 
@@ -331,7 +402,7 @@ def _solution(data: EpochData, wls: MethodSolution, meas: Measurements, x: F64, 
     predicted = -np.einsum("tnk,tk->tn", meas.unit, x[:, :3]) + np.take_along_axis(clocks, np.broadcast_to(sysidx, meas.used.shape), 1)
     residuals = np.where(meas.used & have[:, None], meas.y_pr - predicted, np.nan)
     sigma = np.where(meas.used & have[:, None], np.sqrt(meas.var_pr), np.nan)
-    var0 = float(np.nanmedian(sigma**2)) if np.isfinite(sigma).any() else 1.0
+    var0 = float(np.nanmedian(sigma**2)) * meas.factors[0] if np.isfinite(sigma).any() else 1.0
     lat, lon, _ = ecef2geodetic(np.where(have[:, None], x[:, :3], 1.0))
     rot = ecef2enu_rotation(lat, lon)
     q = np.where(have[:, None, None], cov / var0, np.eye(3 + k))

@@ -96,9 +96,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
         elif m == "kf":
             k = config.kalman
             estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
-            gate = f"innovation gate {k.innovation_gate:g} sigma, " if k.innovation_gate > 0 else ""
             out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds,
-                                    "off" if config.integrity == "off" else gate + "check")
+                                    "off" if config.integrity == "off" else "innovation gate, check")
         else:
             integrity = snapshot_integrity if m in ("ls", "wls") else tested
             out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
@@ -146,7 +145,9 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     elif method == "kf":
         from gnss_cli.pipeline.kalman import run_kalman
 
-        sol, models = with_geometry_dops(data, run_kalman(data, wls, config), config, config.kalman.model), ()
+        kinds = frozenset(resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None))
+        sol = run_kalman(data, wls, config, measurements=kinds, factors=factors)
+        sol, models = with_geometry_dops(data, sol, config, config.kalman.model), ()
     else:
         raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
     return tested(data, sol, wls, config), models

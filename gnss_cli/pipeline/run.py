@@ -425,10 +425,10 @@ class Run:
     def _variance_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
                           n_epochs: int) -> tuple[float, ...] | None:
         """The whole file's variance factors of the measurement kinds (a pass of WLS over the
-        parts), so that every piece of ``smoother`` weighs as the whole file would; None when
-        no method needs them."""
+        parts), so that every piece of ``smoother`` and ``kf`` weighs as the whole file would; None
+        when no method needs them."""
         config = self.config
-        if "smoother" not in config.multi_epoch_methods:
+        if not {"smoother", "kf"} & set(config.multi_epoch_methods):
             return None
         from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
 
