@@ -5,7 +5,7 @@ epochs (GPS seconds of week 270149-270305), and a simulated 1 Hz flight (600 s, 
 ``--errors all``, as ``gnss-simulate --trajectory flight --duration 600 --seed 3``; the
 simulator writes no phase, so the third set equals the second there). Both motion models
 (``cv``, ``ca``), the packaged defaults otherwise. The phase is read as the smoother reads it
-(``smoothing.lag = 3`` here only makes the reader keep the phase columns). Prints horizontal and
+(the kf method makes the reader keep the phase columns). Prints horizontal and
 3D RMS (m) and the variance factors (pseudoranges, range rates, phase pairs).
 
 Usage: ``python benchmarks/bench_kf_measurements.py [--rinex DIR]`` (default ``../shared/rinex``; writes
@@ -75,7 +75,7 @@ def main() -> None:
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         for name, (obs, navs, ref_of) in sets(Path(tmp_name), args.rinex).items():
-            cfg = load_config(None, {"methods": "wls,kf", "smoothing.lag": 3})
+            cfg = load_config(None, {"methods": "wls,kf"})
             data = load_epochs(obs, navs, cfg)
             wls = solve_method(data, "wls", cfg)
             ref, sel = ref_of(data.time_gps_s)  # type: ignore[operator]

@@ -78,8 +78,7 @@ def measurement_kinds(data: EpochData, config: ProcessingConfig, measurements: I
 
 def kinds_config(config: ProcessingConfig, kinds: frozenset[str]) -> ProcessingConfig:
     """``config`` with the switches of the row builders set to ``kinds`` (range rates, phase pairs)."""
-    return replace(config, kalman=replace(config.kalman, doppler="doppler" in kinds),
-                   smoothing=replace(config.smoothing, carrier_phase="phase" in kinds))
+    return replace(config, measurements=tuple(k for k in KINDS if k in kinds))
 
 
 def variance_factors(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -> tuple[float, float, float]:

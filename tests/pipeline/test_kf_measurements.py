@@ -53,7 +53,7 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
 
 
 def _with_phase(data: EpochData, phase: np.ndarray, cfg) -> EpochData:  # type: ignore[no-untyped-def]
-    slip = phase_slips(data.time_gps_s, phase, data.range_rate_m_s, np.zeros(phase.shape), cfg.smoothing.phase_slip_m)
+    slip = phase_slips(data.time_gps_s, phase, data.range_rate_m_s, np.zeros(phase.shape), cfg.phase_slip_m)
     return replace(data, phase_m=np.where(data.usable, phase, np.nan), phase_slip=slip)
 
 
@@ -73,7 +73,7 @@ def test_phase_rows_improve_the_kf_on_the_yamatogawa_walk(rinex_dir) -> None:  #
     """Measured (cv): 3D RMS 2.81 -> 2.43 m, horizontal 0.92 -> 0.30 m against the RTK trajectory
     (the smoother with phase: 2.49 and 0.37 m)."""
     d = rinex_dir / "yamatogawa-2010006-kinematic"
-    cfg = load_config(None, {"methods": "wls,kf", "smoothing.lag": 3})  # reads the phase
+    cfg = load_config(None, {"methods": "wls,kf"})  # kf with every measurement: the phase is read
     data = load_epochs(d / "yamatogawa_rover.obs", [d / "brdc0060.10n"], cfg)
     assert data.phase_m is not None
     wls = solve_method(data, "wls", cfg)
@@ -155,8 +155,8 @@ def test_kinds_are_checked_and_the_gate_is_the_smoothers(flights) -> None:  # ty
     for bad in ({"doppler"}, {"pseudorange", "carrier"}, set()):
         with pytest.raises(ConfigError, match="measurements"):
             measurement_kinds(data, cfg, frozenset(bad))
-    assert measurement_kinds(data, cfg, None) == PR_DOPPLER  # today's default
-    no_doppler = replace(cfg, kalman=replace(cfg.kalman, doppler=False))
+    assert measurement_kinds(data, cfg, None) == PR_DOPPLER  # every kind of the file (it has no phase)
+    no_doppler = replace(cfg, measurements=("pseudorange",))
     assert measurement_kinds(data, no_doppler, None) == {"pseudorange"}
     assert measurement_kinds(data, no_doppler, PR_DOPPLER) == PR_DOPPLER  # the kinds asked for rule
     assert gate_threshold(cfg) == pytest.approx(3.2905, abs=1e-4)  # integrity_pfa = 1e-3
