@@ -157,12 +157,13 @@ def tested(data: EpochData, sol: MethodSolution, wls: MethodSolution, config: Pr
     """A multi-epoch method's rows after the residual test of WLS at their own estimates
     (:func:`~gnss_cli.pipeline.integrity.monitor_fixes`, unless ``integrity = "off"``): the
     chi-square statistic of the pseudoranges the method used (those with a residual), with the
-    WLS sigmas and the WLS epoch's degrees of freedom, then the GDOP limit. An ``ok`` epoch that
-    fails becomes ``integrity_fail`` (``gdop_limit``), keeping its position."""
+    WLS sigmas; its degrees of freedom are the pseudoranges less the epoch's clocks (the position
+    is fixed by several epochs, not fitted to this epoch's pseudoranges), then the GDOP limit. An
+    ``ok`` epoch that fails becomes ``integrity_fail`` (``gdop_limit``), keeping its position."""
     if config.integrity == "off" or wls.sigma_m is None:
         return sol
     from gnss_cli.pipeline.integrity import monitor_fixes
 
     sigma = np.where(np.isfinite(sol.residuals_m), wls.sigma_m, np.nan)
-    checked = monitor_fixes(data, replace(sol, sigma_m=sigma), wls.status, config)
+    checked = monitor_fixes(data, replace(sol, sigma_m=sigma), wls.status, config, position_unknowns=0)
     return replace(checked, sigma_m=sol.sigma_m)
