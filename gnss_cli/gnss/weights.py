@@ -1,9 +1,9 @@
-"""Pseudorange error models: broadcast ephemeris sigmas, pseudorange variances, STLS/WTLS scales.
+"""Pseudorange error models: pseudorange variances, STLS/WTLS scales.
 
 The variance model follows RTKLIB 2.4.3 ``pntpos.c`` (``gnss_cli/configs/default.toml`` [weights]);
-the broadcast orbit-and-clock sigma is RTKLIB's ``var_uraeph``. The single-epoch STLS row
-covariance and the WTLS column scale add the broadcast-orbit error to the geometry columns
-(``[stls] orbit_sigma_m``, DESIGN.md section 3).
+the broadcast orbit-and-clock sigma is RTKLIB's ``var_uraeph`` (:mod:`gnss_cli.gnss.broadcast`).
+The single-epoch STLS row covariance and the WTLS column scale add the broadcast-orbit error to
+the geometry columns (``[stls] orbit_sigma_m``, DESIGN.md section 3).
 """
 
 from __future__ import annotations
@@ -19,52 +19,14 @@ if TYPE_CHECKING:
 
 F64 = NDArray[np.float64]
 
-URA_TABLE_M = np.array([2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0, 3072.0, 6144.0])
-"""URA index table of IS-GPS-200 (m), as RTKLIB uses it for the ephemeris variance."""
-
-
-def ura_from_index_table(ura_m: F64) -> F64:
-    """Broadcast URA (m) rounded up to the IS-GPS-200 URA table, as RTKLIB does; NaN -> 2.4 m."""
-    u = np.where(np.isfinite(ura_m), ura_m, 0.0)
-    k = np.searchsorted(URA_TABLE_M, u - 1e-9)
-    return np.where(k < URA_TABLE_M.size, URA_TABLE_M[np.minimum(k, URA_TABLE_M.size - 1)], 6144.0)
-
-
-MAX_EPHEMERIS_SIGMA_M = 300.0
-"""A satellite whose broadcast orbit-and-clock sigma (URA, SISA) exceeds this (m) is not used, as
-RTKLIB's ``MAX_VAR_EPH`` (URA index 10 and above, Galileo NAPA). Weighted instead, such a
-satellite adds nothing to the position but a degree of freedom to the residual test: a record
-with a damaged URA of 266 km let six reflected GPS signals in the urban canyon pass the test
-100-180 m off (benchmarks/fuzz.py)."""
-GLONASS_EPHEMERIS_SIGMA_M = 5.0
-"""GLONASS broadcast orbit-and-clock error sigma (RTKLIB ``ERREPH_GLO``): RINEX 3 records carry no URA."""
-GALILEO_NAPA_SIGMA_M = 500.0
-"""Galileo SISA 'no accuracy prediction available' (RTKLIB ``STD_GAL_NAPA``)."""
-
-
-def ephemeris_sigma_m(system: str, accuracy_m: F64) -> F64:
-    """Orbit-and-clock error sigma (m) of broadcast records, as RTKLIB's ``var_uraeph``.
-
-    GPS, QZSS, BeiDou: the URA field rounded up to the IS-GPS-200 table (blank: 2.4 m).
-    Galileo: the SISA field, 0 < SISA <= 6 m; larger or negative values mean NAPA (500 m);
-    blank: 2.4 m. GLONASS: 5 m for every record.
-    """
-    acc = np.asarray(accuracy_m, dtype=np.float64)
-    if system == "R":
-        return np.full(acc.shape, GLONASS_EPHEMERIS_SIGMA_M)
-    if system == "E":
-        napa = np.isfinite(acc) & ((acc <= 0.0) | (acc > 6.0))
-        return np.where(np.isfinite(acc), np.where(napa, GALILEO_NAPA_SIGMA_M, acc), URA_TABLE_M[0])
-    return ura_from_index_table(acc)
-
 
 def pseudorange_variance_m2(
     config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0
 ) -> F64:
     """Pseudorange variances (m^2) of the configured weight model (see ``gnss_cli/configs/default.toml``).
 
-    ``ura_m`` is the broadcast orbit-and-clock sigma (:func:`ephemeris_sigma_m`); ``efact``
-    scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
+    ``ura_m`` is the broadcast orbit-and-clock sigma (:func:`~gnss_cli.gnss.broadcast.ephemeris_sigma_m`);
+    ``efact`` scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
     """
     w = config.weights
     sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))

@@ -19,6 +19,8 @@ from numpy.typing import NDArray
 from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import RinexFormatError
+from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
+from gnss_cli.gnss.broadcast import MAX_EPHEMERIS_SIGMA_M, GlonassRecords, KeplerRecords, system_records
 from gnss_cli.gnss.carrier import phase_slips
 from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
 from gnss_cli.gnss.observables import (
@@ -36,11 +38,9 @@ from gnss_cli.gnss.observables import (
 from gnss_cli.gnss.orbits import SatelliteStates
 from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
 from gnss_cli.gnss.time import gps_s2datetime
-from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
 from gnss_cli.io.fixed_width import lli_name
-from gnss_cli.io.rinex import read_obs
-from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
-from gnss_cli.pipeline.navigation import klobuchar_for, navigation_files
+from gnss_cli.io.navigation import navigation_files
+from gnss_cli.io.rinex import klobuchar_coefficients, read_obs
 from gnss_cli.pipeline.results import EpochData
 
 __all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
@@ -163,7 +163,7 @@ def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, confi
             ura_m: F64) -> NDArray[np.int8]:
     """Why each observation is not usable (:data:`~gnss_cli.pipeline.results.UNUSED_REASONS` index;
     -1 not observed, 0 usable): no ephemeris, an ephemeris sigma ``ura_m`` (m) above
-    :data:`~gnss_cli.gnss.weights.MAX_EPHEMERIS_SIGMA_M`, ``exclude``, ``snr_mask_dbhz`` (an
+    :data:`~gnss_cli.gnss.broadcast.MAX_EPHEMERIS_SIGMA_M`, ``exclude``, ``snr_mask_dbhz`` (an
     observation without an S value passes the mask)."""
     code = np.zeros(prs.pr_m.shape, dtype=np.int8)
     code[~usable] = 1
@@ -189,6 +189,16 @@ def _approx_position(obs: xr.Dataset) -> F64 | None:
     approx = np.asarray(obs.attrs.get("position", []) or [], dtype=np.float64).ravel()
     near = approx.size == 3 and EARTH_SURFACE_BAND_M[0] < np.linalg.norm(approx) < EARTH_SURFACE_BAND_M[1]
     return approx if near else None
+
+
+def klobuchar_for(nav: xr.Dataset, config: ProcessingConfig, nav_name: str, warnings: list[str]) -> tuple[F64, F64] | None:
+    """The navigation files' Klobuchar coefficients, else RTKLIB's defaults (with a warning)."""
+    klob = klobuchar_coefficients(nav)
+    if klob is None and config.iono == "klobuchar":
+        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
+        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
+        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
+    return klob
 
 
 @dataclass
@@ -217,7 +227,7 @@ class EpochSetup:
 
     def read_navigation(self) -> None:
         """Read the navigation files (records, Klobuchar coefficients, leap seconds; in a process
-        that :func:`~gnss_cli.pipeline.navigation.keep_navigation` was called in, the last files
+        that :func:`~gnss_cli.io.navigation.keep_navigation` was called in, the last files
         read are taken again unread while they are unchanged, with their per-system records)."""
         self.nav, self.leap_seconds, self._records = navigation_files(self.nav_paths, self.systems)
         self.nav_name = ",".join(Path(p).name for p in self.nav_paths)
