@@ -58,7 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.geometry import linearize, width_groups
+from gnss_cli.gnss.range_model import linearize, width_groups
 from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 

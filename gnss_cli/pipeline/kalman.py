@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
-from gnss_cli.gnss.geometry import linearize
+from gnss_cli.gnss.range_model import linearize
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
 from gnss_cli.pipeline.velocity import doppler_sigma_m_s, solve_velocity
 from gnss_cli.solvers.dop import dop_from_cov

@@ -33,8 +33,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import NoSolutionError
-from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize, width_groups
-from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
+from gnss_cli.gnss.range_model import EARTH_SURFACE_BAND_M, Linearization, linearize, stls_row_cov, width_groups, wtls_column_scale
 from gnss_cli.pipeline.epochs import load_epochs
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, RunResult, solver_epoch_status

@@ -1,4 +1,4 @@
-"""The compact layout of :func:`gnss_cli.gnss.geometry.linearize`: the dense layout's rows, moved."""
+"""The compact layout of :func:`gnss_cli.gnss.range_model.linearize`: the dense layout's rows, moved."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gnss_cli.config import load_config
-from gnss_cli.gnss.geometry import COMPACT_ROW_STEP, compact_width, linearize, width_groups
+from gnss_cli.gnss.range_model import COMPACT_ROW_STEP, compact_width, linearize, width_groups
 from gnss_cli.pipeline import load_epochs
 
 
