@@ -11,7 +11,6 @@ Modules, one job each::
                 file's parts read and solved at once in forked processes
     parts       part_epochs, solve_part: one part of a file on the whole file's axes, solved
     memory      release_memory, map_large_blocks: the C heap of a run in parts
-    navigation  navigation_files, keep_navigation: the navigation files of a run (kept in a worker)
     smoothing_stream  StreamSmoother: the smoothing of parts with the whole file's schedule
     identification  identify_trajectory: kernel identification and prediction of a trajectory
 
