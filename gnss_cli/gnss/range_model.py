@@ -11,7 +11,8 @@ computed in this order, vectorized over ``(T, n)`` epochs x satellites:
 1. **Transmit time** (:func:`satellites_at_transmit_time`): the broadcast record of the
    observation (:mod:`gnss_cli.gnss.broadcast`) is evaluated at ``t - P/c`` and the position
    moved to the transmit time ``t - P/c - dt_i`` along the broadcast velocity (``|dt_i| < 1 ms``:
-   the neglected acceleration term is below 1e-6 m).
+   the neglected acceleration term is below 1e-6 m; the broadcast velocity's own error,
+   ~0.15 m/s, keeps it within 0.2 mm of the state evaluated at the transmit time).
 2. **Satellite clock and group delay** (:func:`corrected_pseudoranges`): ``dt_i`` includes the
    relativistic term (:mod:`gnss_cli.gnss.orbits`; GLONASS: in ``TauN``); one frequency:
    ``P + c (dt_i - TGD_i)`` with the system's single-frequency group delay (GPS/QZSS TGD,
@@ -140,7 +141,9 @@ def satellites_at_transmit_time(
     -----
     Each state is evaluated once, at ``t - P/c``, and the position moved to the transmit time
     ``t - P/c - dt_sv`` along the broadcast velocity (``|dt_sv| < 1 ms``: the neglected
-    acceleration term is below 1e-6 m).
+    acceleration term is below 1e-6 m; with the broadcast velocity good to ~0.15 m/s the
+    position is within 0.2 mm of the state evaluated at ``t - P/c - dt_sv``, measured on
+    rtklib-0759).
     """
     t = prs.time_gps_s
     sys_of = np.array([sv[0] for sv in prs.sv])

@@ -1,7 +1,8 @@
 """Files -> epochs: read and validate the RINEX files, select pseudoranges, satellite states.
 
 :func:`load_epochs` produces the :class:`~gnss_cli.pipeline.results.EpochData` every
-estimator works on. Observations are padded to a common satellite axis; rows of unusable
+estimator works on. The satellite states at transmit time and the clock- and group-delay-
+corrected pseudoranges come from the pseudorange model (:mod:`gnss_cli.gnss.range_model`). Observations are padded to a common satellite axis; rows of unusable
 satellites are masked, so every epoch is one slice of stacked ``(T, n, ...)`` arrays.
 """
 
@@ -303,9 +304,8 @@ def load_epochs(
     the first and second frequency (:mod:`gnss_cli.gnss.signals`); satellites without a
     usable second frequency are not usable.
 
-    Satellite states are evaluated once per observation, at ``t - P/c``, and moved to the
-    transmit time ``t - P/c - dt_sv`` along the broadcast velocity (``|dt_sv| < 1 ms``: the
-    neglected acceleration term is below 1e-6 m).
+    Satellite states are those of the transmit time ``t - P/c - dt_sv``
+    (:func:`~gnss_cli.gnss.range_model.satellites_at_transmit_time`).
 
     ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
     ``given``: the observation file already read (``read_obs(obs_path, systems, codes)`` with
