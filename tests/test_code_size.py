@@ -1,4 +1,5 @@
-"""Size limits of the package: modules up to 450 lines, functions up to 100 (benchmarks/code_size.py)."""
+"""Size limit of the package: functions up to 100 lines (benchmarks/code_size.py); modules are cut by
+job, not by size, and have no line limit."""
 
 from __future__ import annotations
 
@@ -20,9 +21,9 @@ def _code_size():
     return module
 
 
-def test_modules_and_functions_within_limits():
+def test_functions_within_limit():
     bad = _code_size().offenders()
-    assert not bad, "over the size limits:\n" + "\n".join(bad)
+    assert not bad, "over the size limit:\n" + "\n".join(bad)
 
 
 def test_limits_catch_a_long_function(tmp_path):
@@ -31,9 +32,8 @@ def test_limits_catch_a_long_function(tmp_path):
     pkg.mkdir()
     body = "".join(f"    x{i} = {i}\n" for i in range(code_size.FUNCTION_MAX_LINES))
     (pkg / "long.py").write_text("def f():\n" + body + "\n\ndef g():\n    return 1\n")
-    (pkg / "big.py").write_text("x = 1\n" * (code_size.MODULE_MAX_LINES + 1))
+    (pkg / "big.py").write_text("x = 1\n" * 2000)  # a long module is no offence
     bad = code_size.offenders(pkg)
     assert bad == [
-        f"module gnss_cli/big.py: {code_size.MODULE_MAX_LINES + 1} lines > {code_size.MODULE_MAX_LINES}",
         f"function gnss_cli/long.py:1 f: {code_size.FUNCTION_MAX_LINES + 1} lines > {code_size.FUNCTION_MAX_LINES}",
     ]

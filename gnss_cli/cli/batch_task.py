@@ -87,7 +87,7 @@ nanny sets the same)."""
 def init_worker() -> None:
     """Start of a local worker process: Ctrl-C is for the parent, which ends the workers (with
     SIGTERM, whose default action a worker forked from the parent gets back here)."""
-    from gnss_cli.pipeline.navigation import keep_navigation
+    from gnss_cli.io.navigation import keep_navigation
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)

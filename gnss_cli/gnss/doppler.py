@@ -4,7 +4,7 @@ A Doppler ``D`` (Hz) of a signal of wavelength ``lambda`` gives the range rate
 ``rr = -lambda D`` (m/s; positive when the range grows). With the satellite at ``s`` moving at
 ``s_dot`` (ECEF of the transmit time, rotating frame), its clock drift ``dt_sv_dot`` (s/s) and
 the receiver at ``x`` moving at ``v`` (ECEF) with clock drift ``d`` (m/s), the model is the time
-derivative of the range of :func:`gnss_cli.gnss.geometry.sagnac_range`, Earth rotation during
+derivative of the range of :func:`gnss_cli.gnss.range_model.sagnac_range`, Earth rotation during
 signal flight included:
 
     rr = e . (s_dot - v) + (omega_E / c) (s_dot_x y + s_x v_y - s_dot_y x - s_y v_x) + d - c dt_sv_dot

@@ -3,7 +3,7 @@
 Vectorized over any batch shape: ``idx`` picks an ephemeris record for every element of
 ``t_gps_s``. Positions are ECEF at the given (transmit) time, in the frame of that time:
 the Earth-rotation (Sagnac) correction during signal flight is applied by the caller
-(:mod:`gnss_cli.gnss.geometry`), which knows the receiver position.
+(:mod:`gnss_cli.gnss.range_model`), which knows the receiver position.
 """
 
 from __future__ import annotations

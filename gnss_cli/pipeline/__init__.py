@@ -17,7 +17,6 @@ Modules, one job each::
                 for the parts of a day file)
     parts       part_epochs, solve_part: one part of a file on the whole file's axes, solved
     memory      release_memory, map_large_blocks: the C heap of a run in parts
-    navigation  navigation_files, keep_navigation: the navigation files of a run (kept in a worker)
     ephemerides system_records: broadcast ephemerides of one system behind one interface
     identification  identify_trajectory: kernel identification and prediction of a trajectory
     window_solve  (see module)

@@ -1,7 +1,8 @@
 """Files -> epochs: read and validate the RINEX files, select pseudoranges, satellite states.
 
 :func:`load_epochs` produces the :class:`~gnss_cli.pipeline.results.EpochData` every
-estimator works on. Observations are padded to a common satellite axis; rows of unusable
+estimator works on. The satellite states at transmit time and the clock- and group-delay-
+corrected pseudoranges come from the pseudorange model (:mod:`gnss_cli.gnss.range_model`). Observations are padded to a common satellite axis; rows of unusable
 satellites are masked, so every epoch is one slice of stacked ``(T, n, ...)`` arrays.
 """
 
@@ -19,8 +20,9 @@ from numpy.typing import NDArray
 from gnss_cli.config import SYSTEM_LETTERS, ProcessingConfig
 from gnss_cli.constants import C_M_S
 from gnss_cli.errors import RinexFormatError
+from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
+from gnss_cli.gnss.broadcast import MAX_EPHEMERIS_SIGMA_M, GlonassRecords, KeplerRecords, system_records
 from gnss_cli.gnss.carrier import phase_slips
-from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M
 from gnss_cli.gnss.observables import (
     DEFAULT_SECOND_SIGNAL_PRIORITY,
     DEFAULT_SIGNAL_PRIORITY,
@@ -33,14 +35,16 @@ from gnss_cli.gnss.observables import (
     select_phases,
     select_pseudoranges,
 )
-from gnss_cli.gnss.orbits import SatelliteStates
-from gnss_cli.gnss.signals import carrier_frequency_hz, iono_free_pseudorange_m, signal_of
+from gnss_cli.gnss.range_model import (
+    EARTH_SURFACE_BAND_M,
+    SatelliteArrays,
+    corrected_pseudoranges,
+    satellites_at_transmit_time,
+)
 from gnss_cli.gnss.time import gps_s2datetime
-from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
 from gnss_cli.io.fixed_width import lli_name
-from gnss_cli.io.rinex import read_obs
-from gnss_cli.pipeline.ephemerides import GlonassRecords, KeplerRecords, system_records
-from gnss_cli.pipeline.navigation import klobuchar_for, navigation_files
+from gnss_cli.io.navigation import navigation_files
+from gnss_cli.io.rinex import klobuchar_coefficients, read_obs
 from gnss_cli.pipeline.results import EpochData
 
 __all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
@@ -48,78 +52,6 @@ __all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used
 
 F64 = NDArray[np.float64]
 _COMMON_SPAN_MARGIN_S = 4 * 3600.0  # observations this far outside the ephemerides' toe span share no time
-
-
-@dataclass
-class _SatelliteArrays:
-    """Per-observation satellite quantities ``(T, n[, 3])``, filled one system at a time."""
-
-    sat: F64
-    clk: F64
-    tgd: F64
-    ura: F64
-    iono_scale: F64
-    usable: NDArray[np.bool_]
-    p_if: F64
-    vel: F64 | None = None
-    drift: F64 | None = None
-    freq: F64 | None = None
-
-    @classmethod
-    def empty(cls, t_n: int, n: int, rates: bool = False) -> _SatelliteArrays:
-        """NaN arrays; with ``rates`` also velocity, clock drift and carrier frequency (for Doppler)."""
-        nan = np.full((t_n, n), np.nan)
-        return cls(
-            sat=np.full((t_n, n, 3), np.nan), clk=nan.copy(), tgd=nan.copy(),
-            ura=nan.copy(), iono_scale=np.ones((t_n, n)), usable=np.zeros((t_n, n), dtype=bool),
-            p_if=nan.copy(), vel=np.full((t_n, n, 3), np.nan) if rates else None,
-            drift=nan.copy() if rates else None, freq=nan.copy() if rates else None,
-        )
-
-
-def _fill_system(out: _SatelliteArrays, records: GlonassRecords | KeplerRecords, system: str,
-                 prs: Pseudoranges, prs2: Pseudoranges | None, cols: NDArray[np.intp],
-                 have_obs: NDArray[np.bool_], healthy_only: bool) -> None:
-    """Satellite states of one system's observations, at ``t - P/c`` moved by ``-dt_sv`` along the velocity."""
-    t = prs.time_gps_s
-    pr = prs.pr_m[:, cols]
-    idx = records.select(prs.sv[cols], t, healthy_only)
-    ii, jj = np.nonzero(have_obs[:, cols] & (idx >= 0))
-    kk, cc = idx[ii, jj], cols[jj]
-    st = records.states(kk, t[ii] - pr[ii, jj] / C_M_S)
-    out.sat[ii, cc] = st.pos_ecef_m - st.vel_ecef_m_s * st.clock_s[:, None]
-    out.clk[ii, cc] = st.clock_s
-    out.tgd[ii, cc] = np.nan_to_num(st.tgd_s)
-    out.ura[ii, cc] = records.sigma_m(kk)
-    out.iono_scale[ii, cc] = records.iono_scale(kk)
-    out.usable[ii, cc] = np.isfinite(st.clock_s) & np.isfinite(out.sat[ii, cc]).all(axis=-1)
-    if out.vel is not None:
-        _fill_rates(out, records, system, prs.code[ii, cc], (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
-    if prs2 is not None:
-        out.p_if[ii, cc] = iono_free_pseudorange_m(
-            system, prs.code[ii, cc], pr[ii, jj], prs2.code[ii, cc], prs2.pr_m[ii, cc], **records.delays(kk)
-        )
-
-
-_DRIFT_STEP_S = 1.0  # forward difference of the broadcast clock: af2 and relativistic curvature < 1e-15 s/s
-
-
-def _fill_rates(out: _SatelliteArrays, records: GlonassRecords | KeplerRecords, system: str, code: NDArray[np.str_],
-                where: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]], t_tx: F64, st: SatelliteStates) -> None:
-    """Satellite velocity (m/s), clock drift (s/s, forward difference of the broadcast clock with its
-    relativistic term) and the carrier frequency (Hz; GLONASS per channel) of each chosen code."""
-    assert out.vel is not None and out.drift is not None and out.freq is not None
-    ii, cc, kk = where
-    out.vel[ii, cc] = st.vel_ecef_m_s
-    out.drift[ii, cc] = (records.clock_s(kk, t_tx + _DRIFT_STEP_S) - st.clock_s) / _DRIFT_STEP_S
-    channel = np.asarray(records.delays(kk).get("glonass_channel", np.zeros(kk.shape)), dtype=np.float64)
-    freq = np.full(kk.shape, np.nan)
-    for c in np.unique(code):
-        signal = signal_of(system, str(c))
-        if signal is not None:
-            sel = code == c
-            freq[sel] = carrier_frequency_hz(signal, channel[sel])
-    out.freq[ii, cc] = freq
 
 
 def _span_text(a: float, b: float) -> str:
@@ -163,7 +95,7 @@ def _unused(prs: Pseudoranges, usable: NDArray[np.bool_], snr: F64 | None, confi
             ura_m: F64) -> NDArray[np.int8]:
     """Why each observation is not usable (:data:`~gnss_cli.pipeline.results.UNUSED_REASONS` index;
     -1 not observed, 0 usable): no ephemeris, an ephemeris sigma ``ura_m`` (m) above
-    :data:`~gnss_cli.gnss.weights.MAX_EPHEMERIS_SIGMA_M`, ``exclude``, ``snr_mask_dbhz`` (an
+    :data:`~gnss_cli.gnss.broadcast.MAX_EPHEMERIS_SIGMA_M`, ``exclude``, ``snr_mask_dbhz`` (an
     observation without an S value passes the mask)."""
     code = np.zeros(prs.pr_m.shape, dtype=np.int8)
     code[~usable] = 1
@@ -189,6 +121,16 @@ def _approx_position(obs: xr.Dataset) -> F64 | None:
     approx = np.asarray(obs.attrs.get("position", []) or [], dtype=np.float64).ravel()
     near = approx.size == 3 and EARTH_SURFACE_BAND_M[0] < np.linalg.norm(approx) < EARTH_SURFACE_BAND_M[1]
     return approx if near else None
+
+
+def klobuchar_for(nav: xr.Dataset, config: ProcessingConfig, nav_name: str, warnings: list[str]) -> tuple[F64, F64] | None:
+    """The navigation files' Klobuchar coefficients, else RTKLIB's defaults (with a warning)."""
+    klob = klobuchar_coefficients(nav)
+    if klob is None and config.iono == "klobuchar":
+        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
+        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
+        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
+    return klob
 
 
 @dataclass
@@ -217,7 +159,7 @@ class EpochSetup:
 
     def read_navigation(self) -> None:
         """Read the navigation files (records, Klobuchar coefficients, leap seconds; in a process
-        that :func:`~gnss_cli.pipeline.navigation.keep_navigation` was called in, the last files
+        that :func:`~gnss_cli.io.navigation.keep_navigation` was called in, the last files
         read are taken again unread while they are unchanged, with their per-system records)."""
         self.nav, self.leap_seconds, self._records = navigation_files(self.nav_paths, self.systems)
         self.nav_name = ",".join(Path(p).name for p in self.nav_paths)
@@ -273,21 +215,13 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
     config = setup.config
     prs2 = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority2), prs.sv) if setup.iono_free else None
     t = prs.time_gps_s
-    sys_of = np.array([sv[0] for sv in prs.sv])
     doppler_hz = select_dopplers(obs, prs)
-    arrays = _SatelliteArrays.empty(t.size, prs.sv.size, rates=doppler_hz is not None)
+    arrays = satellites_at_transmit_time(prs, prs2, lambda system: setup.records(system)[0], systems,
+                                         config.healthy_only, rates=doppler_hz is not None)
     have_obs = np.isfinite(prs.pr_m)
-    for system in systems:
-        cols = np.flatnonzero(sys_of == system)
-        records = setup.records(system)[0] if cols.size else None
-        if records is not None:
-            _fill_system(arrays, records, system, prs, prs2, cols, have_obs, config.healthy_only)
     selected, snr, unused = _selection(obs, prs, arrays.usable, config, arrays.ura)
     usable = selected & np.isfinite(arrays.p_if) if setup.iono_free else selected
-    if setup.iono_free:
-        pr_corr = np.where(usable, arrays.p_if + C_M_S * arrays.clk, np.nan)
-    else:
-        pr_corr = np.where(usable, prs.pr_m + C_M_S * (arrays.clk - arrays.tgd), np.nan)
+    pr_corr = corrected_pseudoranges(prs.pr_m, arrays, usable, setup.iono_free)
     data = EpochData(
         time_gps_s=t, sv=prs.sv, pr_corrected_m=pr_corr, sat_ecef_m=arrays.sat, ura_m=arrays.ura, usable=usable,
         klobuchar=setup.klobuchar, approx_ecef_m=_approx_position(obs),
@@ -370,9 +304,8 @@ def load_epochs(
     the first and second frequency (:mod:`gnss_cli.gnss.signals`); satellites without a
     usable second frequency are not usable.
 
-    Satellite states are evaluated once per observation, at ``t - P/c``, and moved to the
-    transmit time ``t - P/c - dt_sv`` along the broadcast velocity (``|dt_sv| < 1 ms``: the
-    neglected acceleration term is below 1e-6 m).
+    Satellite states are those of the transmit time ``t - P/c - dt_sv``
+    (:func:`~gnss_cli.gnss.range_model.satellites_at_transmit_time`).
 
     ``timings``, when given, receives the wall time (s) of the stages ``read`` and ``orbits``.
     ``given``: the observation file already read (``read_obs(obs_path, systems, codes)`` with
@@ -404,7 +337,7 @@ def load_epochs(
     return finish_epochs(data, used_systems(prs.sv, systems, cov), warnings)
 
 
-def _rates(arrays: _SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:
+def _rates(arrays: SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:
     """The Doppler fields of :class:`EpochData`: range rate ``-lambda D`` (m/s; NaN where there is no
     Doppler or the pseudorange is not usable), satellite velocity and clock drift; empty without Doppler."""
     if doppler_hz is None or arrays.freq is None:
@@ -413,7 +346,7 @@ def _rates(arrays: _SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.
     return {"range_rate_m_s": rate, "sat_vel_ecef_m_s": arrays.vel, "sat_clock_drift_s_s": arrays.drift}
 
 
-def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: _SatelliteArrays, doppler_hz: F64 | None,
+def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: SatelliteArrays, doppler_hz: F64 | None,
             usable: NDArray[np.bool_], t: F64, config: ProcessingConfig) -> dict[str, F64 | NDArray[np.bool_]]:
     """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
     have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler

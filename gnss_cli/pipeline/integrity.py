@@ -69,7 +69,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.geometry import linearize, width_groups
+from gnss_cli.gnss.range_model import linearize, width_groups
 from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
@@ -125,7 +125,7 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     """The chi-square test, w-test and protection levels of every epoch of ``data`` at the
     fixes ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m); ``robust_weights``
     (``(t, n)``, the M-estimate's final weight factors) multiply the estimator's weights.
-    ``width``: the systems in the compact layout of :func:`~gnss_cli.gnss.geometry.linearize`
+    ``width``: the systems in the compact layout of :func:`~gnss_cli.gnss.range_model.linearize`
     (the used satellites' rows only; default the dense layout)."""
     k = len(data.systems)
     rows = np.arange(data.time_gps_s.size)
@@ -195,7 +195,7 @@ _BLOCK = 1024  # epochs per stacked test (bounds the memory of the (t, n, 3 + k)
 def _check_blocks(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], excluded: NDArray[np.bool_],
                   config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
     """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), by the
-    width of their compact systems (:func:`~gnss_cli.gnss.geometry.width_groups`), in blocks."""
+    width of their compact systems (:func:`~gnss_cli.gnss.range_model.width_groups`), in blocks."""
     clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
     rw = sol.robust_weights if config.robust != "off" else None
     out: dict[str, NDArray[np.generic]] = {}
@@ -278,7 +278,7 @@ def check_fixes(data: EpochData, x: F64, clocks: F64, sigma_m: F64, config: Proc
 
     At each fix ``x`` (``(t, 3)`` ECEF, m) and ``clocks`` (``(t, k)``, m) the residuals are those
     of the physical model, observed minus modelled pseudorange ``r_i = rho_i - rho_hat_i(x, clocks)``
-    (:func:`~gnss_cli.gnss.geometry.linearize`: Sagnac, ionosphere, troposphere at the fix), for
+    (:func:`~gnss_cli.gnss.range_model.linearize`: Sagnac, ionosphere, troposphere at the fix), for
     the satellites the method used: those with a finite ``sigma_m`` (``(t, n)``, m, the a-priori
     sigmas of the WLS weights, ``W = diag(1/sigma^2)``). The satellite set is kept as it is (no
     elevation mask at the fix: the mask chose it at the linearization point). Statistic

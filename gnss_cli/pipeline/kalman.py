@@ -77,7 +77,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
-from gnss_cli.gnss.geometry import linearize
+from gnss_cli.gnss.range_model import linearize
 from gnss_cli.pipeline.kalman_rows import (PhaseRows, filter_phase_rows, gate_threshold, kinds_config,
                                            measurement_kinds, variance_factors)
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution

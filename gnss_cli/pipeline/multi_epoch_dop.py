@@ -396,7 +396,7 @@ def with_geometry_dops(data: Any, sol: Any, config: Any, motion: str,
     from dataclasses import replace
 
     from gnss_cli.behavior.windows import segments
-    from gnss_cli.gnss.geometry import linearize
+    from gnss_cli.gnss.range_model import linearize
 
     has = np.all(np.isfinite(sol.x_ecef_m), axis=1)
     rows = np.flatnonzero(has)

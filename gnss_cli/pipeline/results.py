@@ -176,7 +176,7 @@ class WindowModel:
 UNUSED_REASONS = ("", "no_ephemeris", "excluded_by_user", "snr_mask", "ephemeris_sigma")
 """Reasons (``satellites.csv`` ``reason``) an observed satellite is not usable before solving
 (``ephemeris_sigma``: the broadcast orbit-and-clock sigma exceeds
-:data:`~gnss_cli.gnss.weights.MAX_EPHEMERIS_SIGMA_M`)."""
+:data:`~gnss_cli.gnss.broadcast.MAX_EPHEMERIS_SIGMA_M`)."""
 DOWNWEIGHTED_BELOW = 0.1
 """A used satellite whose robust weight factor is below this is reported (``satellites.csv``
 ``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
@@ -196,7 +196,7 @@ class EpochData:
     pr_corrected_m : ``(T, n)`` pseudorange + c (satellite clock - TGD), m (NaN = unusable).
     sat_ecef_m : ``(T, n, 3)`` satellite positions at transmit time, m.
     ura_m : ``(T, n)`` broadcast orbit-and-clock error sigma, m
-        (:func:`~gnss_cli.gnss.weights.ephemeris_sigma_m`).
+        (:func:`~gnss_cli.gnss.broadcast.ephemeris_sigma_m`).
     usable : ``(T, n)`` observation with a usable ephemeris.
     klobuchar : ``(alpha, beta)`` or None.
     approx_ecef_m : ``(3,)`` header approximate position or None.

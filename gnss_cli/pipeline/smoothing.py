@@ -20,7 +20,7 @@ time through the banded O(T) STLS.
 
 The receiver clocks (one per system, as in the snapshot solution) are re-estimated per
 epoch at the smoothed position (one weighted clock-only least-squares solve on
-:func:`gnss_cli.gnss.geometry.linearize`; a system without satellites keeps its
+:func:`gnss_cli.gnss.range_model.linearize`; a system without satellites keeps its
 clock-fixing constraint row). Covariances and DOPs are the multi-epoch ones of
 :mod:`gnss_cli.behavior.multi_epoch`; for an identified kernel the basis is the free
 response of the identified behavior (first order: the kernel is held fixed).
@@ -42,7 +42,7 @@ from gnss_cli.behavior.windows import segments, windows
 from gnss_cli.config import ProcessingConfig, StlsConfig
 from gnss_cli.errors import GnssError, UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
-from gnss_cli.gnss.geometry import linearize
+from gnss_cli.gnss.range_model import linearize
 from gnss_cli.pipeline.results import (
     EpochData,
     EpochStatus,

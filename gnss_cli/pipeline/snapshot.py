@@ -2,7 +2,7 @@
 
 For every method the same Gauss-Newton iteration runs on all epochs at once (DESIGN.md
 section 2): linearize the pseudoranges at the current position
-(:func:`gnss_cli.gnss.geometry.linearize`), solve the linear step with the method, update,
+(:func:`gnss_cli.gnss.range_model.linearize`), solve the linear step with the method, update,
 until the step is below ``convergence_m``. Corrections (Klobuchar, Saastamoinen), the
 elevation mask and the weights are evaluated at the current position once it is near the
 Earth's surface (the first iterations from the Earth's centre use none of them, as in
@@ -11,7 +11,7 @@ RTKLIB). The DOPs come from each method's noise gain ``J J^T`` at the solution.
 With ``robust = "huber" | "cauchy"`` the ls/wls fixes are M-estimates: from the converged plain
 fix, Gauss-Newton again, each linear step solved by IRLS to settled weights
 (:mod:`gnss_cli.solvers.robust`), so that at the fix ``sum_i psi(u_i) a_i / sigma_i = 0`` with
-``u_i = r_i / sigma_i`` and ``sigma_i`` the a-priori sigma of :mod:`gnss_cli.gnss.weights`
+``u_i = r_i / sigma_i`` and ``sigma_i`` the a-priori sigma of :mod:`gnss_cli.gnss.range_model`
 (wls; for ls ``sum_i sigma_i psi(u_i) a_i = 0``: equal weights, outliers down-weighted). The
 scale is the a-priori sigma, not a residual scale such as the MAD: an epoch has 4-15 residuals
 and a few degrees of freedom after the fit, too few for a stable scale estimate, and in urban
@@ -29,8 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.geometry import EARTH_SURFACE_BAND_M, Linearization, linearize, width_groups
-from gnss_cli.gnss.weights import stls_row_cov, wtls_column_scale
+from gnss_cli.gnss.range_model import EARTH_SURFACE_BAND_M, Linearization, linearize, stls_row_cov, width_groups, wtls_column_scale
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, monitor_fixes, take_epochs
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status
 from gnss_cli.solvers import solve_batch
@@ -172,7 +171,7 @@ def _linear_step(data: EpochData, method: str, config: ProcessingConfig, rows: N
     """Linearize ``rows`` at ``(x, b)``, solve the step with ``method`` and apply it in place.
 
     The system holds the used satellites' rows only, ``width`` of them (``linearize(..., width)``,
-    :func:`~gnss_cli.gnss.geometry.width_groups`): the solver's work grows with the rows, and an
+    :func:`~gnss_cli.gnss.range_model.width_groups`): the solver's work grows with the rows, and an
     epoch uses a third of a multi-GNSS file's satellites.
 
     With ``robust`` the step is the IRLS M-estimate of the linear system; the satellite rows

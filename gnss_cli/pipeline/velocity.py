@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.doppler import range_rate_system
-from gnss_cli.gnss.geometry import width_groups
+from gnss_cli.gnss.range_model import width_groups
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult
 from gnss_cli.solvers import solve_batch
 
@@ -78,7 +78,7 @@ def solve_velocity(data: EpochData, x_ecef_m: F64, sigma_pr_m: F64, config: Proc
     mask = have_x[:, None] & np.isfinite(y) & np.isfinite(sigma) & np.isfinite(H).all(axis=-1)
     x_v, cov, q_trace = np.full((T, 4), np.nan), np.full((T, 4, 4), np.nan), np.full(T, np.nan)
     # the used rows only, in satellite order, padded to a width of the epoch's own
-    # (:func:`~gnss_cli.gnss.geometry.width_groups`): an epoch uses a third of a multi-GNSS
+    # (:func:`~gnss_cli.gnss.range_model.width_groups`): an epoch uses a third of a multi-GNSS
     # file's satellites, and the solve's work grows with the rows
     for idx, width in width_groups(mask, max(T, 1)):
         order = np.argsort(~mask[idx], axis=1, kind="stable")[:, :width]

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 import gnss_cli.cli.batch_runner as batch_runner
-import gnss_cli.pipeline.navigation as navigation
+import gnss_cli.io.navigation as navigation
 from gnss_cli.cli.batch_task import BatchSettings
 from gnss_cli.config import load_config
 from gnss_cli.io.catalog import nav_toc_span

@@ -6,7 +6,7 @@ import numpy as np
 import xarray as xr
 
 from gnss_cli.gnss.doppler import range_rate_system
-from gnss_cli.gnss.geometry import sagnac_range
+from gnss_cli.gnss.range_model import sagnac_range
 from gnss_cli.gnss.observables import select_dopplers, select_pseudoranges
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.solve import app
-from gnss_cli.gnss.weights import MAX_EPHEMERIS_SIGMA_M
+from gnss_cli.gnss.broadcast import MAX_EPHEMERIS_SIGMA_M
 
 
 def _nav_with_ura(src: Path, dst: Path, prn: int, ura_m: float) -> int:

@@ -1,5 +1,9 @@
-"""The navigation files of a run: read (or kept from the run before, in a long-lived worker) and
-their Klobuchar coefficients."""
+"""The navigation files of a run: read, or kept from the run before in a long-lived worker.
+
+Reading files is this package's job: the dataset comes from :func:`~gnss_cli.io.rinex.read_nav`,
+the kept copy is keyed by the files' real paths, modification times and sizes. The per-system
+record tables (:mod:`gnss_cli.gnss.broadcast`) are kept with it, in a dictionary the run fills.
+"""
 
 from __future__ import annotations
 
@@ -10,11 +14,9 @@ from typing import Any
 
 import xarray as xr
 
-from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.atmosphere import KLOBUCHAR_DEFAULT_ALPHA, KLOBUCHAR_DEFAULT_BETA
-from gnss_cli.io.rinex import klobuchar_coefficients, nav_leap_seconds, read_nav
+from gnss_cli.io.rinex import nav_leap_seconds, read_nav
 
-__all__ = ["keep_navigation", "klobuchar_for", "navigation_files"]
+__all__ = ["keep_navigation", "navigation_files"]
 
 _KEPT: dict[tuple[object, ...], tuple[xr.Dataset, float | None, dict[str, Any]]] | None = None
 """The navigation data last read, by :func:`_nav_key` (None: nothing is kept, the default)."""
@@ -51,13 +53,3 @@ def navigation_files(paths: Sequence[str | Path], systems: Sequence[str]) -> tup
         _KEPT.clear()
         _KEPT[key] = kept
     return kept
-
-
-def klobuchar_for(nav: xr.Dataset, config: ProcessingConfig, nav_name: str, warnings: list[str]):  # type: ignore[no-untyped-def]
-    """The navigation files' Klobuchar coefficients, else RTKLIB's defaults (with a warning)."""
-    klob = klobuchar_coefficients(nav)
-    if klob is None and config.iono == "klobuchar":
-        klob = (KLOBUCHAR_DEFAULT_ALPHA.copy(), KLOBUCHAR_DEFAULT_BETA.copy())
-        reason = nav.attrs.get("ionospheric_corr_problem") or f"{nav_name}: no Klobuchar coefficients in the header"
-        warnings.append(f"{reason}; using the default coefficients (as RTKLIB)")
-    return klob
