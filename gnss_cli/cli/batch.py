@@ -38,9 +38,9 @@ app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTI
 
 @app.command()
 def batch(
-    files: list[str] = typer.Argument(..., help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS", show_default=False),
+    files: Optional[list[str]] = typer.Argument(None, help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS", show_default=False),
     nav: Optional[list[str]] = typer.Option(None, "--nav", help="Navigation file or quoted glob pattern; repeat --nav for more. Each OBS gets the ones whose records cover its epochs.", show_default="none"),
-    out: Path = typer.Option(..., "--out", help="Output folder: positions/ (Parquet, partitioned by station and day), files.csv, summary.csv."),
+    out: Optional[Path] = typer.Option(None, "--out", show_default=False, help="Output folder: positions/ (Parquet, partitioned by station and day), files.csv, summary.csv."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Local worker processes (one file per task).", show_default="all cores"),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Run the tasks on this Dask distributed scheduler (tcp://HOST:PORT) instead; needs pip install 'gnss-solve[cluster]'.", show_default="none"),
     method: Method = None,
@@ -68,6 +68,7 @@ def batch(
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
+    print_config: bool = typer.Option(False, "--print-config", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
     quiet: Quiet = False,
     debug: Debug = False,
     version: bool = typer.Option(False, "--version", callback=version_callback(PROG), is_eager=True, help="Print the version and exit."),
@@ -75,6 +76,15 @@ def batch(
     """Solve every observation file with the navigation files that cover it; write one dataset."""
     values = dict(locals())
     check_old_spellings(values)
+    if print_config:
+        from gnss_cli.config.toml import config_toml
+
+        sys.stdout.write(config_toml(run_config(config, values)))
+        return 0
+    if not files:
+        raise UsageError("expected OBS...: one or more observation files or quoted glob patterns")
+    if out is None:
+        raise UsageError("--out DIR: the output folder is required")
     if scheduler is None:
         without_dask()  # (before xarray is imported; the Dask runner needs dask)
     check_reference_options(values)

@@ -1,4 +1,4 @@
-"""The README's exit-code table, row by row, as a user meets it: each case runs a console
+"""The exit-code table of docs/outputs.md, row by row, as a user meets it: each case runs a console
 script in its own process (so signals and the real Click/Typer error paths are exercised)
 from an empty working folder, and checks the exit code, the message on stderr and that no
 file was left behind — temporary ones included.
@@ -68,7 +68,7 @@ CASES = [
     ("identify no arguments", "identify", [], 2, r"Missing argument"),
     ("identify missing file", "identify", ["{here}/nothere.csv"], 4, r"nothere.csv: no such file"),
     ("identify lag 0", "identify", ["{truth}", "--lag", "0"], 3, r"--lag: expected an integer >= 1"),
-    ("batch without --out", "batch", ["{obs}", "--nav", "{nav}"], 2, r"Missing option '--out'"),
+    ("batch without --out", "batch", ["{obs}", "--nav", "{nav}"], 2, r"--out DIR: the output folder is required"),
     ("batch without navigation files", "batch", ["{obs}", "--out", "{here}/out"], 2, r"expected navigation files"),
     ("batch --jobs and --scheduler", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--jobs", "2", "--scheduler", "tcp://127.0.0.1:9"], 2, r"give --jobs or --scheduler, not both"),
     ("batch --jobs 0", "batch", ["{obs}", "--nav", "{nav}", "--out", "{here}/out", "--jobs", "0"], 3, r"--jobs: expected an integer >= 1; received 0"),
@@ -211,10 +211,10 @@ def test_files_get_the_umask(tmp_path: Path) -> None:
             assert f.stat().st_mode & 0o777 == mode, (f, oct(f.stat().st_mode))
 
 
-def test_readme_table_lists_every_case_with_its_exit_code() -> None:
-    """The README's table and the cases run above are the same list."""
-    text = (REPO / "README.md").read_text()
-    section = text[text.index("### Exit codes"):text.index("### Output columns")]
+def test_docs_table_lists_every_case_with_its_exit_code() -> None:
+    """The table of docs/outputs.md and the cases run above are the same list."""
+    text = (REPO / "docs" / "outputs.md").read_text()
+    section = text[text.index("## Exit codes"):]
     rows = {}
     for line in section.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]

@@ -71,7 +71,4 @@ def test_simulate_flags_show_the_packaged_simulate_defaults() -> None:
         param = options[flag]
         assert param.default is None, flag  # type: ignore[attr-defined]
         assert param.show_default == _as_flag(toml[table][key]), flag  # type: ignore[attr-defined]
-    lag = options["--lag"]  # one flag for two keys: stls.lag and smoother.lag
-    assert lag.default is None  # type: ignore[attr-defined]
-    assert lag.show_default == f"stls {toml['stls']['lag']}, smoother {toml['smoother']['lag']}"  # type: ignore[attr-defined]
     assert built_in.duration_s == toml["simulate"]["duration_s"] and built_in.seed == toml["simulate"]["seed"]

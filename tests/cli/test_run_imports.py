@@ -16,14 +16,13 @@ UNUSED = ("scipy", "dask", "pyarrow", "georinex", "matplotlib", "hatanaka")
 
 
 _RUN = """
-import os, runpy, sys
-report, end = sys.argv.pop(1), os._exit
-def _exit(code):  # gnss-solve ends with os._exit (no interpreter teardown): report first
+import runpy, sys
+report = sys.argv.pop(1)
+try:
+    runpy.run_module("gnss_cli.cli.solve", run_name="__main__")
+finally:  # the modules loaded when the run ends, before the interpreter's teardown
     with open(report, "w") as f:
         f.write("\\n".join(sorted({n.split(".")[0] for n, m in list(sys.modules.items()) if m is not None})))
-    end(code)
-os._exit = _exit
-runpy.run_module("gnss_cli.cli.solve", run_name="__main__")
 """
 
 

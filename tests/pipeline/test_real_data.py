@@ -7,7 +7,8 @@ import pytest
 
 from gnss_cli.config import load_config
 from gnss_cli.gnss.time import gps_s2week_tow
-from gnss_cli.pipeline import EpochStatus, run
+from gnss_cli.pipeline import EpochStatus
+from gnss_cli.pipeline import process as run
 from gnss_cli.report import enu_errors
 
 REF_0759 = np.array([-3976219.1879, 3382371.6041, 3652511.1428])
