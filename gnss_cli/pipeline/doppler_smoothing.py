@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 from scipy.stats import chi2, norm
 
 from gnss_cli.behavior import KernelRepresentation
-from gnss_cli.behavior.kinematic_solve import STEP_OFFSETS, kinematic_position_cov, solve_kinematic, step_weights
+from gnss_cli.behavior.kinematic_solve import STEP_OFFSETS, Motion, kinematic_position_cov, solve_kinematic, step_weights
 from gnss_cli.behavior.multi_epoch import epoch_information
 from gnss_cli.behavior.records import kernel_record
 from gnss_cli.behavior.window_solve import EpochNormals, free_misfit, reduce_epochs
@@ -246,7 +246,7 @@ def solve_doppler_segments(data: EpochData, wls: MethodSolution, config: Process
         moved = 0.0
         for i, seg in enumerate(segs):
             sub = [EpochNormals(n.M[seg], n.r[seg], n.s[seg], n.n_rows[seg], n.n_free[seg]) for n in (pr, rr)]
-            sol = solve_kinematic(sub[0], sub[1], np.diff(nominal[seg], axis=0), np.diff(t[seg]), lag,
+            sol = solve_kinematic(sub[0], sub[1], np.diff(nominal[seg], axis=0), np.diff(t[seg]), Motion("quadrature", lag),
                                   None if ph is None else _segment_pairs(ph, seg))
             x[seg], v[seg] = nominal[seg] + sol.z, sol.v
             mis[i], dof[i] = sol.misfit, sol.dof
@@ -322,7 +322,8 @@ def _covariance(p_m: F64, w_pr: F64, clock_cols: F64, M_rr: F64, segs: list[NDAr
     info, h, clock_var = epoch_information(p_m, w_pr, clock_cols)
     out = np.full((T, 3 + k, 3 + k), np.nan)
     for seg in segs:
-        c = kinematic_position_cov(info[seg], M_rr[seg], np.diff(t[seg]), lag, M_ph=None if M_ph is None else M_ph[seg])
+        c = kinematic_position_cov(info[seg], M_rr[seg], np.diff(t[seg]), Motion("quadrature", lag),
+                                   M_ph=None if M_ph is None else M_ph[seg])
         ch = np.einsum("tij,tcj->tic", c, h[seg])
         blk = np.empty((seg.size, 3 + k, 3 + k))
         blk[:, :3, :3] = c
