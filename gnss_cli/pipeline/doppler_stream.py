@@ -1,10 +1,10 @@
-"""The ``"doppler"`` smoothing model (:func:`~gnss_cli.pipeline.doppler_smoothing.doppler_smooth`) of
-a file that arrives in parts, in overlapping pieces.
+"""The ``smoother`` (:func:`~gnss_cli.pipeline.smoother.smooth_segments`) of a file that arrives in
+parts, in overlapping pieces.
 
-The doppler model solves whole segments; a long file is instead solved piece by piece: each
+The smoother solves whole segments; a long file is instead solved piece by piece: each
 piece is the epochs not yet handed out plus :data:`MARGIN_EPOCHS` epochs on either side (those
 before it already handed out, those after it still to come), and only its middle is handed
-out. The kinematic kernel ties an epoch to its neighbours, and the pull of an observation
+out. The motion model ties an epoch to its neighbours, and the pull of an observation
 fades with its distance in epochs; carrier-phase differences (when the file has phase) tie
 the epochs of a piece rigidly, so there a piece's pseudoranges are averaged over the piece
 instead of the whole segment (tst2 in parts of 300 epochs: up to 0.56 m from the whole run). The variance factors are the whole file's, summed over a
@@ -30,12 +30,18 @@ MARGIN_EPOCHS = 300
 
 
 class DopplerStreamSmoother:
-    """The doppler model over parts: :meth:`push` as :class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`."""
+    """The smoother over parts: :meth:`push` as :class:`~gnss_cli.pipeline.smoothing_stream.StreamSmoother`.
+
+    ``motion``, ``measurements``: as :func:`~gnss_cli.pipeline.smoother.smooth_segments` (default: the
+    quadrature rule of ``config.smoothing.lag`` and every kind of measurement the file has)."""
 
     def __init__(self, config: ProcessingConfig, margin_epochs: int = MARGIN_EPOCHS,
-                 factors: tuple[float, ...] | None = None) -> None:
+                 factors: tuple[float, ...] | None = None, motion: str = "quadrature",
+                 measurements: frozenset[str] | None = None) -> None:
         self.config = config
         self.factors = factors
+        self.motion = motion
+        self.measurements = measurements
         self.margin = int(margin_epochs)
         self.kept: RunResult | None = None
         self.pending = 0  # index in ``kept`` of the first epoch not yet handed out
@@ -44,7 +50,7 @@ class DopplerStreamSmoother:
         """Add the next part (snapshot solutions with ``wls``), taken out of the one-element list
         ``parts``; returns the epochs now final, with the smoothed ``stls`` solution, or None.
         ``last``: the file ends here (``parts`` may then be empty)."""
-        from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
+        from gnss_cli.pipeline.smoother import default_measurements, smooth_segments  # scipy: imported when it runs
 
         part = parts.pop() if parts else None
         if part is None and self.kept is None:
@@ -56,7 +62,9 @@ class DopplerStreamSmoother:
         if end <= self.pending:
             self.kept = buf
             return None
-        sol, models = doppler_smooth(buf.epochs, buf.solutions["wls"], self.config, factors=self.factors)
+        kinds = default_measurements(buf.epochs, self.config) if self.measurements is None else self.measurements
+        sol, models = smooth_segments(buf.epochs, buf.solutions["wls"], self.config, motion=self.motion,
+                                      lag=self.config.smoothing.lag, measurements=kinds, factors=self.factors)
         start = self.pending
         out = take_result(buf, slice(start, end))
         out = replace(out, solutions={m: (take_solution(sol, slice(start, end)) if m == "stls" else out.solutions[m])

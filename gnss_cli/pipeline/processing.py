@@ -34,7 +34,7 @@ def process(
     rows are the behavioral smoothing of the WLS fixes
     (:func:`~gnss_cli.pipeline.smoothing.smooth`), or with ``model = "doppler"`` (the default
     ``"auto"`` on a file with Doppler) the measurement-domain solution of
-    :func:`~gnss_cli.pipeline.doppler_smoothing.doppler_smooth`; ``RunResult.models`` then holds one
+    :func:`~gnss_cli.pipeline.smoother.smooth_segments` (motion ``quadrature``); ``RunResult.models`` then holds one
     :class:`~gnss_cli.pipeline.results.WindowModel` per window.
 
     ``obs``: the observation file already read (:func:`~gnss_cli.io.rinex.read_obs`) in a
@@ -102,9 +102,10 @@ def _process_snapshot(obs_path: str | Path, nav_paths: Sequence[str | Path], con
 
         sol, models = kinematic_smooth(result.epochs, result.solutions["wls"], config)
     elif config.smoothing.model == "doppler":
-        from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
+        from gnss_cli.pipeline.smoother import default_measurements, smooth_segments  # scipy: imported when it runs
 
-        sol, models = doppler_smooth(result.epochs, result.solutions["wls"], config)
+        sol, models = smooth_segments(result.epochs, result.solutions["wls"], config, motion="quadrature", lag=lag,
+                                      measurements=default_measurements(result.epochs, config))
     else:
         sol, models = smooth(result.epochs, result.solutions["wls"], config)
     solutions = {m: (sol if m == "stls" else result.solutions[m]) for m in config.methods}

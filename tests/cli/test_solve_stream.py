@@ -165,7 +165,7 @@ def test_doppler_model_in_parts_is_the_whole_run_within_a_millimetre(flight: Pat
     args = [flight / "obs.rnx", flight / "nav.rnx", "--method", "wls,stls", "--lag", "3"]
     whole = _solve(args, tmp_path / "whole", 0, capsys)
     parts = _solve(args, tmp_path / "parts", CHUNK, capsys)
-    assert b'"model": "doppler"' in whole["models.json"] and b'"model": "doppler"' in parts["models.json"]
+    assert b'"model": "smoother"' in whole["models.json"] and b'"model": "smoother"' in parts["models.json"]
     w, p = (pd.read_csv(__import__("io").BytesIO(o["positions.csv"])) for o in (whole, parts))
     assert list(w.columns) == list(p.columns) and len(w) == len(p) == 2 * 601
     assert (w["status"] == p["status"]).all() and (w["n_sat"] == p["n_sat"]).all()
