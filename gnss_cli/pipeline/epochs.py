@@ -350,7 +350,7 @@ def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: SatelliteArrays, doppler
             usable: NDArray[np.bool_], t: F64, config: ProcessingConfig) -> dict[str, F64 | NDArray[np.bool_]]:
     """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
     have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler
-    (the wavelengths and the slip check come with it), or when ``smoothing.carrier_phase`` is off."""
+    (the wavelengths and the slip check come with it), or without ``phase`` in the measurements."""
     if not config.uses("phase") or doppler_hz is None or arrays.freq is None:
         return {}
     selected = select_phases(obs, prs)

@@ -5,7 +5,7 @@ The kinds (``measurements``, a subset of :data:`KINDS` with ``"pseudorange"``) a
 every multi-epoch method gets alike (DESIGN.md section 6); the caller resolves the default (every
 kind present in the file). A kind the file lacks is not used (the smoother does the same with
 phase). The variance factors are the smoother's
-(:func:`~gnss_cli.pipeline.doppler_smoothing.free_misfit_totals`: the misfit per degree of
+(:func:`~gnss_cli.pipeline.measurements.free_misfit_totals`: the misfit per degree of
 freedom of every kind, the epochs solved one at a time at the WLS fixes), and so is the gate's
 threshold (the two-sided normal quantile of ``integrity_pfa``; none with ``integrity = "off"``).
 The phase rows are those of :func:`~gnss_cli.pipeline.phase_rows.phase_pair_rows` (same pairs,
@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
+from gnss_cli.pipeline.results import EpochData, MethodSolution
 
 if TYPE_CHECKING:
     from gnss_cli.pipeline.kalman import Measurements
@@ -82,31 +82,13 @@ def kinds_config(config: ProcessingConfig, kinds: frozenset[str]) -> ProcessingC
 
 
 def variance_factors(data: EpochData, wls: MethodSolution, config: ProcessingConfig) -> tuple[float, float, float]:
-    """Variance factors of the pseudoranges, range rates and phase pairs, as the smoother estimates
-    them (1 for a kind without degrees of freedom). ``data`` without range rates: the pseudoranges'
-    factor from their own misfit (the smoother's function needs range rates; each kind's misfit is
-    its own, so this is the value it would give)."""
-    from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals, misfit_totals
+    """Variance factors of the pseudoranges, range rates and phase pairs of every kind ``data`` has,
+    as the smoother estimates them (:func:`~gnss_cli.pipeline.measurements.free_misfit_totals`;
+    1 for a kind without degrees of freedom)."""
+    from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 
-    every = kinds_config(config, frozenset(KINDS))
-    if data.range_rate_m_s is not None:
-        totals = free_misfit_totals(data, wls, every)
-    else:
-        from gnss_cli.behavior.window_solve import reduce_epochs
-        from gnss_cli.pipeline.kalman import linearized_measurements, nominal_trajectory
-
-        if wls.excluded is not None:
-            data = replace(data, usable=data.usable & ~wls.excluded)
-        fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
-        if not fix.any():
-            return 1.0, 1.0, 1.0
-        nominal = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))
-        meas = linearized_measurements(data, nominal, every)
-        rows = pseudorange_rows(data, meas, nominal)
-        pr = reduce_epochs(rows["P"], rows["w"], rows["y"], rows["C"])
-        rr = reduce_epochs(np.zeros_like(rows["P"]), np.zeros_like(rows["w"]), np.zeros_like(rows["y"]))
-        totals = misfit_totals(pr, rr)
-    f = factors_from_totals(totals)
+    present = measurement_kinds(data, kinds_config(config, frozenset(KINDS)), None)
+    f = factors_from_totals(free_misfit_totals(data, wls, config, present))
     return float(f[0]), float(f[1]), float(f[2])
 
 

@@ -138,9 +138,11 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
 
         sol, models = smooth(data, wls, config)
     elif method == "smoother":
-        from gnss_cli.pipeline.doppler_smoothing import doppler_smooth  # scipy: imported when it runs
+        from gnss_cli.pipeline.smoother import smooth_segments  # scipy: imported when it runs
 
-        sol, models = doppler_smooth(data, wls, config, method="smoother", factors=factors)
+        kinds = resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None)
+        sol, models = smooth_segments(data, wls, config, motion=config.smoother.motion, lag=config.smoother.lag,
+                                      measurements=kinds, factors=factors)
         sol = with_geometry_dops(data, sol, config, config.smoother.motion)
     elif method == "kf":
         from gnss_cli.pipeline.kalman import run_kalman

@@ -1,4 +1,4 @@
-"""Time-differenced carrier phase as rows of the ``"doppler"`` smoothing model.
+"""Time-differenced carrier phase as rows of the measurement-domain methods (the ``smoother``).
 
 Between consecutive epochs ``t - 1`` and ``t`` of a segment, a satellite whose carrier phase has
 not slipped (:func:`~gnss_cli.gnss.carrier.phase_slips`) gives the row::
@@ -16,8 +16,9 @@ The change of the real ionosphere and troposphere over an epoch remains in ``e``
 
 Weights: satellite ``i`` gets the sigma ``phase_sigma_m x sigma_i / median_j sigma_j`` (the
 pseudorange sigmas of epoch ``t``, as the range rates get theirs), scaled by a variance factor
-(:mod:`gnss_cli.pipeline.doppler_smoothing`). Rows are indexed by the epoch ``t`` that ends
-the pair; row 0 and pairs across a segment boundary are unused (weight 0).
+(:mod:`gnss_cli.pipeline.measurements`). Rows are indexed by the epoch ``t`` that ends
+the pair; row 0 and pairs across a segment boundary are unused (weight 0). Whether to use them
+is the caller's choice (``measurements``).
 """
 
 from __future__ import annotations
@@ -36,16 +37,16 @@ F64 = NDArray[np.float64]
 
 
 def phase_pair_rows(data: EpochData, rows: dict[str, F64], config: ProcessingConfig) -> dict[str, F64] | None:
-    """Rows ``(P6, w, y, C, P3)`` of every epoch pair (module docstring); None without phase.
+    """Rows ``(P6, w, y, C, P3)`` of every epoch pair (module docstring); None when ``data`` has no phase.
 
-    ``rows``: the pseudorange rows of :func:`~gnss_cli.pipeline.doppler_smoothing` at the
+    ``rows``: the pseudorange rows of :func:`~gnss_cli.pipeline.measurements.measurement_rows` at the
     linearization points (``P`` ``(T, n, 3)``, weights ``w`` (0: not used), ``y`` the pseudorange
     minus its computed value, clock columns ``C``). ``P6 (T, n, 6)`` are the coefficients of
     ``[z_{t-1}, z_t]``; ``P3 = P_t`` those of the displacement ``z_t - z_{t-1}`` alone (the
     difference ``P_t - P_{t-1}`` of the lines of sight over one epoch is ~1e-4: the pair solved for
     its displacement alone, for the variance factor).
     """
-    if data.phase_m is None or data.phase_slip is None or not config.uses("phase"):
+    if data.phase_m is None or data.phase_slip is None:
         return None
     w_pr = rows["w"]
     q = np.where(w_pr > 0, rows["y"] + data.phase_m - data.pr_corrected_m, np.nan)

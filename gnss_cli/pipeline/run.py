@@ -430,7 +430,7 @@ class Run:
         config = self.config
         if not {"smoother", "kf"} & set(config.multi_epoch_methods):
             return None
-        from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
+        from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 
         totals = np.zeros(6)  # misfit and degrees of freedom: pseudoranges, range rates, phase pairs
         done = 0

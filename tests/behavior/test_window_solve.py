@@ -1,13 +1,10 @@
-"""Measurement-domain window solutions and the kinematic segment solve against dense least squares."""
+"""Measurement-domain window solutions against dense least squares."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.linalg import null_space
 
-from gnss_cli.behavior import kinematic_solve
-from gnss_cli.behavior.kinematic_solve import JERK_SIGMA_M_S3, solve_kinematic, step_rule
 from gnss_cli.behavior.multi_epoch import shared_behavior_bases
 from gnss_cli.behavior.window_solve import free_misfit, reduce_epochs, solve_windows, velocity_operator
 
@@ -104,68 +101,3 @@ def test_singular_window_is_reported_not_solved() -> None:
     basis = shared_behavior_bases(np.array([[-1.0, 1.0]]), 5, 3)[0]
     sol = solve_windows(basis[None], np.arange(5)[None], np.zeros((1, 5, 3)), reduce_epochs(p, w, y, c))
     assert not sol.ok[0] and np.isnan(sol.theta).all()
-
-
-def _kinematic_dense(pr, rr, step_m, dt_s, lag):  # type: ignore[no-untyped-def]
-    """The same constrained problem through the null space of the constraints (dense)."""
-    n = pr.M.shape[0]
-    G = np.zeros((3 * (n - 1), 6 * n))
-    cvec = -step_m.ravel()
-    for t in range(n - 1):
-        offs, wts = step_rule(t, n, lag)
-        for a in range(3):
-            G[3 * t + a, 3 * (t + 1) + a] += 1.0
-            G[3 * t + a, 3 * t + a] -= 1.0
-            for o, wt in zip(offs, wts):
-                G[3 * t + a, 3 * n + 3 * (t + o) + a] -= wt * dt_s[t]
-    H = np.zeros((6 * n, 6 * n))
-    for t in range(n):
-        H[3 * t : 3 * t + 3, 3 * t : 3 * t + 3] = pr.M[t]
-        H[3 * n + 3 * t : 3 * n + 3 * t + 3, 3 * n + 3 * t : 3 * n + 3 * t + 3] = rr.M[t]
-    d2 = np.diff(np.eye(n), 2, axis=0)  # v_{t+1} - 2 v_t + v_{t-1} (uniform steps here)
-    H[3 * n :, 3 * n :] += np.kron(d2.T @ d2 / (JERK_SIGMA_M_S3 * dt_s[0] ** 2) ** 2, np.eye(3))
-    g = np.concatenate([pr.r.ravel(), rr.r.ravel()])
-    u0, *_ = np.linalg.lstsq(G, cvec, rcond=None)
-    N = null_space(G)
-    a = np.linalg.solve(N.T @ H @ N, N.T @ (g - H @ u0))
-    u = u0 + N @ a
-    return u[: 3 * n].reshape(n, 3), u[3 * n :].reshape(n, 3)
-
-
-@pytest.mark.parametrize("lag", [1, 2, 3])
-def test_kinematic_segment_equals_the_null_space_solution(lag: int) -> None:
-    rng = np.random.default_rng(10 + lag)
-    n_t = 12
-    p, w, y, c = _epochs(rng, n_t, 8, 1, [8] * n_t)
-    h, wd, yd, _ = _epochs(rng, n_t, 8, 1, [8] * n_t)
-    pr, rr = reduce_epochs(p, w, y, c), reduce_epochs(h, wd, yd)
-    step = rng.normal(size=(n_t - 1, 3))
-    dt = np.full(n_t - 1, 0.5)
-    sol = solve_kinematic(pr, rr, step, dt, lag)
-    z, v = _kinematic_dense(pr, rr, step, dt, lag)
-    assert np.allclose(sol.z, z, rtol=1e-8, atol=1e-9) and np.allclose(sol.v, v, rtol=1e-8, atol=1e-9)
-    assert sol.dof == 2 * 8 * n_t - 2 * n_t - 3 * n_t - 3
-
-
-@pytest.mark.parametrize("lag, exact", [(1, False), (3, True)])
-def test_kinematic_rule_of_lag_3_is_exact_for_cubic_velocity(lag: int, exact: bool, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Noise-free rows of a trajectory with a polynomial velocity: the lag-3 rule (one-sided at the ends) returns it, the
-    trapezoid does not (its step error is dt^3 x''' / 12)."""
-    monkeypatch.setattr(kinematic_solve, "JERK_SIGMA_M_S3", 1e6)  # the prior (3 m/s^3) pulls 1e-4 m here
-    rng = np.random.default_rng(5)
-    n_t, dt = 40, 1.0
-    t = np.arange(n_t) * dt
-    coef = np.array([[0.3, -0.2, 0.05], [0.02, 0.01, -0.03], [-0.004, 0.002, 0.001]])
-    vel = 10.0 + np.stack([np.polyval(np.r_[coef[:, i], 0.0][::-1], t) for i in range(3)], axis=1)
-    pos = np.stack([np.polyval(np.polyint(np.r_[coef[:, i], 0.0][::-1]), t) for i in range(3)], axis=1) + 10.0 * t[:, None]
-    p, w, _, c = _epochs(rng, n_t, 8, 1, [8] * n_t)
-    h, wd, _, _ = _epochs(rng, n_t, 8, 1, [8] * n_t)
-    nominal = pos + rng.normal(scale=3.0, size=pos.shape)
-    y = np.einsum("tni,ti->tn", p, pos - nominal)  # rows of the truth relative to the nominal, clock 0
-    yd = np.einsum("tni,ti->tn", h, vel)
-    w[5:8, 2:] = 0.0  # three epochs with two satellites
-    sol = solve_kinematic(reduce_epochs(p, w, y, c), reduce_epochs(h, wd, yd), np.diff(nominal, axis=0),
-                          np.full(n_t - 1, dt), lag)
-    err = np.abs(nominal + sol.z - pos).max()
-    # lag 3: 1e-9 m, the trapezoid 7e-4 m
-    assert (err < 1e-7) if exact else (err > 1e-4)

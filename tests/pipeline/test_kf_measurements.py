@@ -19,7 +19,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.carrier import phase_slips
 from gnss_cli.io.reference import reference_from_csv, reference_from_pos
 from gnss_cli.pipeline import load_epochs, solve_method
-from gnss_cli.pipeline.doppler_smoothing import factors_from_totals, free_misfit_totals
+from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 from gnss_cli.pipeline.kalman import run_kalman
 from gnss_cli.pipeline.kalman_rows import gate_threshold, measurement_kinds, variance_factors
 from gnss_cli.pipeline.results import EpochData

@@ -1,4 +1,4 @@
-"""Time-differenced carrier phase in the ``smoother`` method (``measurements`` with ``phase``).
+"""Time-differenced carrier phase in the ``smoother`` (``measurements`` with ``phase``).
 
 The simulator writes no carrier phase, so the phase is made here from a noise-free flight of the
 same seed (same orbits, trajectory and receiver clock): its corrected pseudorange is the exact
@@ -18,13 +18,25 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.carrier import phase_slips
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, solve_method
-from gnss_cli.pipeline.doppler_smoothing import doppler_smooth, solve_doppler_segments
+from gnss_cli.behavior.kinematic_solve import Motion
+from gnss_cli.pipeline.smoother import default_measurements, smooth_segments, solve_segments
 from gnss_cli.pipeline.results import EpochData
 
 from flight_scenarios import simulate_flight
 
 BASE = {"methods": "wls,smoother", "smoother.lag": 3, "iono": "none", "tropo": "none"}
 L1_M = 299792458.0 / 1575.42e6
+
+
+def _smooth_default(data: EpochData, wls, cfg, measurements: frozenset[str] | None = None):  # type: ignore[no-untyped-def]
+    """The default run: quadrature lag 3, every kind of measurement present (and configured)."""
+    kinds = default_measurements(data, cfg) if measurements is None else measurements
+    return smooth_segments(data, wls, cfg, motion="quadrature", lag=3, measurements=kinds)
+
+
+def _segments_default(data: EpochData, wls, cfg, lag: int = 3):  # type: ignore[no-untyped-def]
+    """The run of every segment with every kind of measurement present (``data`` has phase here)."""
+    return solve_segments(data, wls, cfg, Motion("quadrature", lag), default_measurements(data, cfg))
 
 
 def _rms(x: np.ndarray, ref: np.ndarray) -> float:
@@ -58,7 +70,7 @@ def _with_phase(data: EpochData, phase: np.ndarray, cfg, lli: np.ndarray | None 
 def test_exact_phase_keeps_exact_data_exact(flights) -> None:  # type: ignore[no-untyped-def]
     cfg, ref = flights["cfg"], flights["ref"]
     data = _with_phase(flights["none"], flights["phase"], cfg)
-    sol, models = doppler_smooth(data, solve_method(data, "wls", cfg), cfg)
+    sol, models = _smooth_default(data, solve_method(data, "wls", cfg), cfg)
     assert "phase pairs" in models[0].message
     err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
     assert np.sqrt(np.mean(err**2)) <= 0.01 and err.max() <= 0.02
@@ -68,13 +80,30 @@ def test_exact_phase_averages_the_pseudorange_noise(flights) -> None:  # type: i
     """The differences fix the trajectory's shape: 1 m pseudorange noise averages over the segment."""
     cfg, ref, noisy = flights["cfg"], flights["ref"], flights["noise"]
     wls = solve_method(noisy, "wls", cfg)
-    without = _rms(doppler_smooth(noisy, wls, cfg)[0].x_ecef_m, ref)
+    without = _rms(_smooth_default(noisy, wls, cfg)[0].x_ecef_m, ref)
     data = _with_phase(noisy, flights["phase"], cfg)
-    run = solve_doppler_segments(data, wls, cfg, 3)
-    assert run is not None and run.phase and run.factors[2] < 1e-3  # exact differences: a tiny factor
+    run = _segments_default(data, wls, cfg, 3)
+    assert run is not None and "phase" in run.measurements and run.factors[2] < 1e-3  # exact differences: a tiny factor
     assert _rms(run.x_ecef_m, ref) < 0.5 * without
     off = load_config(None, {**BASE, "measurements": "pseudorange,doppler"})
-    assert _rms(doppler_smooth(data, wls, off)[0].x_ecef_m, ref) == pytest.approx(without, abs=1e-9)
+    assert _rms(_smooth_default(data, wls, off)[0].x_ecef_m, ref) == pytest.approx(without, abs=1e-9)
+
+
+@pytest.mark.parametrize("motion", ["quadrature", "cv"])
+def test_phase_without_doppler_ties_the_track(flights, motion: str) -> None:  # type: ignore[no-untyped-def]
+    """Pseudoranges and phase, no range rates: exact data stay exact, and exact phase averages the
+    pseudorange noise of a flight far below the pseudoranges alone (both motions)."""
+    cfg, ref = flights["cfg"], flights["ref"]
+    kinds = frozenset({"pseudorange", "phase"})
+    exact = _with_phase(flights["none"], flights["phase"], cfg)
+    sol, models = smooth_segments(exact, solve_method(exact, "wls", cfg), cfg, motion=motion, lag=3, measurements=kinds)
+    assert "phase pairs" in models[0].message and "range rates" not in models[0].message
+    assert np.linalg.norm(sol.x_ecef_m - ref, axis=1).max() <= 0.02
+    noisy = _with_phase(flights["noise"], flights["phase"], cfg)
+    wls = solve_method(noisy, "wls", cfg)
+    alone = smooth_segments(noisy, wls, cfg, motion=motion, lag=3, measurements={"pseudorange"})[0]
+    tied = smooth_segments(noisy, wls, cfg, motion=motion, lag=3, measurements=kinds)[0]
+    assert (tied.status == "ok").all() and _rms(tied.x_ecef_m, ref) < 0.5 * _rms(alone.x_ecef_m, ref)
 
 
 @pytest.mark.parametrize("cycles", [10, 1])
@@ -84,18 +113,18 @@ def test_a_cycle_slip_does_not_bias_the_track(flights, cycles: int) -> None:  # 
     and a phase that keeps the slip unflagged and ungated pulls it."""
     cfg, noisy = flights["cfg"], flights["noise"]
     wls = solve_method(noisy, "wls", cfg)
-    clean = solve_doppler_segments(_with_phase(noisy, flights["phase"], cfg), wls, cfg, 3)
+    clean = _segments_default(_with_phase(noisy, flights["phase"], cfg), wls, cfg, 3)
     sat = int(np.flatnonzero(noisy.usable[100:200].all(axis=0))[0])
     slipped = flights["phase"].copy()
     slipped[150:, sat] += cycles * L1_M
     data = _with_phase(noisy, slipped, cfg)
     assert data.phase_slip is not None
     assert data.phase_slip[150, sat] == (cycles == 10) and data.phase_slip.sum() == (cycles == 10)
-    run = solve_doppler_segments(data, wls, cfg, 3)
+    run = _segments_default(data, wls, cfg, 3)
     assert clean is not None and run is not None
     assert np.abs(run.x_ecef_m - clean.x_ecef_m).max() < 0.02
     off = load_config(None, {**BASE, "integrity": "off"})
-    pulled = solve_doppler_segments(replace(data, phase_slip=np.zeros_like(data.phase_slip)), wls, off, 3)
+    pulled = _segments_default(replace(data, phase_slip=np.zeros_like(data.phase_slip)), wls, off, 3)
     assert pulled is not None and np.abs(pulled.x_ecef_m - clean.x_ecef_m).max() > 0.05
 
 
