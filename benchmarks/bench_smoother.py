@@ -37,7 +37,7 @@ from gnss_cli.config import load_config
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.io.reference import reference_from_csv, reference_from_pos
-from gnss_cli.pipeline import load_epochs, process, solve_method
+from gnss_cli.pipeline import load_epochs, solve_method
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
 
