@@ -196,7 +196,7 @@ def _check_blocks(data: EpochData, sol: MethodSolution, rows: NDArray[np.intp], 
                   config: ProcessingConfig, weighted: bool) -> IntegrityCheck:
     """:func:`check_epochs` of the epochs ``rows`` (without the ``excluded`` satellites), by the
     width of their compact systems (:func:`~gnss_cli.gnss.range_model.width_groups`), in blocks."""
-    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    clocks = sol.clocks_m
     rw = sol.robust_weights if config.robust != "off" else None
     out: dict[str, NDArray[np.generic]] = {}
     for idx, width in width_groups(data.usable[rows] & ~excluded[rows], _BLOCK):
@@ -246,7 +246,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
         if not rows.size:
             break
         excluded[rows, worst] = True
-        clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+        clocks = sol.clocks_m
         sub = solver(take_epochs(data, rows, excluded), sol.x_ecef_m[rows], clocks[rows])
         sol = merge_epochs(sol, rows, sub)
         rows = rows[np.isin(sub.status, tried)]
@@ -333,7 +333,7 @@ def monitor_fixes(data: EpochData, sol: MethodSolution, wls_status: NDArray[np.s
     """
     T = sol.status.size
     rows = np.flatnonzero(sol.status == EpochStatus.OK)
-    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    clocks = sol.clocks_m
     sigma = sol.sigma_m if sol.sigma_m is not None else np.full(sol.residuals_m.shape, np.nan)
     chk = check_fixes(take_epochs(data, rows), sol.x_ecef_m[rows], clocks[rows], sigma[rows], config,
                       position_unknowns)

@@ -351,7 +351,7 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig, *
     T, k = data.time_gps_s.size, len(data.systems)
     lay = _Layout(3 if config.kalman.model == "ca" else 2, k)
     has_fix = np.isfinite(wls.x_ecef_m).all(axis=1)
-    clocks = wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]
+    clocks = wls.clocks_m
     vel = solve_velocity(data, wls.x_ecef_m, wls.sigma_m if wls.sigma_m is not None else np.ones(data.usable.shape),
                          config) if "doppler" in kinds else None  # without range rates the prior has none either
     tdops = wls.tdops if wls.tdops is not None else np.zeros((T, k))
@@ -415,7 +415,7 @@ def _solution(data: EpochData, wls: MethodSolution, meas: Measurements, x: F64, 
     vd = np.r_[3:6, lay.drift]
     gdop_vel = np.sqrt(np.clip(np.trace(P[:, vd][:, :, vd], axis1=1, axis2=2), 0.0, None)) / config.doppler_sigma_m_s
     return MethodSolution(
-        method="kf", x_ecef_m=np.where(have[:, None], x[:, :3], np.nan), clock_m=clocks[:, 0], clocks_m=clocks,
+        method="kf", x_ecef_m=np.where(have[:, None], x[:, :3], np.nan), clocks_m=clocks,
         n_sat=n_sat, gdop=masked(dop.gdop), pdop=masked(dop.pdop), hdop=masked(dop.hdop), vdop=masked(dop.vdop),
         tdop=masked(dop.tdop), tdops=np.where(have[:, None], tdops, np.nan), gdop_paper=None, cov_m2=cov,
         status=status.astype(wls.status.dtype), iterations=np.where(have, passes, 0).astype(np.int64),

@@ -403,7 +403,7 @@ def with_geometry_dops(data: Any, sol: Any, config: Any, motion: str,
     if not rows.size:
         return sol
     T, n = data.time_gps_s.size, data.sv.size
-    k = sol.clocks_m.shape[1] if sol.clocks_m is not None else 1
+    k = sol.clocks_m.shape[1]
     lin = linearize(data, rows, sol.x_ecef_m[rows], np.zeros((rows.size, k)), config)
     A_pos = np.zeros((T, n, 3))
     clock_cols = np.zeros((T, n, k))

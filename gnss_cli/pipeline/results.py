@@ -255,7 +255,8 @@ class MethodSolution:
     ----------
     method : registry key.
     x_ecef_m : ``(T, 3)`` receiver positions (NaN where the epoch failed).
-    clock_m : ``(T,)`` receiver clock bias, m.
+    clocks_m : ``(T, k)`` receiver clock of every system (column j: ``EpochData.systems[j]``),
+        m; :attr:`clock_m` is the reference clock, column 0 (the CSV ``clock_m``).
     n_sat : ``(T,)`` satellites used.
     gdop, pdop, hdop, vdop, tdop : ``(T,)`` DOPs from the method's noise gain ``J J^T``
         at the solution, position rotated to local ENU (unitless). ``tdop`` is the TDOP of
@@ -273,7 +274,7 @@ class MethodSolution:
 
     method: str
     x_ecef_m: F64
-    clock_m: F64
+    clocks_m: F64
     n_sat: NDArray[np.int64]
     gdop: F64
     pdop: F64
@@ -285,8 +286,6 @@ class MethodSolution:
     status: NDArray[np.str_]
     iterations: NDArray[np.int64]
     residuals_m: F64
-    clocks_m: F64 | None = None
-    """``(T, k)`` receiver clock of every system (column j: ``EpochData.systems[j]``), m."""
     tdops: F64 | None = None
     """``(T, k)`` TDOP of every system's clock, ``sqrt((J J^T)_{3+j,3+j})``; NaN where the
     epoch failed or used no satellite of that system (its clock is then fixed by a constraint)."""
@@ -313,6 +312,11 @@ class MethodSolution:
     """``(T,)`` receiver clock drift times c, m/s (one for every system)."""
     gdop_vel: F64 | None = None
     """``(T,)`` velocity DOP ``sqrt(trace)`` of the velocity-and-drift noise gain (unitless)."""
+
+    @property
+    def clock_m(self) -> F64:
+        """``(T,)`` the reference clock (the first system's), m: the CSV ``clock_m`` column."""
+        return self.clocks_m[:, 0]
 
 
 @dataclass(frozen=True)

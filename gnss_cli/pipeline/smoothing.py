@@ -304,7 +304,7 @@ def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingCon
             method: str) -> MethodSolution:
     """The smoothed MethodSolution: clocks re-estimated, multi-epoch covariances and DOPs."""
     T = data.time_gps_s.size
-    clocks = (wls.clocks_m if wls.clocks_m is not None else wls.clock_m[:, None]).copy()
+    clocks = wls.clocks_m.copy()
     n_clk = clocks.shape[1]
     out = {"cov": wls.cov_m2.copy(), "residuals": wls.residuals_m.copy(), "n_sat": wls.n_sat.copy(),
            "tdops": wls.tdops.copy() if wls.tdops is not None else None}
@@ -317,8 +317,7 @@ def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingCon
     bad = np.isin(status, [_OK, FALLBACK], invert=True)
     x_out = np.where(bad[:, None], np.nan, x_s)
     clocks = np.where(bad[:, None], np.nan, clocks)
-    return replace(wls, method=method, x_ecef_m=x_out, clock_m=clocks[:, 0],
-                   clocks_m=clocks if wls.clocks_m is not None else None, tdops=out["tdops"], n_sat=out["n_sat"],
+    return replace(wls, method=method, x_ecef_m=x_out, clocks_m=clocks, tdops=out["tdops"], n_sat=out["n_sat"],
                    cov_m2=np.where(bad[:, None, None], np.nan, out["cov"]), status=status,
                    residuals_m=np.where(bad[:, None], np.nan, out["residuals"]), gdop_paper=None, **dops)
 

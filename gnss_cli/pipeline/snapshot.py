@@ -115,7 +115,7 @@ def _robust_refit(data: EpochData, method: str, config: ProcessingConfig, sol: M
     rows = np.flatnonzero(np.isin(sol.status, tried))
     if not rows.size:
         return sol
-    clocks = sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    clocks = sol.clocks_m
     sub = _gauss_newton(take_epochs(data, rows), method, config, None, sol.x_ecef_m[rows], clocks[rows],
                         keep_unconverged=keep_unconverged, robust=True)
     return merge_epochs(sol, rows, replace(sub, iterations=sub.iterations + sol.iterations[rows]))
@@ -224,7 +224,7 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
         data = replace(data, usable=data.usable & ~base.excluded)
     T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
     x = base.x_ecef_m.copy()
-    b = base.clocks_m.copy() if base.clocks_m is not None else base.clock_m[:, None].copy()
+    b = base.clocks_m.copy()
     status = base.status.copy()
     flagged = np.isin(status, _FLAGGED)  # integrity_fail, gdop_limit: solved, and keep the WLS word
     iterations = np.where((status == EpochStatus.OK) | flagged, 1, 0).astype(np.int64)
@@ -309,7 +309,6 @@ class _Accumulator:
         return MethodSolution(
             method=self.method,
             x_ecef_m=x,
-            clock_m=b[:, 0],
             clocks_m=b,
             n_sat=self.n_sat,
             gdop=masked(dop.gdop),

@@ -38,7 +38,7 @@ ALL = ("ls", "wls", "tls", "dls", "mtls", "stls", "wtls")
 
 
 def _clocks(sol) -> np.ndarray:
-    return sol.clocks_m if sol.clocks_m is not None else sol.clock_m[:, None]
+    return sol.clocks_m
 
 
 # --- the statistic itself ---------------------------------------------------------------------
