@@ -37,7 +37,7 @@ from gnss_cli.pipeline.results import (
     window_epoch_status,
 )
 from gnss_cli.pipeline.run import Run, process
-from gnss_cli.pipeline.smoothing import smooth
+from gnss_cli.pipeline.behavioral import smooth
 from gnss_cli.pipeline.snapshot import ITERATED_METHODS, WEIGHTED_METHODS, solve_method, solve_methods
 
 __all__ = [

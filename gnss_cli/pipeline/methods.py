@@ -134,7 +134,7 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
 
     if method == "stls":
-        from gnss_cli.pipeline.smoothing import smooth
+        from gnss_cli.pipeline.behavioral import smooth
 
         sol, models = smooth(data, wls, config)
     elif method == "smoother":

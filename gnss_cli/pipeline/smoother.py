@@ -106,7 +106,7 @@ from gnss_cli.pipeline.measurements import (
 )
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, WindowModel
-from gnss_cli.pipeline.smoothing import finish_smoothing
+from gnss_cli.pipeline.behavioral import finish_smoothing
 from gnss_cli.solvers.dop import dop_from_cov
 
 __all__ = ["smooth_segments", "solve_segments", "default_measurements", "motion_kernel", "SegmentRun", "KINDS",
