@@ -1,6 +1,11 @@
 """Processing configuration: defaults from ``gnss_cli/configs/default.toml``, a user TOML, and flags.
 
 Precedence: command-line flags > ``--config FILE`` > the packaged defaults.
+
+Modules, one job each::
+
+    sections  The sections of the processing configuration: pseudorange weights and the multi-epoch...
+    toml      The effective configuration as TOML (gnss-solve --print-config).
 """
 
 from __future__ import annotations

@@ -15,6 +15,15 @@ and the submodules import matplotlib when they are imported themselves:
 
 No figure goes through ``pyplot``: every ``Figure`` is created directly, so nothing depends
 on a display, a global backend or global state.
+
+Modules, one job each::
+
+    common      What every figure shares: method styles, the time axis, scale choices, PNG bytes.
+    errors      Position errors: ENU errors over time, the horizontal scatter with 95 % ellipses, an...
+    html        The one-page HTML report: figures embedded as base64 PNG, the summary table, the set...
+    run         Every figure of a gnss-solve run, from its RunResult.
+    satellites  Satellite geometry over the run: sky plot of used and excluded satellites, satellite...
+    track       Tracks in a local East-North-Up frame: a run's positions per method with the referen...
 """
 
 from __future__ import annotations

@@ -32,6 +32,20 @@ Weights are row weights ``1/σ_i²``: for the TLS family they whiten whole rows 
 :class:`~gnss_cli.errors.UsageError` (weights of all ones are accepted everywhere).
 Method-specific keyword options (tolerances, iteration limits) are listed in each
 module's solver function; unknown option names raise ``UsageError``.
+
+Modules, one job each::
+
+    dls      Data least squares (DLS): errors in A only, q exact.
+    dop      Dilution of precision from a noise-gain matrix, and the paper's TLS formula.
+    kalman   Linear Kalman filter and Rauch-Tung-Striebel smoother (matrices only, no GNSS).
+    ls       Least squares (LS) and weighted least squares (WLS), stacked over epochs.
+    mtls     Mixed least squares – total least squares (MTLS): some columns of A are exact.
+    problem  The validated, masked problem every solver of the family receives.
+    result   Result types and the status table shared by every solver of the family.
+    robust   M-estimators (Huber, Cauchy) by iteratively reweighted least squares, stacked over epoc...
+    stls     Structured / weighted total least squares for one epoch (STLS), stacked over epochs.
+    tls      Total least squares (TLS), stacked over epochs, and the gain of the TLS family.
+    wtls     Weighted total least squares (WTLS): TLS of the row-whitened W^{1/2} [A q] D.
 """
 
 from __future__ import annotations
