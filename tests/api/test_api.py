@@ -21,9 +21,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 def _readme_example() -> str:
     text = (REPO / "README.md").read_text()
-    section = text.split("## Python API", 1)[1].split("\n## ", 1)[0]
+    section = text.split("**From Python.**", 1)[1].split("\n**", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
-    assert len(blocks) == 1, "the Python API section holds one python example"
+    assert len(blocks) == 1, "the README's Python example is one block"
     return blocks[0]
 
 

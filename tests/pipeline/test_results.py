@@ -25,9 +25,9 @@ def test_window_statuses() -> None:
     assert window_status_word(StlsStatus.DIRECT) == "direct" and window_status_word(None) == WINDOW_FAILED
 
 
-def test_values_are_the_printed_words_and_the_readme_lists_them() -> None:
+def test_values_are_the_printed_words_and_the_docs_list_them() -> None:
     assert str(EpochStatus.FALLBACK_WLS) == "fallback_wls" and f"{EpochStatus.OK}" == "ok"
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    section = readme.split("### Epoch status", 1)[1].split("\n## ", 1)[0]
+    docs = (Path(__file__).resolve().parents[2] / "docs" / "outputs.md").read_text()
+    section = docs.split("## Epoch status", 1)[1].split("\n## ", 1)[0]
     listed = re.findall(r"^\| `([a-z_]+)` \|", section, flags=re.M)
     assert listed == [s.value for s in EpochStatus]
