@@ -55,7 +55,7 @@ def simulate(
     start: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
     duration: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
     interval: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,
-    systems: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "systems"), help="Systems, comma list of G, E, C.")] = None,
+    systems: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "systems"), help="Systems, comma list of G, E, C, J.")] = None,
     seed: Annotated[Optional[int], typer.Option(show_default=_default("simulate", "seed"), help="Seed of the random generator.")] = None,
     errors: Annotated[
         Optional[str],

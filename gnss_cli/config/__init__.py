@@ -74,6 +74,8 @@ class ProcessingConfig:
     convergence_m: float = 1e-4
     min_satellites: int = 4
     healthy_only: bool = True
+    qzss_own_clock: bool = False
+    """QZSS gets a receiver clock of its own; by default its satellites share GPS's (see default.toml)."""
     weights: WeightConfig = field(default_factory=WeightConfig)
     signals: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     signals_second: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
@@ -131,6 +133,8 @@ class ProcessingConfig:
             raise ConfigError(f"iono: expected one of {', '.join(IONO_OPTIONS)}; received {self.iono!r}")
         if self.tropo not in ("saastamoinen", "none"):
             raise ConfigError(f"tropo: expected 'saastamoinen' or 'none'; received {self.tropo!r}")
+        if not isinstance(self.qzss_own_clock, bool):
+            raise ConfigError(f"qzss_own_clock: expected true or false; received {self.qzss_own_clock!r}")
         if not 0.0 <= self.elevation_mask_deg < 90.0:
             raise ConfigError(f"elevation_mask_deg: expected 0 <= value < 90; received {self.elevation_mask_deg}")
         for key in ("chunk_epochs", "stream_above_epochs", "processes"):

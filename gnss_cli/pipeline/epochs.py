@@ -48,7 +48,7 @@ from gnss_cli.io.rinex import klobuchar_coefficients, read_obs
 from gnss_cli.pipeline.results import EpochData
 
 __all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
-           "EpochSetup", "Coverage"]
+           "EpochSetup", "Coverage", "clock_systems", "SHARED_CLOCKS"]
 
 F64 = NDArray[np.float64]
 _COMMON_SPAN_MARGIN_S = 4 * 3600.0  # observations this far outside the ephemerides' toe span share no time
@@ -283,10 +283,33 @@ def used_systems(sv: NDArray[np.str_], systems: Sequence[str], cov: Coverage) ->
     return tuple(sy for sy in systems if cov.usable[sys_of == sy].any())
 
 
-def finish_epochs(data: EpochData, used: tuple[str, ...], warnings: Sequence[str] = ()) -> EpochData:
-    """``data`` with its systems (clock columns), every satellite's system index, and the warnings."""
-    index = np.array([used.index(s[0]) if s[0] in used else 0 for s in data.sv], dtype=np.int64)
-    return replace(data, systems=used, system_index=index, warnings=tuple(warnings))
+SHARED_CLOCKS = {"J": "G"}
+"""Systems whose satellites use another system's receiver clock by default: QZSS time is steered
+to GPS time and QZSS L1 C/A is designed to be interoperable with GPS L1 C/A (IS-QZSS-PNT), so
+QZSS shares the GPS clock column (as RTKLIB's ``pntpos.c``). Galileo, BeiDou and GLONASS keep
+clocks of their own (their system time offsets and receiver signal delays differ from GPS's)."""
+
+
+def clock_systems(used: Sequence[str], qzss_own_clock: bool = False) -> tuple[str, ...]:
+    """The clock columns of the systems ``used``: each system, except QZSS when GPS is used too and
+    ``qzss_own_clock`` is false (then QZSS satellites are in GPS's column). QZSS without GPS keeps
+    its clock (the reference clock when it is alone).
+
+    >>> clock_systems(("G", "E", "J")), clock_systems(("G", "J"), qzss_own_clock=True), clock_systems(("J",))
+    (('G', 'E'), ('G', 'J'), ('J',))
+    """
+    shared = {} if qzss_own_clock else SHARED_CLOCKS
+    return tuple(s for s in used if shared.get(s) not in used)
+
+
+def finish_epochs(data: EpochData, used: tuple[str, ...], warnings: Sequence[str] = (),
+                  qzss_own_clock: bool = False) -> EpochData:
+    """``data`` with its clock columns (:func:`clock_systems` of the systems ``used``), every
+    satellite's clock-column index, and the warnings."""
+    clocks = clock_systems(used, qzss_own_clock)
+    column = {s: clocks.index(s) if s in clocks else clocks.index(SHARED_CLOCKS[s]) for s in used}
+    index = np.array([column.get(s[0], 0) for s in data.sv], dtype=np.int64)
+    return replace(data, systems=clocks, system_index=index, warnings=tuple(warnings))
 
 
 def load_epochs(
@@ -334,7 +357,7 @@ def load_epochs(
     warnings = file_warnings(setup, prs.sv, systems, cov)
     if timings is not None:
         timings["orbits"] = time.perf_counter() - clock
-    return finish_epochs(data, used_systems(prs.sv, systems, cov), warnings)
+    return finish_epochs(data, used_systems(prs.sv, systems, cov), warnings, config.qzss_own_clock)
 
 
 def _rates(arrays: SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:

@@ -33,7 +33,7 @@ def part_epochs(obs: xr.Dataset, setup: EpochSetup, systems: list[str], sv: np.n
     obs = obs.reindex(sv=np.union1d(np.asarray(obs["sv"].values).astype(str), sv))
     prs = align_pseudoranges(select_pseudoranges(obs, systems, setup.priority), sv)
     data, part_cov = build_epochs(obs, prs, setup, systems)
-    return finish_epochs(data, used), part_cov
+    return finish_epochs(data, used, qzss_own_clock=setup.config.qzss_own_clock), part_cov
 
 
 def solve_part(obs: xr.Dataset, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],

@@ -216,9 +216,10 @@ class EpochData:
     nav_paths: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
     systems: tuple[str, ...] = ("G",)
-    """Systems with usable data, in clock-column order (column 3 + j is system j's clock)."""
+    """Receiver clocks of the systems with usable data, in clock-column order (column 3 + j is clock
+    j); QZSS satellites share GPS's column unless ``qzss_own_clock`` (:func:`~gnss_cli.pipeline.epochs.clock_systems`)."""
     system_index: NDArray[np.int64] | None = None
-    """``(n,)`` index into ``systems`` of every satellite."""
+    """``(n,)`` index into ``systems`` of every satellite's clock."""
     iono_scale: F64 | None = None
     """``(T, n)`` factor taking the L1 Klobuchar delay to the signal's frequency."""
     leap_seconds: float | None = None

@@ -1,4 +1,4 @@
-"""Nominal GPS, Galileo and BeiDou-MEO constellations as exactly representable broadcast records.
+"""Nominal GPS, Galileo, BeiDou-MEO and QZSS constellations as exactly representable broadcast records.
 
 Every simulated satellite flies ONE orbit: a Keplerian ellipse with the secular drifts of
 the broadcast model (``delta_n``, ``OmegaDot``, ``IDOT``) and constant second-harmonic
@@ -13,7 +13,9 @@ a reader of the written navigation file recovers it to ~1e-5 m.
 Times in a :class:`~gnss_cli.gnss.ephemeris.KeplerEphemeris` are GPS seconds. BeiDou
 records are written in BDT (GPST - 14 s, weeks counted from 2006-01-01); the node longitude
 ``omega0`` of the table refers to the GPS week start and the written one to the BDT week
-start (they differ by ``14 s * omega_e``): :func:`file_omega0_rad` converts.
+start (they differ by ``14 s * omega_e``): :func:`file_omega0_rad` converts. QZSS records
+are GPS LNAV records (IS-QZSS-PNT) in GPS time: QZSS time is steered to GPS time, and the
+simulator gives both the same receiver clock.
 """
 
 from __future__ import annotations
@@ -76,8 +78,19 @@ SYSTEMS: dict[str, SystemSpec] = {
     "C": SystemSpec(
         "C", GM_GAL_M3_S2, OMEGA_E_BDS_RAD_S, BDT_WEEK0_GPS_S, ("C2I", "C7I"), (FREQ_B1I_HZ, FREQ_B2I_HZ), ("C2", "C7")
     ),
+    "J": SystemSpec("J", GM_GPS_M3_S2, OMEGA_E_RAD_S, 0.0, ("C1C", "C2L"), (FREQ_L1_HZ, FREQ_L2_HZ), ("C1", "C2")),
 }
-"""Simulated systems. Galileo's second signal is E5b (the I/NAV clock pair), BeiDou's B2I."""
+"""Simulated systems. Galileo's second signal is E5b (the I/NAV clock pair), BeiDou's B2I,
+QZSS's L2C (QZSS has no L2 P(Y))."""
+
+QZSS_QZO_PRNS = (1, 2, 3)
+"""RINEX PRNs of the simulated quasi-zenith (inclined geosynchronous) satellites (QZS-1, -2, -4)."""
+QZSS_GEO_PRN = 7
+"""RINEX PRN of the simulated geostationary QZSS satellite (QZS-3, PRN 199)."""
+QZSS_APOGEE_LON_DEG = 139.0
+"""East longitude of the QZO ground track's northern apogee (the figure eight over Japan), deg."""
+QZSS_GEO_LON_DEG = 127.0
+"""East longitude of the QZSS GEO, deg."""
 
 
 @dataclass(frozen=True)
@@ -131,7 +144,9 @@ def nominal_constellation(system: str, t_ref_gps_s: float, *, seed: int = 2024) 
     system
         ``'G'`` (31 satellites: 6 planes at 55 deg, a = 26,560 km, a Walker 30/6/2 pattern plus
         G31 in plane A), ``'E'`` (Walker 24/3/1 at 56 deg,
-        a = 29,600 km) or ``'C'`` (BeiDou-3 MEO, Walker 24/3/1 at 55 deg, a = 27,906 km).
+        a = 29,600 km), ``'C'`` (BeiDou-3 MEO, Walker 24/3/1 at 55 deg, a = 27,906 km) or ``'J'``
+        (QZSS: J01-J03 on one figure-eight ground track over Japan, J07 geostationary; see
+        :func:`_qzss_constellation`).
     t_ref_gps_s
         Reference epoch, s since the GPS epoch; it should be a GPS week start.
     seed
@@ -157,6 +172,8 @@ def nominal_constellation(system: str, t_ref_gps_s: float, *, seed: int = 2024) 
     if system not in SYSTEMS:
         raise UsageError(f"unknown system {system!r}: expected one of {sorted(SYSTEMS)}")
     rng = np.random.default_rng([seed, ord(system)])
+    if system == "J":
+        return _qzss_constellation(t_ref_gps_s, rng)
     if system == "G":
         raan, anom = _walker(6, 5, 2)
         raan = np.append(raan, raan[0])
@@ -209,6 +226,61 @@ def nominal_constellation(system: str, t_ref_gps_s: float, *, seed: int = 2024) 
         af1_s_s=quant(u(-5e-12, 5e-12), 2.0**-43),
         tgd_s=tgd,
         tgd2_s=tgd2,
+    )
+
+
+def _qzss_constellation(t_ref_gps_s: float, rng: np.random.Generator) -> Constellation:
+    """QZSS: three quasi-zenith satellites and one GEO.
+
+    The QZO satellites (J01-J03) fly inclined geosynchronous orbits (``a = (GM / omega_e^2)^(1/3)``
+    = 42,164 km, e = 0.075, i = 41 deg, argument of perigee 270 deg: the apogee in the north)
+    in planes 120 deg apart whose mean anomalies lag by 120 deg, so all three follow one
+    figure-eight ground track, 8 h apart, its apogee at :data:`QZSS_APOGEE_LON_DEG` east and
+    41 deg north: one of them is always high over Japan. J01 is at apogee at ``t_ref_gps_s``.
+    J07 is geostationary at :data:`QZSS_GEO_LON_DEG` east (i = 0.05 deg, e = 2e-4). Clock
+    terms and group delays are spread as GPS's, harmonic corrections are small.
+    """
+    n_qzo = len(QZSS_QZO_PRNS)
+    n = n_qzo + 1
+    sv = np.array([f"J{p:02d}" for p in (*QZSS_QZO_PRNS, QZSS_GEO_PRN)])
+    a_m = (GM_GPS_M3_S2 / OMEGA_E_RAD_S**2) ** (1.0 / 3.0)
+    k = np.arange(n_qzo)
+    lag = 2.0 * np.pi * k / n_qzo
+    # apogee (argument of latitude 90 deg) over the node + 90 deg: the node 90 deg west of it
+    raan_qzo = np.deg2rad(QZSS_APOGEE_LON_DEG - 90.0) + lag
+    omega = np.r_[np.full(n_qzo, np.deg2rad(-90.0)), 0.0]  # 270 deg, as the records hold it
+    m_ref = np.r_[np.mod(np.pi - lag + np.pi, 2.0 * np.pi) - np.pi, 0.0]  # J01 at apogee (M = pi)
+    raan = np.r_[raan_qzo, np.deg2rad(QZSS_GEO_LON_DEG)]
+
+    def u(lo: float, hi: float) -> F64:
+        return rng.uniform(lo, hi, n)
+
+    def quant(x: F64, step: float) -> F64:
+        return np.round(x / step) * step
+
+    return Constellation(
+        system="J",
+        sv=sv,
+        t_ref_gps_s=float(t_ref_gps_s),
+        sqrt_a_sqrt_m=np.sqrt(np.full(n, a_m)),
+        e=np.r_[np.full(n_qzo, 0.075), 2e-4],
+        i_ref_rad=np.deg2rad(np.r_[np.full(n_qzo, 41.0), 0.05]),
+        raan_rad=raan,
+        omega_rad=omega,
+        m_ref_rad=m_ref,
+        delta_n_rad_s=u(-1e-10, 1e-10),
+        idot_rad_s=u(-1e-11, 1e-11),
+        omega_dot_rad_s=u(-3e-9, -2e-9),
+        cuc_rad=u(-2e-6, 2e-6),
+        cus_rad=u(-2e-6, 2e-6),
+        crc_m=u(-200.0, 200.0),
+        crs_m=u(-200.0, 200.0),
+        cic_rad=u(-2e-7, 2e-7),
+        cis_rad=u(-2e-7, 2e-7),
+        af0_s=quant(u(-5e-4, 5e-4), 2.0**-31),
+        af1_s_s=quant(u(-5e-12, 5e-12), 2.0**-43),
+        tgd_s=quant(u(-15e-9, 15e-9), 2.0**-31),
+        tgd2_s=quant(u(-15e-9, 15e-9), 1e-10),
     )
 
 

@@ -8,12 +8,14 @@ Signal model (the convention a standard single-frequency receiver inverts, e.g. 
 - ``rho``: geometric range from the satellite at the true transmit time ``t_tx`` to the
   antenna at the true reception time ``t_rx``, the satellite rotated by ``omega_e tau``
   about z (Earth rotation during the flight time ``tau = rho / c``; iterated to 1e-9 s).
+- ``b`` is one receiver clock for every system (QZSS time is GPS time; Galileo and BeiDou
+  times are simulated on GPS time too).
 - The epoch label ``t`` is the receiver clock's reading: ``t_rx = t - b / c`` and the
   antenna position at ``t_rx`` is ``r(t) - v(t) b / c`` (what truth.csv reports).
 - ``dt_sv``: the broadcast clock polynomial plus relativistic term at ``t_tx``
   (:func:`~gnss_cli.gnss.orbits.broadcast_states`), TGD excluded.
-- ``TGD``: GPS TGD (L1 C/A), Galileo BGD E5b/E1 (equal to BGD E5a/E1 here), BeiDou TGD1.
-- Second signals: GPS L2 P(Y) ``+ gamma c TGD`` (``gamma = (f1/f2)^2``), Galileo E5b
+- ``TGD``: GPS and QZSS TGD (L1 C/A), Galileo BGD E5b/E1 (equal to BGD E5a/E1 here), BeiDou TGD1.
+- Second signals: GPS L2 P(Y) and QZSS L2C ``+ gamma c TGD`` (``gamma = (f1/f2)^2``), Galileo E5b
   ``+ (f1/f7)^2 c BGD``, BeiDou B2I ``+ c TGD2``; ionosphere scaled by ``(f_L1/f)^2``.
 - Doppler ``D = -(d rho/dt + b_dot - c dt_sv_dot) / lambda`` (Hz), the derivatives by central
   differences over 1 s of the light-time range and of the broadcast clock.
@@ -283,7 +285,7 @@ def _system_observables(
     tropo = np.zeros_like(rho)
     if cfg.on("tropo"):
         tropo = saastamoinen_delay_m(lat[:, None], h[:, None], el) + tropo_offset_m / np.maximum(np.sin(el), 0.05)
-    if system == "G":
+    if system in ("G", "J"):
         gd = (tgd, (f1 / f2) ** 2 * tgd)
     elif system == "E":
         gd = (tgd, (f1 / f2) ** 2 * tgd)

@@ -27,7 +27,7 @@ F64 = NDArray[np.float64]
 
 PROGRAM = "gnss-simulate"
 AGENCY = "gnss-solve"
-SYSTEM_NAMES = {"G": "G: GPS", "E": "E: GALILEO", "C": "C: BEIDOU", "M": "M: MIXED"}
+SYSTEM_NAMES = {"G": "G: GPS", "E": "E: GALILEO", "C": "C: BEIDOU", "J": "J: QZSS", "M": "M: MIXED"}
 
 
 @dataclass(frozen=True)
@@ -96,12 +96,13 @@ def write_nav_rinex3(
 
     Notes
     -----
-    Records: GPS LNAV (8 lines, IODC = IODE, fit interval 4 h); Galileo I/NAV (data sources
+    Records: GPS LNAV (8 lines, IODC = IODE, fit interval 4 h); QZSS in the same LNAV format
+    (L2 codes 2 = L2C, L2 P data flag 1, fit interval flag 0); Galileo I/NAV (data sources
     517: E1-B + E5b-I, clock for E5b/E1; BGD E5a/E1 = BGD E5b/E1); BeiDou D1 (times in BDT,
     ``omega0`` from the BDT week start). Transmission time: one hour before toe (not before the
     week start).
     """
-    systems = [s for s in "GEC" if s in tables]
+    systems = [s for s in "GECJ" if s in tables]
     sys_char = systems[0] if len(systems) == 1 else "M"
     lines = [
         _hline(f"{float(version):9.2f}{'':11s}{'N: GNSS NAV DATA':20s}{SYSTEM_NAMES[sys_char]:20s}", "RINEX VERSION / TYPE"),
@@ -135,6 +136,12 @@ def write_nav_rinex3(
                     [eph.idot_rad_s[i], 1.0, week[i], 0.0],
                     [2.0, eph.health[i], eph.tgd_s[i], eph.iode[i]],
                     [ttr[i], eph.fit_interval_h[i]],
+                ]
+            elif system == "J":  # L2C on L2, L2 P data flag 1; fit interval flag 0 (2 h, readers take 4 h)
+                rows += [
+                    [eph.idot_rad_s[i], 2.0, week[i], 1.0],
+                    [2.0, eph.health[i], eph.tgd_s[i], eph.iode[i]],
+                    [ttr[i], 0.0],
                 ]
             elif system == "E":
                 rows += [
@@ -246,7 +253,7 @@ def write_obs_rinex3(
     marker
         MARKER NAME.
     """
-    systems = [s for s in "GEC" if np.any(np.char.startswith(obs.sv, s))]
+    systems = [s for s in "GECJ" if np.any(np.char.startswith(obs.sv, s))]
     sys_char = systems[0] if len(systems) == 1 else "M"
     before, after = _header_common(obs.t_gps_s[0], obs.t_gps_s[-1], interval_s, approx_ecef_m, marker)
     lines = [
@@ -306,11 +313,11 @@ def write_obs_rinex2(
     Raises
     ------
     UsageError
-        For BeiDou, which RINEX 2.11 does not define.
+        For BeiDou and QZSS, which RINEX 2.11 does not define.
     """
-    systems = [s for s in "GEC" if np.any(np.char.startswith(obs.sv, s))]
-    if "C" in systems:
-        raise UsageError("RINEX 2.11 does not define BeiDou observations: use --rinex-version 3")
+    systems = [s for s in "GECJ" if np.any(np.char.startswith(obs.sv, s))]
+    if "C" in systems or "J" in systems:
+        raise UsageError("RINEX 2.11 does not define BeiDou or QZSS observations: use --rinex-version 3")
     types: list[tuple[str, dict[str, tuple[str, int]]]] = [("C1", {s: ("C", 0) for s in systems})]
     if layout.dual_frequency:
         for s in systems:

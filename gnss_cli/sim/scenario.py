@@ -55,7 +55,7 @@ class ScenarioConfig:
     trajectory : ``static``, ``flight``, ``semicircle`` or ``csv:FILE``.
     start : ISO 8601 start (GPS time).
     duration_s, interval_s : run length and epoch spacing, s.
-    systems : system letters (``G``, ``E``, ``C``).
+    systems : system letters (``G``, ``E``, ``C``, ``J``).
     seed : seed of the run's random generator.
     errors : error sources and sizes.
     elevation_mask_deg : satellites below are not written.
@@ -229,8 +229,8 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
     validate(config.errors)
     if config.rinex_version not in ("3.04", "3.05", "2.11"):
         raise UsageError(f"--rinex-version: expected 3 (3.04), 3.05 or 2 (2.11), got {config.rinex_version!r}")
-    if config.rinex_version == "2.11" and "C" in config.systems:
-        raise UsageError("RINEX 2.11 does not define BeiDou observations: use --rinex-version 3")
+    if config.rinex_version == "2.11" and ("C" in config.systems or "J" in config.systems):
+        raise UsageError("RINEX 2.11 does not define BeiDou or QZSS observations: use --rinex-version 3")
     rng = np.random.default_rng(config.seed)
     t = epochs_gps_s(config)
     trajectory = build_trajectory(config, t)

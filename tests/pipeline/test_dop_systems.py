@@ -2,7 +2,7 @@
 
 The covariance is recomputed here from the satellite positions and the solution alone:
 line-of-sight unit vectors, a 10 deg elevation mask from the geodetic up direction, one
-clock column per system with satellites, ``(A^T A)^-1`` (LS: the noise gain ``J J^T`` is
+clock column per system with satellites (QZSS in GPS's unless it has its own), ``(A^T A)^-1`` (LS: the noise gain ``J J^T`` is
 this matrix).
 """
 
@@ -42,9 +42,10 @@ def _independent_cov(data, x_ecef_m: np.ndarray, t: int) -> tuple[np.ndarray, li
         u = d / np.linalg.norm(d)
         if np.degrees(np.arcsin(u @ up)) < 10.0:
             continue
-        rows.append((u, data.sv[j][0]))
-        if data.sv[j][0] not in systems:
-            systems.append(data.sv[j][0])
+        clock = "G" if data.sv[j][0] == "J" and "J" not in data.systems else data.sv[j][0]  # QZSS on GPS time
+        rows.append((u, clock))
+        if clock not in systems:
+            systems.append(clock)
     systems = [s for s in data.systems if s in systems]
     A = np.array([np.concatenate([-u, [1.0 if s == sy else 0.0 for sy in systems]]) for u, s in rows])
     return np.linalg.inv(A.T @ A), systems, len(rows)
@@ -53,6 +54,7 @@ def _independent_cov(data, x_ecef_m: np.ndarray, t: int) -> tuple[np.ndarray, li
 def test_per_system_tdop_is_the_clock_diagonal_of_the_independent_covariance(kms3_ls):
     data, sol = kms3_ls
     assert len(data.systems) >= 4 and data.systems[0] == "G"
+    assert "J" not in data.systems and data.usable[:, np.char.startswith(data.sv, "J")].any()  # QZSS on GPS's clock
     assert sol.tdops is not None and sol.tdops.shape == (data.time_gps_s.size, len(data.systems))
     checked = 0
     for t in np.flatnonzero(sol.status == EpochStatus.OK):
