@@ -11,8 +11,6 @@ For each data set: 3D RMS, horizontal RMS, 95th percentile and max of the 3D err
   windows of the WLS fixes (the default before ``auto``);
 - ``stls kinematic``: ``--method stls --lag 1 --model kinematic`` (fixes and Doppler velocities
   tied by the kinematic kernel, variance factors from the data);
-- ``pva windows ...``: the library's measurement-domain window solver with the fixed kernel
-  ``(z - 1)^3`` (:data:`WINDOW_ROWS`), in 15-epoch windows and with the chi-square ladder;
 - ``kf+rts on fixes (truth-tuned)``: a constant-velocity Kalman filter with an RTS smoother run
   on the WLS fixes (their covariances as measurement noise), its acceleration PSD the best of
   0.01 ... 100 m^2/s^3 chosen against the truth (an optimistic peer: a user cannot tune on
@@ -48,7 +46,6 @@ from gnss_cli.config import load_config  # noqa: E402
 from gnss_cli.gnss.time import gps_s2week_tow  # noqa: E402
 from gnss_cli.io.reference import reference_from_csv, reference_from_pos  # noqa: E402
 from gnss_cli.pipeline import process  # noqa: E402
-from gnss_cli.pipeline.window_solve import WINDOW_LADDER, solve_in_windows  # noqa: E402
 from gnss_cli.solvers.kalman import kalman_filter, rts_smooth  # noqa: E402
 
 Q_GRID = np.logspace(-2, 2, 9)
@@ -59,15 +56,6 @@ RUNS = {
     "stls lag 3 identify (fixes)": ({"methods": "wls,stls", "smoothing.lag": 3, "smoothing.model": "identify"}, "stls"),
     "stls kinematic": ({"methods": "wls,stls", "smoothing.lag": 1, "smoothing.model": "kinematic"}, "stls"),
 }
-PVA_COEF = np.array([-1.0, 3.0, -3.0, 1.0])
-"""The fixed kernel ``(z - 1)^3`` (constant acceleration) of the window rows."""
-WINDOW_ROWS = {
-    "pva windows of 15 (measurement domain)": (15,),
-    "pva windows, chi2 ladder (measurement domain)": WINDOW_LADDER,
-}
-"""Rows of :func:`~gnss_cli.pipeline.window_solve.solve_in_windows` (a library function, not a
-command-line model): pseudoranges and range rates of windows tied to ``(z - 1)^3``, in fixed
-15-epoch windows and with the window length chosen per epoch by the chi-square ladder."""
 TST_TRUTH = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
 TST_TOW = (270149.0, 270305.0)
 
@@ -111,11 +99,7 @@ def evaluate(obs: Path, nav: list[Path], ref_of, base: dict[str, object]) -> dic
         rows[name] = stats(np.where((sol.status == "ok")[:, None], sol.x_ecef_m, np.nan), ref)
         if method == "wls":
             wls, t, ref_w = sol, result.epochs.time_gps_s, ref
-            data, config = result.epochs, load_config(None, {**base, **options})
     assert wls is not None
-    for name, lengths in WINDOW_ROWS.items():  # the library's fixed-kernel window solver
-        run = solve_in_windows(data, wls, config, PVA_COEF, lengths)
-        rows[name] = stats(run.x_ecef_m if run is not None else np.full_like(wls.x_ecef_m, np.nan), ref_w)
     fixes = np.where((wls.status == "ok")[:, None], wls.x_ecef_m, np.nan)
     best = min((stats(kf_rts_on_fixes(t, fixes, wls.cov_m2[:, :3, :3], q), ref_w) | {"q_m2_s3": float(q)}
                 for q in Q_GRID), key=lambda s: s["rms_3d_m"])

@@ -109,25 +109,6 @@ def test_lag_selects_the_kinematic_rule(noisy: Path) -> None:
         assert rec is not None and np.asarray(rec.kernel_R).shape == (3, 6 * blocks)
 
 
-def test_window_ladder_rejects_what_a_fixed_window_cannot_fit(tmp_path: Path) -> None:
-    """Noise-free flight, fixed kernel (z-1)^3 I without Doppler: fixed 15-epoch windows bend the
-    turns and ramps (measured 1.06 m 3D RMS over 600 s), the chi-square ladder shortens the
-    windows there (0.024 m)."""
-    from gnss_cli.pipeline.window_solve import solve_in_windows
-
-    d = simulate_flight(tmp_path, "none")
-    cfg = load_config(None, {**BASE, "kalman.doppler": False})
-    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
-    wls = solve_method(data, "wls", cfg)
-    ref = reference_from_csv(d / "truth.csv", data.time_gps_s)
-    pva = np.array([-1.0, 3.0, -3.0, 1.0])
-    fixed = solve_in_windows(data, wls, cfg, pva, (15,))
-    ladder = solve_in_windows(data, wls, cfg, pva)
-    assert fixed is not None and ladder is not None
-    assert _rms(ladder.x_ecef_m, ref) < 0.1 and _rms(fixed.x_ecef_m, ref) > 5 * _rms(ladder.x_ecef_m, ref)
-    assert (np.abs(ladder.window) > 15).any() and (np.abs(ladder.window) < 15).any()
-
-
 def test_a_faulty_satellite_is_excluded_by_the_residual_gate(noisy: Path) -> None:
     """A 30 m ramp on one satellite's pseudoranges over 40 epochs (below what the snapshot FDE
     always sees at one epoch): the gate excludes those rows (``excluded``), and the track stays
