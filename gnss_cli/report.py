@@ -34,8 +34,6 @@ Time: ``time`` is GPS time, or UTC with ``time_system="utc"`` (GPST minus
 
 from __future__ import annotations
 
-import csv
-import io
 from collections.abc import Sequence
 
 import numpy as np
@@ -261,18 +259,13 @@ def _stat(fn, v: F64) -> float:  # type: ignore[no-untyped-def]
 def to_csv_text(df: pd.DataFrame) -> str:
     """CSV text with fixed float formats, empty cells for missing values, header always.
 
-    The text is what ``DataFrame.to_csv(index=False)`` writes once the floats are formatted
-    (the same ``csv`` writer and quoting), built column by column: 5x faster than formatting
-    numpy scalars and letting pandas convert every cell again.
+    Float columns are formatted to text first (:func:`_float_cells`); pandas writes the rest.
     """
-    cells = [_csv_cells(df.iloc[:, i], str(col)) for i, col in enumerate(df.columns)]
-    if not cells or any(c is None for c in cells):  # a column type without a fast path
-        return _to_csv_pandas(df)
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow([str(c) for c in df.columns])
-    writer.writerows(zip(*cells))
-    return buf.getvalue()
+    out = df.copy()
+    for col in out.columns:
+        if out[col].dtype.kind == "f":
+            out[col] = _float_cells(out[col], _float_format(str(col)))
+    return out.to_csv(index=False, lineterminator="\n")
 
 
 def _float_format(col: str) -> str:
@@ -280,34 +273,13 @@ def _float_format(col: str) -> str:
     return FLOAT_FORMATS.get(col, "{:.3f}" if is_dop else "{:.4f}")
 
 
-def _csv_cells(values: pd.Series, col: str) -> list[object] | None:
-    """One column's CSV cells (str, or objects the csv writer converts as pandas would); None
-    for a dtype handled by :func:`_to_csv_pandas` only."""
-    dtype = values.dtype
-    if isinstance(dtype, np.dtype) and dtype.kind == "f":
-        vals = values.to_numpy()
-        finite = np.isfinite(vals)
-        cells = np.full(vals.size, "", dtype=object)
-        cells[finite] = list(map(_float_format(col).format, vals[finite].tolist()))  # Python floats format fast
-        return cells.tolist()
-    if isinstance(dtype, np.dtype) and dtype.kind in "iub":
-        return list(map(str, values.to_numpy().tolist()))
-    if dtype == object or isinstance(dtype, pd.StringDtype):
-        arr = values.to_numpy(dtype=object, copy=True)
-        arr[values.isna().to_numpy()] = ""
-        return arr.tolist()
-    return None
-
-
-def _to_csv_pandas(df: pd.DataFrame) -> str:
-    """:func:`to_csv_text` through pandas (any column type)."""
-    out = df.copy()
-    for col in out.columns:
-        if out[col].dtype.kind == "f":
-            fmt = _float_format(col)
-            vals = out[col].to_numpy()
-            out[col] = [fmt.format(v) if np.isfinite(v) else "" for v in vals]
-    return out.to_csv(index=False, lineterminator="\n")
+def _float_cells(values: pd.Series, fmt: str) -> NDArray[np.object_]:
+    """A float column as text in the format ``fmt``; empty where the value is missing or not finite."""
+    vals = values.to_numpy(dtype=np.float64, na_value=np.nan)
+    finite = np.isfinite(vals)
+    cells = np.full(vals.size, "", dtype=object)
+    cells[finite] = [fmt.format(v) for v in vals[finite].tolist()]  # Python floats: numpy scalars format 1.7x slower
+    return cells
 
 
 def errors_table(positions: pd.DataFrame) -> pd.DataFrame:

@@ -109,7 +109,7 @@ def undeclared_imports(package_dir: Path, declared: set[str],
 
 def test_package_imports_are_declared_dependencies() -> None:
     modules = imported_top_level_modules(PACKAGE)
-    assert {"numpy", "scipy", "typer", "georinex", "hatanaka"} <= set(modules)  # the scan sees nested imports
+    assert {"numpy", "scipy", "typer", "hatanaka"} <= set(modules)  # the scan sees nested imports
     optional = {folder: declared_extra(extra) for folder, extra in OPTIONAL_FOLDERS.items()}
     assert undeclared_imports(PACKAGE, declared_dependencies(), optional) == {}
     assert "matplotlib" in modules and "matplotlib" in declared_extra("test")  # the figure tests can run

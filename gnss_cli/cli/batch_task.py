@@ -95,9 +95,7 @@ def init_worker() -> None:
 
 
 def warm_up() -> None:
-    """Import what a task needs (run in each new worker while the parent reads the navigation files).
-    scipy is not among them: the default run does not use it (the integrity thresholds of the
-    default probabilities are tabulated)."""
+    """Import what a task needs (run in each new worker while the parent reads the navigation files)."""
     import gnss_cli.cli.tables  # noqa: F401
     import gnss_cli.formats  # noqa: F401
     import gnss_cli.io.catalog  # noqa: F401

@@ -54,7 +54,7 @@ def identify(
     from gnss_cli.cli.output import OutputSet
     from gnss_cli.io.trajectory import read_trajectory
     from gnss_cli.pipeline.identification import identify_trajectory
-    from gnss_cli.report import identification_table
+    from gnss_cli.report import identification_table, to_csv_text
 
     with OutputSet([trajectory]) as outputs:
         if model_out is not None:
@@ -74,7 +74,7 @@ def identify(
             figure = figure_identification(ident, traj.t_s, traj.xyz_m)
             stage_figures(outputs, figure_targets, {"identification": figure}, IDENTIFY_FIGURES)
         res = ident.result
-        text = identification_table(ident).to_csv(index=False, float_format="%.4f", lineterminator="\n")
+        text = to_csv_text(identification_table(ident))
         if model_out is not None:
             outputs.write_text(model_out, json.dumps(ident.model_record(), indent=2) + "\n")
         if output != "-":

@@ -1,11 +1,10 @@
 """RINEX observation and navigation input, validated before any computation.
 
-This is the only module that imports :mod:`georinex`. RINEX 2 observation files are
-read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags), RINEX 2 navigation files by
-:mod:`gnss_cli.io.rinex2_nav` (exact toc); RINEX 3 and 4 files with the fast reader of :mod:`gnss_cli.io.rinex3_obs` /
-:mod:`gnss_cli.io.rinex3_nav` when it is available, else with georinex (which rejects
-RINEX 4). Every reader is filtered to the systems and signals needed: unfiltered,
-georinex needs minutes and hundreds of MB on a 24 h multi-GNSS RINEX 3 file.
+RINEX 2 observation files are read by :mod:`gnss_cli.io.rinex2_obs` (exact time tags),
+RINEX 2 navigation files by :mod:`gnss_cli.io.rinex2_nav` (exact toc), RINEX 3 and 4 files by
+:mod:`gnss_cli.io.rinex3_obs` / :mod:`gnss_cli.io.rinex3_nav`. Every reader is filtered to the
+systems and signals needed. The datasets have georinex's layout (dims ``(time, sv)``, its
+variable names); georinex itself serves as the tests' independent reference.
 
 Validation (each failure raises :class:`~gnss_cli.errors.InputError` naming the file):
 missing or unreadable file, not RINEX, observation/navigation files swapped, epoch lines
@@ -14,7 +13,6 @@ that do not parse, a header that contradicts its records, no records at all.
 
 from __future__ import annotations
 
-import logging
 import warnings
 import zlib
 from collections.abc import Sequence
@@ -94,30 +92,6 @@ def rinex_info(path: str | Path) -> RinexInfo:
     return RinexInfo(p, version, kind, system)
 
 
-def _georinex_load(path: Path, **kwargs: object) -> xr.Dataset:
-    import georinex
-
-    logging.getLogger().setLevel(logging.CRITICAL)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ds = georinex.load(path, **kwargs)
-    except (ValueError, LookupError, OSError, EOFError, IndexError, KeyError, TypeError) as exc:
-        raise RinexFormatError(f"{path}: cannot parse ({type(exc).__name__}: {exc})") from exc
-    if ds is None:
-        raise RinexFormatError(f"{path}: no data")
-    return ds
-
-
-def _fast_reader_available() -> bool:
-    try:
-        import gnss_cli.io.rinex3_nav  # noqa: F401
-        import gnss_cli.io.rinex3_obs  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequence[str] | None = None) -> xr.Dataset:
     """Read and validate a RINEX observation file, filtered to systems and observation codes.
 
@@ -131,7 +105,7 @@ def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequ
         Observation codes to keep (``['C1C', 'C1']``); None keeps all. A phase code (or prefix)
         followed by ``lli`` (``'L1Clli'``, ``'L1lli'``) also asks for the loss-of-lock indicators
         of the matching phase codes, as variables ``L1Clli`` (georinex's names; 0 where blank, NaN
-        where there is no phase; not with the georinex fallback of RINEX 3 files).
+        where there is no phase).
 
     Returns
     -------
@@ -151,21 +125,10 @@ def read_obs(path: str | Path, systems: Sequence[str] | None = None, codes: Sequ
         from gnss_cli.io.rinex2_obs import read_obs2
 
         ds = read_obs2(info.path, systems=list(systems) if systems else None, codes=list(codes) if codes else None)
-    elif _fast_reader_available():
+    else:
         from gnss_cli.io.rinex3_obs import read_obs3
 
         ds = read_obs3(info.path, systems=list(systems) if systems else None, codes=list(codes) if codes else None)
-    else:
-        if info.version >= 4:
-            raise RinexFormatError(f"{info.path}: RINEX {info.version} observation files need the built-in RINEX 3/4 reader")
-        kwargs: dict[str, object] = {}
-        if systems:
-            kwargs["use"] = set(systems)
-        if codes:
-            kwargs["meas"] = list(codes)
-        ds = _georinex_load(info.path, **kwargs)
-        if "marker_name" not in ds.attrs:
-            ds.attrs["marker_name"] = _header_value(info.path, "MARKER NAME")
     if ds.sizes.get("time", 0) == 0:
         raise RinexFormatError(f"{info.path}: no observation records" + (f" for systems {','.join(systems)}" if systems else ""))
     ds.attrs["filename"] = info.path.name
@@ -232,27 +195,22 @@ def _read_nav_files(paths: str | Path | Sequence[str | Path], systems: Sequence[
     for info in infos:
         if info.kind != "nav":
             raise RinexFormatError(f"{info.path}: is a RINEX observation file, expected a navigation file (OBS and NAV swapped?)")
-        if info.version >= 4 and not _fast_reader_available():
-            raise RinexFormatError(f"{info.path}: RINEX {info.version} navigation files need the built-in RINEX 3/4 reader")
-    fast = [info for info in infos if info.version >= 3 and _fast_reader_available()]
+    v3 = [info for info in infos if info.version >= 3]
     datasets = []
-    if fast:  # every RINEX 3/4 file in one pass: one record table, duplicates across files dropped
+    if v3:  # every RINEX 3/4 file in one pass: one record table, duplicates across files dropped
         from gnss_cli.io.rinex3_nav import read_nav3
 
-        ds = read_nav3([info.path for info in fast], systems=list(systems) if systems else None)
+        ds = read_nav3([info.path for info in v3], systems=list(systems) if systems else None)
         if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
-            raise RinexFormatError(f"{', '.join(str(i.path) for i in fast)}: no navigation records")
-        ds.attrs["filename"] = ",".join(info.path.name for info in fast)
+            raise RinexFormatError(f"{', '.join(str(i.path) for i in v3)}: no navigation records")
+        ds.attrs["filename"] = ",".join(info.path.name for info in v3)
         datasets.append(ds)
     for info in infos:
-        if info in fast:
+        if info.version >= 3:
             continue
-        if info.version < 3:
-            from gnss_cli.io.rinex2_nav import read_nav2
+        from gnss_cli.io.rinex2_nav import read_nav2
 
-            ds = read_nav2(info.path)
-        else:
-            ds = _georinex_load(info.path, **({"use": set(systems)} if systems else {}))
+        ds = read_nav2(info.path)
         if ds.sizes.get("time", 0) == 0 or ds.sizes.get("sv", 0) == 0:
             raise RinexFormatError(f"{info.path}: no navigation records")
         ds.attrs["filename"] = info.path.name

@@ -67,10 +67,10 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import chdtri, chndtrinc
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.range_model import linearize, width_groups
-from gnss_cli.pipeline.integrity_table import CHI2_ISF, NONCENTRALITY, TABLE_PFA, TABLE_PMD
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
 __all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality",
@@ -83,29 +83,24 @@ Solver = Callable[[EpochData, F64, F64], MethodSolution]
 
 @lru_cache(maxsize=256)
 def chi2_threshold(dof: int, pfa: float) -> float:
-    """``chi2.isf(pfa, dof)``; infinite for ``dof < 1`` (nothing to test). The default ``pfa``
-    is tabulated (:mod:`gnss_cli.pipeline.integrity_table`): scipy.stats is imported otherwise only."""
+    """The test's threshold ``chi2.isf(pfa, dof)``: the chi-square value exceeded with
+    probability ``pfa`` (:func:`scipy.special.chdtri`); infinite for ``dof < 1`` (nothing to test).
+
+    >>> round(chi2_threshold(1, 1e-3), 4)  # (3.2905 sigma)^2
+    10.8276
+    """
     if dof < 1:
         return float("inf")
-    if pfa == TABLE_PFA and dof <= len(CHI2_ISF):
-        return CHI2_ISF[dof - 1]
-    from scipy.stats import chi2
-
-    return float(chi2.isf(pfa, dof))
+    return float(chdtri(dof, pfa))
 
 
 @lru_cache(maxsize=256)
 def noncentrality(dof: int, pfa: float, pmd: float) -> float:
-    """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``; NaN for ``dof < 1``."""
+    """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``: the noncentrality the
+    test misses with probability ``pmd`` (:func:`scipy.special.chndtrinc`); NaN for ``dof < 1``."""
     if dof < 1:
         return float("nan")
-    if pfa == TABLE_PFA and pmd == TABLE_PMD and dof <= len(NONCENTRALITY):
-        return NONCENTRALITY[dof - 1]
-    from scipy.optimize import brentq
-    from scipy.stats import ncx2
-
-    thr = chi2_threshold(dof, pfa)
-    return float(brentq(lambda lam: ncx2.cdf(thr, dof, lam) - pmd, 1e-9, 1e4, xtol=1e-9))
+    return float(chndtrinc(chi2_threshold(dof, pfa), dof, pmd))
 
 
 @dataclass

@@ -9,7 +9,9 @@ and the submodules import matplotlib when they are imported themselves:
 - :mod:`gnss_cli.plots.run`: :func:`~gnss_cli.plots.run.run_figures`, every figure of a
   ``gnss-solve`` run (ENU errors, horizontal scatter with 95 % ellipses, error statistics,
   GDOP, track, sky plot, satellite count, residuals) as matplotlib ``Figure`` objects;
-- :mod:`gnss_cli.plots.identify`: the identified and predicted trajectory against the data;
+- :mod:`gnss_cli.plots.track`: the horizontal track of a run and, in
+  :func:`~gnss_cli.plots.track.figure_identification`, the identified and predicted trajectory
+  against the data;
 - :mod:`gnss_cli.plots.common`: :func:`~gnss_cli.plots.common.png_bytes`;
 - :mod:`gnss_cli.plots.html`: :func:`~gnss_cli.plots.html.html_report`.
 

@@ -34,24 +34,18 @@ def test_thresholds_are_the_chi_square_and_noncentral_quantiles():
     assert ncx2.cdf(chi2.isf(1e-3, 4), 4, lam) == pytest.approx(1e-3, rel=1e-4)
 
 
-def test_tabulated_default_thresholds_are_scipys_quantiles():
-    """The table of the default probabilities holds, bit for bit, what scipy computes for them;
-    probabilities off the table are still computed."""
+def test_thresholds_equal_scipy_stats_quantiles_and_root_search():
+    """scipy.special's inverses against scipy.stats' distributions and a root search, for the
+    default probabilities over 1 ... 100 degrees of freedom and for others."""
     from scipy.optimize import brentq
     from scipy.stats import chi2, ncx2
 
-    from gnss_cli.pipeline import integrity_table as tab
-
-    assert len(tab.CHI2_ISF) == len(tab.NONCENTRALITY) >= 60
-    for dof in range(1, len(tab.CHI2_ISF) + 1):
-        thr = float(chi2.isf(tab.TABLE_PFA, dof))
-        lam = float(brentq(lambda x: ncx2.cdf(thr, dof, x) - tab.TABLE_PMD, 1e-9, 1e4, xtol=1e-9))
-        assert tab.CHI2_ISF[dof - 1] == thr and tab.NONCENTRALITY[dof - 1] == lam, dof
-        assert chi2_threshold(dof, tab.TABLE_PFA) == thr and noncentrality(dof, tab.TABLE_PFA, tab.TABLE_PMD) == lam
-    assert chi2_threshold(3, 1e-2) == pytest.approx(chi2.isf(1e-2, 3))
-    assert chi2_threshold(len(tab.CHI2_ISF) + 5, 1e-3) == pytest.approx(chi2.isf(1e-3, len(tab.CHI2_ISF) + 5))
-    lam = noncentrality(4, 1e-3, 1e-2)
-    assert ncx2.cdf(chi2.isf(1e-3, 4), 4, lam) == pytest.approx(1e-2, rel=1e-4)
+    for pfa, pmd, dofs in ((1e-3, 1e-3, range(1, 101)), (1e-2, 1e-3, (1, 2, 7, 40)), (1e-5, 1e-2, (1, 3, 150))):
+        for dof in dofs:
+            thr = float(chi2.isf(pfa, dof))
+            lam = float(brentq(lambda x: ncx2.cdf(thr, dof, x) - pmd, 1e-9, 1e4, xtol=1e-12, rtol=1e-14))
+            assert chi2_threshold(dof, pfa) == pytest.approx(thr, rel=1e-12), (pfa, dof)
+            assert noncentrality(dof, pfa, pmd) == pytest.approx(lam, rel=1e-9), (pfa, pmd, dof)
 
 
 def test_bad_integrity_settings_are_configuration_errors():
