@@ -1,29 +1,10 @@
-"""The C heap of a run in parts: freed pages handed back, large blocks in their own mappings
-(glibc; elsewhere nothing), so that the resident size of a long file's run stays that of a part."""
+"""The C heap of a run in parts: large blocks in their own mappings (glibc; elsewhere nothing),
+so that the resident size of a long file's run stays that of a part."""
 
 from __future__ import annotations
 
-__all__ = ["map_large_blocks", "release_memory"]
+__all__ = ["map_large_blocks"]
 
-
-def release_memory() -> None:
-    """Hand the heap's free pages back to the system (glibc ``malloc_trim``; elsewhere nothing).
-
-    The parts' arrays are freed when a part is done, but the C heap keeps the pages of freed
-    blocks below its top, so the resident size would creep up part after part."""
-    global _TRIM
-    if _TRIM is None:
-        try:
-            import ctypes
-
-            _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
-        except (OSError, AttributeError):
-            _TRIM = False
-    if _TRIM:
-        _TRIM(0)
-
-
-_TRIM = None
 _M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
 
 

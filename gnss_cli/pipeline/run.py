@@ -50,7 +50,7 @@ from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
     Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, used_systems,
 )
-from gnss_cli.pipeline.memory import map_large_blocks, release_memory
+from gnss_cli.pipeline.memory import map_large_blocks
 from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.results import (
@@ -253,7 +253,6 @@ class Run:
         for obs in chunks:
             survey.add(obs, setup)
             del obs
-        release_memory()
         yield from self._solve(setup, survey, finish)
 
     def _run_split(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
@@ -441,7 +440,6 @@ class Run:
             totals += free_misfit_totals(data, solve_methods(data, wls_only)["wls"], config)
             done += data.time_gps_s.size
             del data
-            release_memory()
         return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
 
     def _pass(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...], n_epochs: int,
@@ -470,7 +468,6 @@ class Run:
             if out is not None:
                 yield finish(with_velocity(with_settings(out, config), config))
             del out  # before the next part is read: one part in memory at a time
-            release_memory()
         assert cov is not None
         return cov, counts
 
