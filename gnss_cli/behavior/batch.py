@@ -1,6 +1,6 @@
 """Shared-kernel STLS and fixed-kernel projections for many short windows at once.
 
-Sliding-window smoothing (:mod:`gnss_cli.pipeline.smoothing`) solves thousands of small, independent
+Sliding-window smoothing (:mod:`gnss_cli.pipeline.behavioral`) solves thousands of small, independent
 problems of the same size (e.g. 15 epochs of ``q = 3`` coordinates). Each one is cheap; what
 costs is the overhead of the many small array operations of the per-window path. Here every
 array carries a leading window axis ``B`` and one pass of the algorithm serves all windows:

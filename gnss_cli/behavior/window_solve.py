@@ -15,7 +15,7 @@ satellites than position unknowns plus clocks has a singular ``M_t`` (one satell
 still contributes what it has. The kinematic segment solve
 (:func:`gnss_cli.behavior.kinematic_solve.solve_kinematic`) ties the epochs' normals together;
 :func:`free_misfit` is the misfit of each epoch solved alone with a free position, the
-reference of the variance factors of :mod:`gnss_cli.pipeline.doppler_smoothing`.
+reference of the variance factors of :mod:`gnss_cli.pipeline.measurements`.
 """
 
 from __future__ import annotations
