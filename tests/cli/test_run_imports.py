@@ -39,10 +39,19 @@ def _imported(tmp_path: Path, *args: str) -> set[str]:
     return names | {n.split(".")[0] for n in names}
 
 
+def _pulled_in_by_scipy_special() -> set[str]:
+    """The modules of UNUSED that scipy.special itself imports in this environment (scipy 1.10,
+    the lowest allowed, imports scipy.linalg with it; newer versions do not): not ours to avoid."""
+    code = "import sys, scipy.special; print(' '.join(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return set(UNUSED) & set(out)
+
+
 def test_default_run_imports_none_of_the_unused_heavy_modules(tmp_path: Path) -> None:
     modules = _imported(tmp_path, "-o", str(tmp_path / "positions.csv"))
     assert {"numpy", "pandas", "xarray"} <= modules  # the scan sees the imports
-    assert not modules & set(UNUSED), sorted(modules & set(UNUSED))
+    unused = set(UNUSED) - _pulled_in_by_scipy_special()
+    assert not modules & unused, sorted(modules & unused)
     assert pd.read_csv(tmp_path / "positions.csv")["status"].eq("ok").mean() > 0.9
 
 

@@ -45,7 +45,8 @@ def test_thresholds_equal_scipy_stats_quantiles_and_root_search():
             thr = float(chi2.isf(pfa, dof))
             lam = float(brentq(lambda x: ncx2.cdf(thr, dof, x) - pmd, 1e-9, 1e4, xtol=1e-12, rtol=1e-14))
             assert chi2_threshold(dof, pfa) == pytest.approx(thr, rel=1e-12), (pfa, dof)
-            assert noncentrality(dof, pfa, pmd) == pytest.approx(lam, rel=1e-9), (pfa, pmd, dof)
+            # rel 1e-8: scipy 1.10's chndtrix (the lowest allowed scipy) agrees to 2e-9 relative
+            assert noncentrality(dof, pfa, pmd) == pytest.approx(lam, rel=1e-8), (pfa, pmd, dof)
 
 
 def test_bad_integrity_settings_are_configuration_errors():
