@@ -105,8 +105,8 @@ def day_speed(tmp: Path, hours: float) -> dict[str, float]:
     data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
     wls = solve_method(data, "wls", cfg)
     out = {"epochs": float(data.time_gps_s.size)}
-    for smoother in ("rts", "none"):
-        c = replace(cfg, kalman=replace(cfg.kalman, smoother=smoother))
+    for smoother, output in (("rts", "smoothed"), ("none", "filtered")):
+        c = replace(cfg, kalman=replace(cfg.kalman, output=output))
         t0 = time.perf_counter()
         run_kalman(data, wls, c)
         out[f"seconds_{smoother}"] = time.perf_counter() - t0

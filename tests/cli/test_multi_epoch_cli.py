@@ -83,3 +83,18 @@ def test_what_ran_is_written_down(tmp_path: Path, capsys) -> None:  # type: igno
     for m in ("stls", "smoother", "kf"):
         assert any(line.startswith(f"gnss-solve: {m}: ") and summary.loc[m, "estimator"] in line
                    for line in err.splitlines()), err
+
+
+def test_the_report_settings_name_what_each_method_ran() -> None:
+    """The HTML report's settings table (``cli.figures.solve_settings``) has a line per method with
+    its resolved estimator, model, measurements and integrity, as summary.csv."""
+    from gnss_cli.cli.figures import solve_settings
+    from gnss_cli.config import load_config
+    from gnss_cli.pipeline import process
+
+    cfg = load_config(None, {"methods": "wls,smoother", "measurements": "pseudorange"})
+    result = process(SAMPLE / "obs.rnx", [SAMPLE / "nav.rnx"], cfg)
+    settings = solve_settings([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx"], cfg, result, "none")
+    line = str(settings["method smoother"])
+    assert line.startswith("fixed-model batch smoother") and "motion quadrature" in line and "pseudorange;" in line
+    assert str(settings["method wls"]).startswith("weighted least squares")
