@@ -17,6 +17,7 @@ import glob
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -117,6 +118,8 @@ def batch(
         finished = False
         try:
             navs = navs if navs is not None else nav_spans(nav_paths, quiet)
+            if runner.parallel:  # the files are the parallelism: a worker solves its file in one process
+                cfg = replace(cfg, processes=1)  # (a forked helper of a worker would outlive its SIGTERM)
             settings = BatchSettings(cfg, reference, reference_sinex, reference_csv, reference_pos, navs)
             results = _run_all(runner.results([str(p) for p in obs_paths], settings), len(obs_paths), dataset, quiet)
             finished = True

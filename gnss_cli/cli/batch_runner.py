@@ -55,6 +55,7 @@ class LocalRunner:
 
         self.pool: Any = None
         workers = min(jobs, n_files)
+        self.parallel = workers > 1
         if workers > 1:
             for name, value in SINGLE_THREAD_ENV.items():
                 os.environ.setdefault(name, value)  # inherited by the workers at their start
@@ -123,6 +124,7 @@ class DaskRunner:
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise ConfigError(f"--scheduler: cannot connect to {address} ({type(exc).__name__}: {exc})") from None
         self.futures: list[Any] = []
+        self.parallel = True
 
     def results(self, obs_paths: Sequence[str], settings: BatchSettings) -> Iterator[FileResult]:
         """Submit every file; yield each result as it finishes (a lost worker fails its file)."""
