@@ -122,7 +122,7 @@ class DaskRunner:
         try:
             self.client = Client(address, timeout=f"{CONNECT_TIMEOUT_S}s")
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
-            raise ConfigError(f"--scheduler: cannot connect to {address} ({type(exc).__name__}: {exc})") from None
+            raise ConfigError(f"--scheduler: cannot connect to {address} ({str(exc).strip() or 'no answer'})") from None
         self.futures: list[Any] = []
         self.parallel = True
 

@@ -39,7 +39,7 @@ from typing import IO, Any
 
 from gnss_cli.errors import InputFileNotFoundError, RinexFormatError
 
-__all__ = ["open_bytes", "expand_crinex", "open_text", "open_header_lines", "prefetch", "prefetched", "is_hatanaka", "iter_bytes"]
+__all__ = ["open_bytes", "expand_crinex", "open_text", "open_header_lines", "fault_text", "prefetch", "prefetched", "is_hatanaka", "iter_bytes"]
 
 _GZIP_MAGIC = b"\x1f\x8b"
 _LZW_MAGIC = b"\x1f\x9d"
@@ -291,6 +291,20 @@ def prefetched(path: str | os.PathLike[str]) -> bytes | None:
     Raises what :func:`open_bytes` raises."""
     job = _PENDING.get(_file_key(path))  # type: ignore[arg-type]
     return job.result() if job is not None else None
+
+
+def fault_text(exc: BaseException) -> str:
+    """What went wrong reading or inflating a file, in words: the exception's own text (gzip's
+    "CRC check failed ...", zlib's "invalid stored block lengths"), never Python's class name;
+    one without text is described by its kind."""
+    text = str(exc).strip()
+    if text:
+        return text
+    if isinstance(exc, EOFError):
+        return "the file ends inside its compressed data (truncated)"
+    if isinstance(exc, ImportError):
+        return "a package needed to inflate it is not installed"
+    return "unreadable data"
 
 
 def open_header_lines(path: str | os.PathLike[str], max_lines: int = 2000) -> list[str]:

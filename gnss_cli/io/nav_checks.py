@@ -43,6 +43,8 @@ import numpy as np
 import xarray as xr
 from numpy.typing import NDArray
 
+from gnss_cli.io.rinex3_header import SYSTEM_NAMES
+
 __all__ = ["reject_implausible_records", "klobuchar_problem", "KEPLER_LIMITS", "STATE_LIMITS", "KLOBUCHAR_LIMITS"]
 
 F64 = NDArray[np.float64]
@@ -270,9 +272,6 @@ def reject_implausible_records(ds: xr.Dataset, label: str = "") -> tuple[xr.Data
     return out, messages
 
 
-_SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "I": "NavIC", "S": "SBAS"}
-
-
 def _message(ds: xr.Dataset, label: str, system: str, cols: NDArray[np.intp], bad: NDArray[np.bool_],
              reasons: list[tuple[NDArray[np.bool_], str]]) -> str:
     """One line: count of rejected records of a system, the first one named with its reason."""
@@ -285,7 +284,7 @@ def _message(ds: xr.Dataset, label: str, system: str, cols: NDArray[np.intp], ba
     sv = str(ds["sv"].values[cols[ci]])
     toc = np.datetime_as_string(np.asarray(ds["time"].values[ti], dtype="datetime64[s]"))
     prefix = f"{label}: " if label else ""
-    name = _SYSTEM_NAMES.get(system, system)
+    name = SYSTEM_NAMES.get(system, system)
     return (f"{prefix}{int(bad.sum())} {name} navigation record(s) rejected as physically impossible, "
             f"e.g. {sv} {toc}: {reason}{value}")
 

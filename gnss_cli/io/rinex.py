@@ -44,12 +44,12 @@ class RinexInfo:
 
 def _open_lines(path: Path) -> list[str]:
     """The header lines of a plain or compressed RINEX file (:func:`~gnss_cli.io.compression.open_header_lines`)."""
-    from gnss_cli.io.compression import open_header_lines
+    from gnss_cli.io.compression import fault_text, open_header_lines
 
     try:
         return open_header_lines(path)
     except (OSError, EOFError, ValueError, LookupError, RuntimeError, zlib.error, ImportError) as exc:
-        raise RinexFormatError(f"{path}: cannot read file ({type(exc).__name__}: {exc})") from exc
+        raise RinexFormatError(f"{path}: cannot read file ({fault_text(exc)})") from exc
 
 
 def rinex_info(path: str | Path) -> RinexInfo:

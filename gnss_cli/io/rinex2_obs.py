@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -37,6 +38,10 @@ from gnss_cli.io.obs_checks import check_epochs_increasing, check_last_value_com
 from gnss_cli.io.rinex3_header import read_header
 
 __all__ = ["read_obs2", "parse_obs2", "parse_seconds_ns", "record_line_count", "obs_type_count"]
+
+OBS_CODE2 = re.compile(r"[CPLDS][1-9][A-Z]?")
+"""A RINEX 2 observation code (RINEX 2.11 section 5.1: type C, P, L, D or S and the band digit;
+the third letter of 2.12-style codes such as ``C1C`` is accepted)."""
 
 _FIELD_WIDTH = 16
 _VALUE_WIDTH = 14
@@ -74,15 +79,22 @@ def _obs_header(header: str, name: str) -> tuple[dict[str, Any], list[str], str]
         raise RinexFormatError(f"{name}: line 1: bad RINEX version {first[:9].strip()!r}") from None
     system = first[40:41].strip().upper() or "G"
     attrs: dict[str, Any] = {"version": version, "rinextype": "obs", "time_system": "GPS" if system in "GM" else system}
-    n_types, types = None, []
+    n_types, types, count_line = None, [], 0
     for lineno, line in enumerate(lines, 1):
         label = line[60:80].strip()
         if label == "# / TYPES OF OBSERV":
             if line[:6].strip():
                 if not line[:6].strip().isdigit():
                     raise RinexFormatError(f"{name}: line {lineno}: bad '# / TYPES OF OBSERV' count {line[:6]!r}")
-                n_types = int(line[:6])
-            types += line[6:60].split()
+                n_types, count_line = int(line[:6]), lineno
+            codes = line[6:60].split()
+            bad = [c for c in codes if not OBS_CODE2.fullmatch(c)]
+            if bad:
+                raise RinexFormatError(
+                    f"{name}: line {lineno}: {bad[0]!r} is not a RINEX 2 observation code "
+                    f"(a type C, P, L, D or S and a band digit, such as C1)"
+                )
+            types += codes
         elif label == "APPROX POSITION XYZ":
             try:
                 attrs["position"] = [float(line[i:i + 14]) for i in (0, 14, 28)]
@@ -100,10 +112,11 @@ def _obs_header(header: str, name: str) -> tuple[dict[str, Any], list[str], str]
         elif label == "TIME OF FIRST OBS" and line[48:51].strip():
             attrs["time_system"] = line[48:51].strip()
     if n_types is None:
-        raise RinexFormatError(f"{name}: header has no '# / TYPES OF OBSERV' line")
+        raise RinexFormatError(f"{name}: header has no '# / TYPES OF OBSERV' line (lines 1-{len(lines)})")
     if n_types != len(types):
         raise RinexFormatError(
-            f"{name}: header declares {n_types} observation types but lists {len(types)} ({' '.join(types)})"
+            f"{name}: line {count_line}: header declares {n_types} observation types but lists {len(types)} "
+            f"({' '.join(types)})"
         )
     attrs.setdefault("marker_name", "")
     attrs.setdefault("rxmodel", "")

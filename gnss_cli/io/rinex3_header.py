@@ -13,6 +13,7 @@ RINEX 3.05 and 4.00 format descriptions (IGS/RTCM-SC104), section 5 and tables A
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -24,12 +25,18 @@ from gnss_cli.errors import RinexFormatError, UsageError
 from gnss_cli.io.compression import open_bytes
 
 __all__ = [
-    "SYSTEM_CHARS", "validate_systems", "read_header", "header_end", "parse_version_line", "check_rinex34_type",
+    "SYSTEM_CHARS", "SYSTEM_NAMES", "OBS_CODE", "validate_systems", "read_header", "header_end", "parse_version_line", "check_rinex34_type",
     "read_obs_header", "read_nav_header", "validate_selection", "select_codes",
 ]
 
 SYSTEM_CHARS = "GRECJSI"
 """RINEX system letters read by the RINEX 3/4 readers (GPS, GLONASS, Galileo, BeiDou, QZSS, SBAS, NavIC)."""
+SYSTEM_NAMES = {"G": "GPS", "R": "GLONASS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "I": "NavIC", "S": "SBAS"}
+"""The system of each RINEX letter, for messages and legends."""
+
+OBS_CODE = re.compile(r"[CLDS][0-9][A-Z]|X[0-9][A-Z]?")
+"""A RINEX 3/4 observation code (tables A1-A14): type (C code, L phase, D Doppler, S signal
+strength; X receiver channel), band digit, attribute letter."""
 
 _TIME_SYSTEMS = {"G": "GPS", "R": "GLO", "E": "GAL", "J": "QZS", "C": "BDT", "I": "IRN"}
 
@@ -143,7 +150,7 @@ def read_obs_header(
     attrs: dict[str, Any] = {"version": version, "rinextype": "obs"}
     obs_types: dict[str, list[str]] = {}
     current_sys = ""
-    announced: dict[str, int] = {}
+    announced: dict[str, tuple[int, int]] = {}  # system -> (count, header line)
     time_system = _TIME_SYSTEMS.get(system, "")
     for lineno, line in enumerate(lines[1:], start=2):
         label = line[60:].strip()
@@ -152,17 +159,24 @@ def read_obs_header(
             if text[:1].strip():
                 current_sys = text[0]
                 try:
-                    announced[current_sys] = int(text[3:6])
+                    announced[current_sys] = (int(text[3:6]), lineno)
                 except ValueError:
                     raise RinexFormatError(
-                        f"{name}: bad observation-type count on header line {lineno}"
+                        f"{name}: bad observation-type count {text[3:6].strip()!r} on header line {lineno}"
                     ) from None
                 obs_types[current_sys] = []
             elif not current_sys:
                 raise RinexFormatError(
                     f"{name}: continuation of 'SYS / # / OBS TYPES' without a system on line {lineno}"
                 )
-            obs_types[current_sys] += text[7:60].split()
+            codes = text[7:60].split()
+            bad = [c for c in codes if not OBS_CODE.fullmatch(c)]
+            if bad:
+                raise RinexFormatError(
+                    f"{name}: header line {lineno}: {bad[0]!r} is not a RINEX observation code "
+                    f"(a type C, L, D or S, a band digit and an attribute letter, such as C1C)"
+                )
+            obs_types[current_sys] += codes
         elif label == "APPROX POSITION XYZ" and "position" not in attrs:
             try:
                 attrs["position"] = [float(text[i : i + 14]) for i in (0, 14, 28)]
@@ -185,14 +199,14 @@ def read_obs_header(
                 attrs["receiver_clock_offset_applied"] = int(text[:6])
             except ValueError:
                 pass
-    for sys_char, n in announced.items():
+    for sys_char, (n, lineno) in announced.items():
         if len(obs_types[sys_char]) != n:
             raise RinexFormatError(
-                f"{name}: system {sys_char} announces {n} observation types "
+                f"{name}: header line {lineno}: system {sys_char} announces {n} observation types "
                 f"but lists {len(obs_types[sys_char])}"
             )
     if not obs_types:
-        raise RinexFormatError(f"{name}: no 'SYS / # / OBS TYPES' header records")
+        raise RinexFormatError(f"{name}: no 'SYS / # / OBS TYPES' record in the header (lines 1-{len(lines)})")
     attrs["time_system"] = time_system or "GPS"
     attrs["obs_types"] = obs_types
     return attrs, obs_types

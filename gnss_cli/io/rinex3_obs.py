@@ -205,7 +205,9 @@ def parse_obs3(
         )
     lines = _body_lines(body, header.count("\n") if lines_before is None else lines_before)
     owner, times = _epochs(lines, name)
-    data_idx, sv_code, sys_code = _data_lines(lines, owner, times.flag, chosen, name)
+    data_idx, sv_code, sys_code, unlisted = _data_lines(lines, owner, times.flag, chosen, obs_types, name)
+    if unlisted:
+        attrs["unlisted_systems"] = unlisted
     _check_record_lengths(lines, data_idx, sys_code, obs_types, name)
     cells = _Cells(times.time[owner[data_idx]], sv_code)
     variables = _decode_values(lines, data_idx, sys_code, cells.flat, cells.size, chosen, name, codes)
@@ -331,9 +333,10 @@ def _epochs(lines: _Lines, name: str) -> tuple[NDArray[np.int64], _EpochLines]:
 
 def _data_lines(
     lines: _Lines, owner: NDArray[np.int64], flag: NDArray[np.int64], chosen: dict[str, list[tuple[int, str]]],
-    name: str,
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.uint8]]:
-    """Observation lines of ordinary epochs (flag 0/1) of the chosen systems: line index, sv code, system."""
+    obs_types: dict[str, list[str]], name: str,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.uint8], str]:
+    """Observation lines of ordinary epochs (flag 0/1) of the chosen systems: line index, sv code,
+    system; and the letters of the systems with records but no observation types in the header."""
     is_epoch = lines.first_char == ord(">")
     is_obs_epoch = flag <= 1
     is_data = ~is_epoch & (owner >= 0)
@@ -348,11 +351,12 @@ def _data_lines(
             f"on line {int(lines.lineno[data_idx[i]])}"
         )
     sys_code = sv_chars[:, 0]
+    unlisted = "".join(sorted(set(bytes(np.unique(sys_code)).decode("ascii")) - set(obs_types)))
     keep = np.isin(sys_code, np.frombuffer("".join(chosen).encode(), dtype=np.uint8))
     data_idx, sv_code, sys_code = data_idx[keep], sv_code[keep], sys_code[keep]
     if data_idx.size == 0:
         raise RinexFormatError(f"{name}: no observation records of the systems {''.join(chosen)}")
-    return data_idx, sv_code, sys_code
+    return data_idx, sv_code, sys_code, unlisted
 
 
 def _check_record_lengths(lines: _Lines, data_idx: NDArray[np.int64], sys_code: NDArray[np.uint8],

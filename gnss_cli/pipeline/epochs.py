@@ -45,9 +45,10 @@ from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.io.fixed_width import lli_name
 from gnss_cli.io.navigation import navigation_files
 from gnss_cli.io.rinex import klobuchar_coefficients, read_obs
+from gnss_cli.io.rinex3_header import SYSTEM_NAMES
 from gnss_cli.pipeline.results import EpochData
 
-__all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "used_systems", "finish_epochs",
+__all__ = ["load_epochs", "signal_setup", "build_epochs", "file_warnings", "system_warnings", "used_systems", "finish_epochs",
            "EpochSetup", "Coverage", "clock_systems", "SHARED_CLOCKS"]
 
 F64 = NDArray[np.float64]
@@ -277,6 +278,45 @@ def file_warnings(setup: EpochSetup, sv: NDArray[np.str_], systems: Sequence[str
     return warnings + list(setup.klobuchar_warnings)
 
 
+def system_warnings(setup: EpochSetup, obs_types: dict[str, list[str]] | None, unlisted: str,
+                    observed: set[str], with_pseudorange: set[str]) -> list[str]:
+    """One warning per system asked for (``--systems``), or present in the file when every system
+    is, that gives no pseudorange: the reason in words (records without a ``SYS / # / OBS TYPES``
+    line, no observation types in the header, no pseudorange code among the header's types, no
+    records, or no values).
+
+    Parameters
+    ----------
+    obs_types : the header's observation types per system (RINEX 3/4); None for RINEX 2.
+    unlisted : letters of the systems with records but no observation types in the header.
+    observed, with_pseudorange : satellites in the file, and those with a pseudorange of the codes used.
+    """
+    name = Path(setup.obs_path).name
+    listed = set(obs_types or {})
+    sys_observed = {sv[0] for sv in observed}
+    sys_with_pr = {sv[0] for sv in with_pseudorange}
+    present = listed | set(unlisted) | sys_observed
+    candidates = setup.systems if setup.explicit else [s for s in SYSTEM_LETTERS if s in present]
+    out = []
+    for system in candidates:
+        if system in sys_with_pr:
+            continue
+        codes = codes_for([system], setup.priority)
+        if system in unlisted:
+            reason = "has observation records but no 'SYS / # / OBS TYPES' line in the header"
+        elif obs_types is not None and system not in listed:
+            reason = "is asked for (--systems) but the header lists no observation types for it"
+        elif obs_types is not None and not any(t.startswith(tuple(codes)) for t in obs_types[system]):
+            reason = (f"has no pseudorange code the run uses ({', '.join(codes)}) among the header's types "
+                      f"({' '.join(obs_types[system])})")
+        elif system not in sys_observed:
+            reason = "is asked for (--systems) but the file has no records of it"
+        else:
+            reason = f"has no values of the pseudorange codes the run uses ({', '.join(codes)})"
+        out.append(f"{name}: system {system} ({SYSTEM_NAMES[system]}) {reason}; {system} not used")
+    return out
+
+
 def used_systems(sv: NDArray[np.str_], systems: Sequence[str], cov: Coverage) -> tuple[str, ...]:
     """The systems with a usable observation, in clock-column order."""
     sys_of = np.array([s[0] for s in sv])
@@ -354,7 +394,9 @@ def load_epochs(
     if prs.sv.size == 0:
         raise RinexFormatError(f"{obs_path}: no pseudoranges of {','.join(systems)} (codes {', '.join(codes_for(systems, setup.priority))})")
     data, cov = build_epochs(obs, prs, setup, systems)
-    warnings = file_warnings(setup, prs.sv, systems, cov)
+    warnings = system_warnings(setup, obs.attrs.get("obs_types"), obs.attrs.get("unlisted_systems", ""),
+                               set(np.asarray(obs["sv"].values).astype(str).tolist()), set(prs.sv.tolist()))
+    warnings += file_warnings(setup, prs.sv, systems, cov)
     if timings is not None:
         timings["orbits"] = time.perf_counter() - clock
     return finish_epochs(data, used_systems(prs.sv, systems, cov), warnings, config.qzss_own_clock)

@@ -48,7 +48,7 @@ from gnss_cli.errors import NoSolutionError, RinexFormatError
 from gnss_cli.gnss.observables import codes_for, select_pseudoranges
 from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
-    Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, used_systems,
+    Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, system_warnings, used_systems,
 )
 from gnss_cli.pipeline.memory import map_large_blocks
 from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
@@ -157,6 +157,8 @@ class _Survey:
     def __init__(self) -> None:
         self.obs_sv: set[str] = set()
         self.pr_sv: set[str] = set()
+        self.obs_types: dict[str, list[str]] | None = None  # the header's, per system (RINEX 3/4)
+        self.unlisted = ""  # systems with records but no observation types in the header
         self.times: list[np.ndarray] = []
         self.span: tuple[np.datetime64, np.datetime64] | None = None  # first and last epoch of the last dataset added
 
@@ -164,6 +166,8 @@ class _Survey:
         self.obs_sv.update(np.asarray(obs["sv"].values).astype(str).tolist())
         prs = select_pseudoranges(obs, setup.systems, setup.priority)
         self.pr_sv.update(prs.sv.tolist())
+        self.obs_types = obs.attrs.get("obs_types", self.obs_types)
+        self.unlisted = "".join(sorted(set(self.unlisted) | set(obs.attrs.get("unlisted_systems", ""))))
         self.times.append(prs.time_gps_s)
         t = obs["time"].values
         self.span = (t[0], t[-1]) if t.size else None
@@ -182,6 +186,8 @@ class _Survey:
         if other is not None:
             self.obs_sv |= other.obs_sv
             self.pr_sv |= other.pr_sv
+            self.obs_types = self.obs_types if self.obs_types is not None else other.obs_types
+            self.unlisted = "".join(sorted(set(self.unlisted) | set(other.unlisted)))
             self.times += other.times
 
 
@@ -373,7 +379,8 @@ class Run:
             else:
                 factors = self._variance_factors(setup, systems, sv, used, n_epochs) if pieces is None else None
                 cov, counts = yield from self._pass(setup, systems, sv, used, n_epochs, finish, factors, pieces)
-            warnings = file_warnings(setup, sv, systems, cov)
+            warnings = system_warnings(setup, survey.obs_types, survey.unlisted, survey.obs_sv, survey.pr_sv)
+            warnings += file_warnings(setup, sv, systems, cov)
             actual = used_systems(sv, systems, cov)
             if actual == used:
                 break

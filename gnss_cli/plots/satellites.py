@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
+from gnss_cli.io.rinex3_header import SYSTEM_NAMES
 from gnss_cli.pipeline.results import MethodSolution, RunResult
 from gnss_cli.plots.common import F64, elapsed_axis, legend_outside, method_style, new_figure, no_data
 
@@ -122,7 +123,6 @@ def figure_gdop(result: RunResult) -> Figure:
 
 
 SYSTEM_COLORS = {"G": "tab:blue", "E": "tab:orange", "C": "tab:red", "J": "tab:purple", "R": "tab:green"}
-SYSTEM_NAMES = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "J": "QZSS", "R": "GLONASS"}
 MAX_SATELLITE_LEGEND = 32
 """Above this many satellites the residual lines are coloured by system, one legend entry each."""
 
