@@ -133,7 +133,8 @@ def read_obs3(
         (s; header ``INTERVAL`` or the median epoch spacing), ``position`` (header
         ``APPROX POSITION XYZ``, m, 3 floats, when present), ``marker_name``,
         ``rxmodel``, ``filename`` and ``obs_types`` (dict: system -> list of codes in
-        header order).
+        header order); ``unlisted_systems`` (str of system letters) when the body holds
+        records of systems the header gives no observation types for (they are not read).
 
     Raises
     ------
