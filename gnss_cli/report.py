@@ -44,6 +44,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_minus_utc_s, gps_s2datetime, gps_s2week_tow
 from gnss_cli.pipeline.identification import Identification
 from gnss_cli.pipeline.results import EpochStatus, RunResult
+from gnss_cli.stanford import integrity_statistics
 
 F64 = NDArray[np.float64]
 
@@ -194,6 +195,7 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
         row.update({"epochs": int(s.status.size), "epochs_solved": int(ok.sum())})
         if reference_ecef_m is not None:
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
+            integrity = integrity_statistics(ok, enu, s.hpl_m, s.vpl_m)
             ok = ok & np.isfinite(enu).all(axis=1)
             row["epochs_with_reference"] = int(ok.sum())
             enu = enu[ok]
@@ -205,6 +207,7 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
             row["mean_3d_m"] = _stat(np.mean, err3)
             row["std_3d_m"] = _stat(np.std, err3)
             row["rms_3d_m"] = _stat(lambda v: np.sqrt(np.mean(v**2)), err3)
+            row.update(integrity)
             cov = np.cov(enu.T, ddof=0) if enu.shape[0] > 1 else np.full((3, 3), np.nan)
             for i, a in enumerate("enu"):
                 for j, b in enumerate("enu"):

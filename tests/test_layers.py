@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "gnss_cli"
 # anything: it is the top).
 RANKS = {
     "errors": 0, "constants": 0, "io": 1, "gnss": 2, "config": 2, "solvers": 3, "behavior": 3,
-    "sim": 4, "pipeline": 5, "report": 6, "plots": 6, "formats": 6, "api": 7, "cli": 8, "__init__": 9,
+    "sim": 4, "pipeline": 5, "report": 6, "stanford": 6, "plots": 6, "formats": 6, "api": 7, "cli": 8, "__init__": 9,
     "__version__": 0,  # the package's version string (metadata, importable from anywhere)
     "parallel": 0,  # forked worker processes: the standard library only, for any layer
 }

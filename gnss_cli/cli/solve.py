@@ -186,7 +186,8 @@ def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cf
 
     settings = solve_settings(files, cfg, run.result, reference)
     title = f"gnss-solve: {Path(files[0]).name}"
-    stage_figures(outputs, targets, run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg), RUN_FIGURES,
+    stage_figures(outputs, targets, run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg,
+                                                  (cfg.alert_limit_h_m, float("inf"))), RUN_FIGURES,
                   lambda figs: html_report(title, figs, run.summary, settings))
 
 

@@ -26,7 +26,7 @@ from gnss_cli.cli.exits import write_stdout
 
 __all__ = ["RunOutput", "solve_files", "stage", "TABLES"]
 
-_SUMMARY_FIELDS = ("x_ecef_m", "status", "gdop", "pdop", "hdop", "vdop", "tdop", "tdops", "gdop_paper")
+_SUMMARY_FIELDS = ("x_ecef_m", "status", "gdop", "pdop", "hdop", "vdop", "tdop", "tdops", "gdop_paper", "hpl_m", "vpl_m")
 """The per-epoch fields of a MethodSolution that :func:`gnss_cli.report.summary_table` reads."""
 TABLES = ("positions", "errors", "dop", "satellites")
 """The tables written row by row (``summary.csv`` is computed at the end)."""

@@ -25,6 +25,7 @@ Modules, one job each::
     html        The one-page HTML report: figures embedded as base64 PNG, the summary table, the set...
     run         Every figure of a gnss-solve run, from its RunResult.
     satellites  Satellite geometry over the run: sky plot of used and excluded satellites, satellite...
+    stanford    The Stanford diagram: each epoch's horizontal error against its HPL and vertical err...
     track       Tracks in a local East-North-Up frame: a run's positions per method with the referen...
 """
 
@@ -43,6 +44,7 @@ RUN_FIGURES = {
     "sky": "Sky plot of used and excluded satellites",
     "satellites": "Satellites used per method over time",
     "residuals": "Post-fit pseudorange residuals per satellite",
+    "stanford": "Stanford diagram: horizontal error against HPL, vertical against VPL, epochs per region",
 }
 """The figures of a ``gnss-solve`` run: file stem (``<name>.png`` under ``--plots``) -> caption."""
 

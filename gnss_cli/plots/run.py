@@ -11,13 +11,15 @@ from gnss_cli.plots.errors import (
     figure_enu_errors, figure_error_statistics, figure_horizontal_scatter, method_offsets,
 )
 from gnss_cli.plots.satellites import figure_gdop, figure_residuals, figure_satellite_count, figure_sky
+from gnss_cli.plots.stanford import figure_stanford
 from gnss_cli.plots.track import figure_track
 
 __all__ = ["run_figures"]
 
 
 def run_figures(result: RunResult, reference_ecef_m: F64 | None = None,
-                elevation_mask_deg: float | None = None) -> dict[str, Figure]:
+                elevation_mask_deg: float | None = None,
+                alert_limits_m: tuple[float, float] = (float("inf"), float("inf"))) -> dict[str, Figure]:
     """The figures of :data:`~gnss_cli.plots.RUN_FIGURES`, in that order.
 
     Parameters
@@ -29,6 +31,8 @@ def run_figures(result: RunResult, reference_ecef_m: F64 | None = None,
         each method's mean position.
     elevation_mask_deg : float, optional
         Drawn as a circle on the sky plot.
+    alert_limits_m : (float, float)
+        Horizontal and vertical alert limits, m, drawn on the Stanford diagram.
     """
     offsets = method_offsets(result, reference_ecef_m)
     figures = {
@@ -40,6 +44,7 @@ def run_figures(result: RunResult, reference_ecef_m: F64 | None = None,
         "sky": figure_sky(result, elevation_mask_deg),
         "satellites": figure_satellite_count(result),
         "residuals": figure_residuals(result),
+        "stanford": figure_stanford(result, offsets, alert_limits_m),
     }
     assert list(figures) == list(RUN_FIGURES)
     return figures
