@@ -40,7 +40,8 @@ Examples:
     gnss-simulate --systems G,E --duration 3600 --interval 30 --out-dir static
 
   The first five minutes of a flight (take-off roll, climb) at 1 Hz:
-    gnss-simulate --trajectory flight --duration 300 --interval 1 --out-dir flight
+    gnss-simulate --trajectory flight --duration 300 --interval 1 \\
+        --out-dir flight
 """
 """The epilog of ``gnss-simulate --help`` (``tests/cli/test_help.py`` runs every example)."""
 

@@ -58,7 +58,7 @@ def solve(
     reference_csv: ReferenceCsv = None,
     reference_pos: ReferencePos = None,
     config: Config = None,
-    output: Optional[str] = typer.Option(None, "-o", "--output", metavar="FILE", rich_help_panel="Output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: FILE.<method>.pos / .nmea.", show_default="stdout"),
+    output: Optional[str] = typer.Option(None, "-o", "--output", metavar="FILE", rich_help_panel="Output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: one file per method, FILE.METHOD.pos / .nmea.", show_default="stdout"),
     out_dir: Optional[Path] = typer.Option(None, "--out-dir", metavar="DIR", rich_help_panel="Output", help="Write positions (in --format), errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
     fmt: Optional[str] = typer.Option(None, "--format", metavar="FORMAT", rich_help_panel="Output", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
     time_system: TimeSystem = None,
