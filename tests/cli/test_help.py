@@ -168,3 +168,12 @@ def test_quiet_runs_write_nothing_on_stderr(tmp_path: Path) -> None:
         args = [a.replace("sim", "sim2").replace("identified", "identified2") for a in runs[command]]
         proc = _run(command, args, tmp_path)
         assert proc.returncode == 0 and proc.stderr.startswith(f"{command}: "), (command, proc.stderr)
+
+
+def test_docs_quote_the_help_as_printed(tmp_path: Path) -> None:
+    """docs/cli.md's copy of ``gnss-solve --help`` is what the command prints at 80 columns."""
+    doc = (REPO / "docs" / "cli.md").read_text()
+    quoted = re.search(r"```text\n(Usage: gnss-solve .*?)```", doc, re.S)
+    if quoted is None:
+        pytest.skip("docs/cli.md quotes no gnss-solve --help")
+    assert quoted.group(1) == _run("gnss-solve", ["--help"], tmp_path, 80).stdout
