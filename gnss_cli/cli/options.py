@@ -2,7 +2,8 @@
 
 Each option is an ``Annotated`` type (Typer reads the ``typer.Option`` inside it), so a
 command lists it as ``method: Method = None`` and both commands show the same flag, help
-text and packaged default. A flag that sets a configuration key has no default of its own
+text, packaged default, placeholder (``metavar``) and help panel (``rich_help_panel``, drawn by
+:class:`~gnss_cli.cli.help.PanelCommand`). A flag that sets a configuration key has no default of its own
 (None): the ``--config`` file and the packaged ``default.toml`` decide, and ``--help``
 shows the packaged value. :data:`CONFIG_KEYS` maps the parameter names to the
 configuration keys, :func:`run_config` builds the configuration from a command's
