@@ -39,7 +39,7 @@ class PanelCommand(typer.core.TyperCommand):
         """``[OPTIONS]`` and each argument's metavar as declared (``OBS NAV...``)."""
         pieces = [self.options_metavar] if self.options_metavar else []
         for param in self.get_params(ctx):
-            if param.param_type_name == "argument" and not param.hidden:
+            if param.param_type_name == "argument" and not getattr(param, "hidden", False):
                 pieces.append(param.metavar or param.name.upper())
         return pieces
 
@@ -52,7 +52,7 @@ class PanelCommand(typer.core.TyperCommand):
                 continue
             default = "Arguments" if param.param_type_name == "argument" else "Options"
             panels.setdefault(getattr(param, "rich_help_panel", None) or default, []).append(help_record(param))
-        order = sorted(panels, key=lambda p: PANELS.index(p) if p in PANELS else len(PANELS))
+        order = sorted(panels, key=lambda p: PANELS.index(p) if p in PANELS else -1 if p == "Arguments" else len(PANELS))
         if help_option is not None:
             panels.setdefault(order[-1] if order else "Options", []).append(help_record(help_option))
             order = order or ["Options"]
