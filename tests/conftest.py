@@ -1,8 +1,10 @@
-"""Shared fixtures: the real-data folder beside the repository and the RTKLIB peer."""
+"""Shared fixtures: the real-data folder beside the repository and the RTKLIB peer; the skipped
+tests summarised as one line per reason."""
 
 from __future__ import annotations
 
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -20,6 +22,24 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     if collection_path.suffix == ".py" and not collection_path.name.startswith("test_"):
         return True
     return None
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """The skipped tests, one line per distinct reason with its count (``SKIPPED [141] real RINEX
+    data folder ... is missing``), instead of pytest's line per test: pyproject's ``addopts``
+    leaves ``s`` out of ``-r`` (``-rfExX``: failures, errors, xfails and xpasses still get a line
+    each). A run that asks for skips itself (``-rs``, ``-ra``) gets pytest's own lines instead."""
+    if "s" in getattr(terminalreporter, "reportchars", "s") or getattr(terminalreporter, "no_summary", False):
+        return
+    reasons: Counter[str] = Counter()
+    for report in terminalreporter.stats.get("skipped", []):
+        longrepr = report.longrepr
+        reason = longrepr[2] if isinstance(longrepr, tuple) and len(longrepr) == 3 else str(longrepr)
+        reasons[reason.removeprefix("Skipped: ")] += 1
+    if reasons:
+        terminalreporter.write_sep("=", "skipped, by reason")
+        for reason, count in reasons.most_common():
+            terminalreporter.write_line(f"SKIPPED [{count}] {reason}")
 
 
 @pytest.fixture(scope="session")

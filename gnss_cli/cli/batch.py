@@ -24,6 +24,7 @@ from typing import Any, Optional
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, single_blas_thread, version_callback, without_dask
+from gnss_cli.cli.help import PanelCommand
 from gnss_cli.cli.options import (
     Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method, Motion,
     OldModel, OldSmoother, Order, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex, Robust, SnrMask, Systems,
@@ -34,16 +35,27 @@ from gnss_cli.errors import ConfigError, GnssError, InputFileNotFoundError, Rine
 
 PROG = "gnss-batch"
 
+EXAMPLES = """\
+Examples:
+  Every obs.rnx one folder down, each with the nav.rnx files that cover it:
+    gnss-batch '*/obs.rnx' --nav '*/nav.rnx' --out network
+
+  Two files on two local workers, each solved by WLS and the smoother:
+    gnss-batch static/obs.rnx flight/obs.rnx --nav static/nav.rnx \\
+        --nav flight/nav.rnx --out smoothed -j 2 --method wls,smoother
+"""
+"""The epilog of ``gnss-batch --help`` (``tests/cli/test_help.py`` runs every example)."""
+
 app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTIONS, rich_markup_mode=None)
 
 
-@app.command()
+@app.command(cls=PanelCommand, epilog=EXAMPLES)
 def batch(
-    files: Optional[list[str]] = typer.Argument(None, help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS", show_default=False),
-    nav: Optional[list[str]] = typer.Option(None, "--nav", help="Navigation file or quoted glob pattern; repeat --nav for more. Each OBS gets the ones whose records cover its epochs.", show_default="none"),
-    out: Optional[Path] = typer.Option(None, "--out", show_default=False, help="Output folder: positions/ (Parquet, partitioned by station and day), files.csv, summary.csv."),
-    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", help="Local worker processes (one file per task).", show_default="all cores"),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Run the tasks on this Dask distributed scheduler (tcp://HOST:PORT) instead; needs pip install 'gnss-solve[cluster]'.", show_default="none"),
+    files: Optional[list[str]] = typer.Argument(None, help="RINEX observation files or quoted glob patterns ('obs/*.crx.gz'); navigation files among them count as --nav.", metavar="OBS...", show_default=False, rich_help_panel="Inputs"),
+    nav: Optional[list[str]] = typer.Option(None, "--nav", metavar="FILE", rich_help_panel="Inputs", help="Navigation file or quoted glob pattern; repeat --nav for more. Each OBS gets the ones whose records cover its epochs.", show_default="none"),
+    out: Optional[Path] = typer.Option(None, "--out", metavar="DIR", rich_help_panel="Output", show_default=False, help="Output folder: positions/ (Parquet, partitioned by station and day), files.csv, summary.csv."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", metavar="N", rich_help_panel="Run", help="Local worker processes (one file per task).", show_default="all cores"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", metavar="URL", rich_help_panel="Run", help="Run the tasks on this Dask distributed scheduler (tcp://HOST:PORT) instead; needs pip install 'gnss-solve[cluster]'.", show_default="none"),
     method: Method = None,
     systems: Systems = None,
     iono: Iono = None,
@@ -69,10 +81,10 @@ def batch(
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
-    print_config: bool = typer.Option(False, "--print-config", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
+    print_config: bool = typer.Option(False, "--print-config", rich_help_panel="Run", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
     quiet: Quiet = False,
     debug: Debug = False,
-    version: bool = typer.Option(False, "--version", callback=version_callback(PROG), is_eager=True, help="Print the version and exit."),
+    version: bool = typer.Option(False, "--version", callback=version_callback(PROG), is_eager=True, rich_help_panel="Run", help="Print the version and exit."),
 ) -> int:
     """Solve every observation file with the navigation files that cover it; write one dataset."""
     values = dict(locals())

@@ -22,27 +22,38 @@ from typing import Optional
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback, write_stdout
+from gnss_cli.cli.help import PanelCommand
 from gnss_cli.errors import ConfigError
+
+EXAMPLES = """\
+Examples:
+  A lag-3 kernel from the first 200 stls fixes of a gnss-solve CSV, then the
+  next 60 epochs predicted:
+    gnss-identify flight.csv --source-method stls --lag 3 --train 200 \\
+        --predict 60 -o predicted.csv --model-out model.json
+"""
+"""The epilog of ``gnss-identify --help`` (``tests/cli/test_help.py`` runs every example)."""
 
 app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help=__doc__.split("\n\n")[0])
 
 
-@app.command()
+@app.command(cls=PanelCommand, epilog=EXAMPLES)
 def identify(
-    trajectory: Path = typer.Argument(..., help="Positions CSV (gnss-solve output or time,x_m,y_m,z_m).", show_default=False),
-    lag: int = typer.Option(3, "--lag", help="Kernel lag L (>= 1)."),
-    order: Optional[int] = typer.Option(None, "--order", help="Hankel rank (full structure).", show_default="3 L"),
-    method: str = typer.Option("stls", "--method", help="stls (structured) or wtls (unstructured SVD)."),
-    structure: str = typer.Option("full", "--structure", help="full (general kernel) or shared (r(z) I_3)."),
-    train: Optional[int] = typer.Option(None, "--train", help="Identify on the first K samples.", show_default="all"),
-    predict: Optional[int] = typer.Option(None, "--predict", help="Predict N epochs after the training samples.", show_default="the rest of the file"),
-    source_method: Optional[str] = typer.Option(None, "--source-method", help="Method rows to use when the CSV holds several.", show_default="the only one"),
-    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write the model as JSON.", show_default="none"),
-    output: str = typer.Option("-", "-o", "--output", help="Output CSV ('-' = stdout)."),
-    plots: Optional[Path] = typer.Option(None, "--plots", help="Write identification.png (fit and prediction against the data, E/N/U and track) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
-    debug: bool = typer.Option(False, "--debug", help="Tracebacks for internal errors."),
+    trajectory: Path = typer.Argument(..., metavar="TRAJECTORY", rich_help_panel="Inputs", help="Positions CSV (gnss-solve output or time,x_m,y_m,z_m).", show_default=False),
+    lag: int = typer.Option(3, "--lag", metavar="L", rich_help_panel="Model", help="Kernel lag L (>= 1)."),
+    order: Optional[int] = typer.Option(None, "--order", metavar="N", rich_help_panel="Model", help="Hankel rank (full structure).", show_default="3 L"),
+    method: str = typer.Option("stls", "--method", metavar="METHOD", rich_help_panel="Model", help="stls (structured) or wtls (unstructured SVD)."),
+    structure: str = typer.Option("full", "--structure", metavar="KIND", rich_help_panel="Model", help="full (general kernel) or shared (r(z) I_3)."),
+    train: Optional[int] = typer.Option(None, "--train", metavar="K", rich_help_panel="Model", help="Identify on the first K samples.", show_default="all"),
+    predict: Optional[int] = typer.Option(None, "--predict", metavar="N", rich_help_panel="Model", help="Predict N epochs after the training samples.", show_default="the rest of the file"),
+    source_method: Optional[str] = typer.Option(None, "--source-method", metavar="METHOD", rich_help_panel="Inputs", help="Method rows to use when the CSV holds several.", show_default="the only one"),
+    model_out: Optional[Path] = typer.Option(None, "--model-out", metavar="FILE", rich_help_panel="Output", help="Write the model as JSON.", show_default="none"),
+    output: str = typer.Option("-", "-o", "--output", metavar="FILE", rich_help_panel="Output", help="Output CSV ('-' = stdout).", show_default="stdout"),
+    plots: Optional[Path] = typer.Option(None, "--plots", metavar="DIR", rich_help_panel="Output", help="Write identification.png (fit and prediction against the data, E/N/U and track) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", rich_help_panel="Run", help="No summary on stderr."),
+    debug: bool = typer.Option(False, "--debug", rich_help_panel="Run", help="Tracebacks for internal errors."),
     version: bool = typer.Option(False, "--version", callback=version_callback("gnss-identify"), is_eager=True,
-                                 help="Print the version and exit."),
+                                 rich_help_panel="Run", help="Print the version and exit."),
 ) -> None:
     """Identify a lag-L kernel in local ENU (origin: the first sample), write fit and prediction CSV."""
     if method not in ("stls", "wtls"):
@@ -81,7 +92,8 @@ def identify(
             outputs.write_text(Path(output), text)
     if output == "-":
         write_stdout(text)
-    sys.stderr.write(f"gnss-identify: {method} lag {lag}: misfit {res.misfit:.6g} m^2, {res.iterations} iterations, {res.message}\n")
+    if not quiet:
+        sys.stderr.write(f"gnss-identify: {method} lag {lag}: misfit {res.misfit:.6g} m^2, {res.iterations} iterations, {res.message}\n")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -2,7 +2,8 @@
 
 Each option is an ``Annotated`` type (Typer reads the ``typer.Option`` inside it), so a
 command lists it as ``method: Method = None`` and both commands show the same flag, help
-text and packaged default. A flag that sets a configuration key has no default of its own
+text, packaged default, placeholder (``metavar``) and help panel (``rich_help_panel``, drawn by
+:class:`~gnss_cli.cli.help.PanelCommand`). A flag that sets a configuration key has no default of its own
 (None): the ``--config`` file and the packaged ``default.toml`` decide, and ``--help``
 shows the packaged value. :data:`CONFIG_KEYS` maps the parameter names to the
 configuration keys, :func:`run_config` builds the configuration from a command's
@@ -39,34 +40,34 @@ def shown(value: Any) -> str:
     return str(value)
 
 
-Method = Annotated[Optional[str], typer.Option("--method", "-m", help="ls, wls, tls, dls, mtls, stls, wtls (single epoch; stls with --lag L >= 1: the identified Hankel STLS over several epochs), smoother (fixed-model batch smoother), kf (Kalman filter + RTS), a comma list, or all (= ls ... wtls).", show_default=shown(_PROC.get("methods")))]
-Systems = Annotated[Optional[str], typer.Option("--systems", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=shown(_PROC.get("systems")))]
-Iono = Annotated[Optional[str], typer.Option("--iono", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=shown(_PROC.get("iono")))]
-Tropo = Annotated[Optional[str], typer.Option("--tropo", help="saastamoinen | none.", show_default=shown(_PROC.get("tropo")))]
-ElevationMask = Annotated[Optional[float], typer.Option("--elevation-mask", help="Elevation mask, degrees.", show_default=shown(_PROC.get("elevation_mask_deg")))]
-Reference = Annotated[Optional[str], typer.Option("--reference", help="Reference position X,Y,Z (ECEF, m) for error columns.", show_default="none")]
-ReferenceSinex = Annotated[Optional[Path], typer.Option("--reference-sinex", help="SINEX file; the station is the RINEX marker name.", show_default="none")]
-ReferenceCsv = Annotated[Optional[Path], typer.Option("--reference-csv", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv).", show_default="none")]
-ReferencePos = Annotated[Optional[Path], typer.Option("--reference-pos", help="Moving reference: an RTKLIB .pos solution file (ECEF or lat/lon/height; GPST or UTC).", show_default="none")]
-Config = Annotated[Optional[Path], typer.Option("--config", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults")]
-TimeSystem = Annotated[Optional[str], typer.Option("--time-system", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=shown(_PROC.get("time_system")))]
-Lag = Annotated[Optional[int], typer.Option("--lag", metavar="L", help="Lag of the multi-epoch kernel, epochs: stls with L >= 1 identifies a lag-L kernel from the data (0 = single-epoch STLS); smoother --motion quadrature: the lag (1-3) of its velocity rule.", show_default=f"stls {_STLS.get('lag')}, smoother {_SMOOTHER.get('lag')}")]
-Kernel = Annotated[Optional[str], typer.Option("--kernel", help="shared | full: structure of the kernel stls --lag L identifies.", show_default=shown(_STLS.get("kernel")))]
-Order = Annotated[Optional[int], typer.Option("--order", metavar="N", help="Order of the full identified kernel (stls --lag L --kernel full); 0 = 3 L.", show_default=shown(_STLS.get("order")))]
-Window = Annotated[Optional[int], typer.Option("--window", metavar="N", help="Window of stls --lag L, epochs (kernels identified in sliding windows); 0 = whole segments.", show_default=shown(_STLS.get("window")))]
-Motion = Annotated[Optional[str], typer.Option("--motion", help="quadrature | cv | ca | static: the fixed motion model of --method smoother.", show_default=shown(_SMOOTHER.get("motion")))]
-Measurements = Annotated[Optional[str], typer.Option("--measurements", metavar="KINDS", help="pseudorange,doppler,phase (comma list) or all: what every multi-epoch method (smoother, kf) uses; all = every kind in the file.", show_default=shown(_PROC.get("measurements")))]
-KfModel = Annotated[Optional[str], typer.Option("--kf-model", help="cv | ca: constant-velocity or constant-acceleration motion model of --method kf.", show_default=shown(_KALMAN.get("model")))]
-KfOutput = Annotated[Optional[str], typer.Option("--kf-output", help="smoothed | filtered: Rauch-Tung-Striebel smoothed or the filter's own kf rows.", show_default=shown(_KALMAN.get("output")))]
+Method = Annotated[Optional[str], typer.Option("--method", "-m", metavar="METHOD[,METHOD...]", rich_help_panel="Processing", help="ls, wls, tls, dls, mtls, stls, wtls (single epoch; stls with --lag L >= 1: the identified Hankel STLS over several epochs), smoother (fixed-model batch smoother), kf (Kalman filter + RTS), a comma list, or all (= ls ... wtls).", show_default=shown(_PROC.get("methods")))]
+Systems = Annotated[Optional[str], typer.Option("--systems", metavar="LIST", rich_help_panel="Processing", help="Constellations: comma list of RINEX letters G,E,C,J,R, or all (every system in both OBS and NAV).", show_default=shown(_PROC.get("systems")))]
+Iono = Annotated[Optional[str], typer.Option("--iono", metavar="MODEL", rich_help_panel="Processing", help="klobuchar | iono-free (dual-frequency combination) | none.", show_default=shown(_PROC.get("iono")))]
+Tropo = Annotated[Optional[str], typer.Option("--tropo", metavar="MODEL", rich_help_panel="Processing", help="saastamoinen | none.", show_default=shown(_PROC.get("tropo")))]
+ElevationMask = Annotated[Optional[float], typer.Option("--elevation-mask", metavar="DEG", rich_help_panel="Processing", help="Elevation mask, degrees.", show_default=shown(_PROC.get("elevation_mask_deg")))]
+Reference = Annotated[Optional[str], typer.Option("--reference", metavar="X,Y,Z", rich_help_panel="Reference", help="Reference position X,Y,Z (ECEF, m) for error columns.", show_default="none")]
+ReferenceSinex = Annotated[Optional[Path], typer.Option("--reference-sinex", metavar="FILE", rich_help_panel="Reference", help="SINEX file; the station is the RINEX marker name.", show_default="none")]
+ReferenceCsv = Annotated[Optional[Path], typer.Option("--reference-csv", metavar="FILE", rich_help_panel="Reference", help="Moving reference: CSV with time, x_m, y_m, z_m (e.g. truth.csv).", show_default="none")]
+ReferencePos = Annotated[Optional[Path], typer.Option("--reference-pos", metavar="FILE", rich_help_panel="Reference", help="Moving reference: an RTKLIB .pos solution file (ECEF or lat/lon/height; GPST or UTC).", show_default="none")]
+Config = Annotated[Optional[Path], typer.Option("--config", metavar="FILE", rich_help_panel="Inputs", help="TOML file of processing options (any key of the packaged default.toml; flags override it).", show_default="packaged defaults")]
+TimeSystem = Annotated[Optional[str], typer.Option("--time-system", metavar="SCALE", rich_help_panel="Output", help="gpst | utc: time scale of the time stamps (UTC = GPST - leap seconds; gps_week and tow_s stay GPS).", show_default=shown(_PROC.get("time_system")))]
+Lag = Annotated[Optional[int], typer.Option("--lag", rich_help_panel="Multi-epoch", metavar="L", help="Lag of the multi-epoch kernel, epochs: stls with L >= 1 identifies a lag-L kernel from the data (0 = single-epoch STLS); smoother --motion quadrature: the lag (1-3) of its velocity rule.", show_default=f"stls {_STLS.get('lag')}, smoother {_SMOOTHER.get('lag')}")]
+Kernel = Annotated[Optional[str], typer.Option("--kernel", metavar="KIND", rich_help_panel="Multi-epoch", help="shared | full: structure of the kernel stls --lag L identifies.", show_default=shown(_STLS.get("kernel")))]
+Order = Annotated[Optional[int], typer.Option("--order", rich_help_panel="Multi-epoch", metavar="N", help="Order of the full identified kernel (stls --lag L --kernel full); 0 = 3 L.", show_default=shown(_STLS.get("order")))]
+Window = Annotated[Optional[int], typer.Option("--window", rich_help_panel="Multi-epoch", metavar="N", help="Window of stls --lag L, epochs (kernels identified in sliding windows); 0 = whole segments.", show_default=shown(_STLS.get("window")))]
+Motion = Annotated[Optional[str], typer.Option("--motion", metavar="MODEL", rich_help_panel="Multi-epoch", help="quadrature | cv | ca | static: the fixed motion model of --method smoother.", show_default=shown(_SMOOTHER.get("motion")))]
+Measurements = Annotated[Optional[str], typer.Option("--measurements", rich_help_panel="Multi-epoch", metavar="KINDS", help="pseudorange,doppler,phase (comma list) or all: what every multi-epoch method (smoother, kf) uses; all = every kind in the file.", show_default=shown(_PROC.get("measurements")))]
+KfModel = Annotated[Optional[str], typer.Option("--kf-model", metavar="MODEL", rich_help_panel="Multi-epoch", help="cv | ca: constant-velocity or constant-acceleration motion model of --method kf.", show_default=shown(_KALMAN.get("model")))]
+KfOutput = Annotated[Optional[str], typer.Option("--kf-output", metavar="KIND", rich_help_panel="Multi-epoch", help="smoothed | filtered: Rauch-Tung-Striebel smoothed or the filter's own kf rows.", show_default=shown(_KALMAN.get("output")))]
 OldModel = Annotated[Optional[str], typer.Option("--model", hidden=True, help="Replaced by --method smoother / stls --lag L.")]
 OldSmoother = Annotated[Optional[str], typer.Option("--smoother", hidden=True, help="Replaced by --kf-output.")]
-Robust = Annotated[Optional[str], typer.Option("--robust", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=shown(_PROC.get("robust")))]
-Integrity = Annotated[Optional[str], typer.Option("--integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
-Exclude = Annotated[Optional[str], typer.Option("--exclude", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
-SnrMask = Annotated[Optional[float], typer.Option("--snr-mask", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=shown(_PROC.get("snr_mask_dbhz")))]
-Processes = Annotated[Optional[int], typer.Option("--processes", metavar="N", help="Processes that read and solve the parts of a day file at once (snapshot methods, CSV); 0 = one per core, 1 = this one only.", show_default=shown(_PROC.get("processes")))]
-Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="No progress, warnings or summary on stderr.")]
-Debug = Annotated[bool, typer.Option("--debug", help="Show tracebacks of internal errors.")]
+Robust = Annotated[Optional[str], typer.Option("--robust", metavar="MODE", rich_help_panel="Integrity", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=shown(_PROC.get("robust")))]
+Integrity = Annotated[Optional[str], typer.Option("--integrity", metavar="MODE", rich_help_panel="Integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
+Exclude = Annotated[Optional[str], typer.Option("--exclude", metavar="LIST", rich_help_panel="Processing", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
+SnrMask = Annotated[Optional[float], typer.Option("--snr-mask", metavar="DBHZ", rich_help_panel="Processing", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=shown(_PROC.get("snr_mask_dbhz")))]
+Processes = Annotated[Optional[int], typer.Option("--processes", rich_help_panel="Run", metavar="N", help="Processes that read and solve the parts of a day file at once (snapshot methods, CSV); 0 = one per core, 1 = this one only.", show_default=shown(_PROC.get("processes")))]
+Quiet = Annotated[bool, typer.Option("--quiet", "-q", rich_help_panel="Run", help="No progress, warnings or summary on stderr.")]
+Debug = Annotated[bool, typer.Option("--debug", rich_help_panel="Run", help="Show tracebacks of internal errors.")]
 
 CONFIG_KEYS = {
     "method": "methods", "iono": "iono", "tropo": "tropo", "elevation_mask": "elevation_mask_deg", "systems": "systems",

@@ -17,6 +17,7 @@ from typing import Annotated, Optional
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, version_callback
+from gnss_cli.cli.help import PanelCommand
 from gnss_cli.config import packaged_defaults
 from gnss_cli.errors import ConfigError, UsageError
 
@@ -33,6 +34,17 @@ def _default(table: str, key: str) -> str:
     return str(value)
 
 
+EXAMPLES = """\
+Examples:
+  One hour of a static GPS + Galileo receiver, an epoch every 30 s:
+    gnss-simulate --systems G,E --duration 3600 --interval 30 --out-dir static
+
+  The first five minutes of a flight (take-off roll, climb) at 1 Hz:
+    gnss-simulate --trajectory flight --duration 300 --interval 1 \\
+        --out-dir flight
+"""
+"""The epilog of ``gnss-simulate --help`` (``tests/cli/test_help.py`` runs every example)."""
+
 app = typer.Typer(add_completion=False, context_settings=HELP_OPTIONS, rich_markup_mode=None, help="Simulate GNSS pseudoranges and broadcast ephemerides as RINEX files.")
 
 _RINEX_VERSIONS = {"3": "3.04", "3.04": "3.04", "3.05": "3.05", "2": "2.11", "2.11": "2.11"}
@@ -48,43 +60,43 @@ def _values_are_configuration() -> Iterator[None]:
         raise ConfigError(str(exc)) from None
 
 
-@app.command()
+@app.command(cls=PanelCommand, epilog=EXAMPLES)
 def simulate(
-    out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
-    trajectory: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "trajectory"), help="static | flight | semicircle | csv:FILE")] = None,
-    start: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
-    duration: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
-    interval: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,
-    systems: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "systems"), help="Systems, comma list of G, E, C, J.")] = None,
-    seed: Annotated[Optional[int], typer.Option(show_default=_default("simulate", "seed"), help="Seed of the random generator.")] = None,
+    out_dir: Annotated[Path, typer.Option("--out-dir", metavar="DIR", rich_help_panel="Output", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
+    trajectory: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "trajectory"), help="static | flight | semicircle | csv:FILE")] = None,
+    start: Annotated[Optional[str], typer.Option(metavar="TIME", rich_help_panel="Scenario", show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
+    duration: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
+    interval: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,
+    systems: Annotated[Optional[str], typer.Option(metavar="LIST", rich_help_panel="Scenario", show_default=_default("simulate", "systems"), help="Systems, comma list of G, E, C, J.")] = None,
+    seed: Annotated[Optional[int], typer.Option(metavar="N", rich_help_panel="Scenario", show_default=_default("simulate", "seed"), help="Seed of the random generator.")] = None,
     errors: Annotated[
         Optional[str],
-        typer.Option(show_default=_default("simulate", "errors"), help="none | all | comma list of clock,noise,iono,tropo,orbit,multipath,outliers."),
+        typer.Option(metavar="LIST", rich_help_panel="Errors", show_default=_default("simulate", "errors"), help="none | all | comma list of clock,noise,iono,tropo,orbit,multipath,outliers."),
     ] = None,
-    noise_sigma: Annotated[Optional[float], typer.Option(show_default=_default("errors", "noise_sigma_m"), help="Zenith std of the white pseudorange noise, m.")] = None,
+    noise_sigma: Annotated[Optional[float], typer.Option(metavar="M", rich_help_panel="Errors", show_default=_default("errors", "noise_sigma_m"), help="Zenith std of the white pseudorange noise, m.")] = None,
     noise_model: Annotated[
-        Optional[str], typer.Option(show_default="elevation" if _SIM.get("errors", {}).get("noise_elevation_dependent", True) else "constant", help="elevation (sigma grows as 1/sin el) | constant.")
+        Optional[str], typer.Option(metavar="MODEL", rich_help_panel="Errors", show_default="elevation" if _SIM.get("errors", {}).get("noise_elevation_dependent", True) else "constant", help="elevation (sigma grows as 1/sin el) | constant.")
     ] = None,
-    orbit_rms: Annotated[Optional[float], typer.Option(show_default=_default("errors", "orbit_rms_m"), help="3-D RMS of the broadcast orbit error, m.")] = None,
-    iono_factor: Annotated[Optional[float], typer.Option(show_default=_default("errors", "iono_factor"), help="True ionosphere / Klobuchar.")] = None,
-    outlier_sats: Annotated[Optional[str], typer.Option(show_default=_default("errors", "outlier_sats"), help="Satellites with injected outliers, e.g. G05,G07.")] = None,
-    outlier_m: Annotated[Optional[str], typer.Option(show_default=_default("errors", "outlier_m"), help="Outlier size, m (with --outlier-sats); LOW,HIGH: the range of the random outliers' sizes (with --outlier-rate).")] = None,
-    outlier_rate: Annotated[Optional[float], typer.Option(show_default=_default("errors", "outlier_rate"), help="Share of epochs with a random outlier on one random satellite (writes faults.csv).")] = None,
-    elevation_mask: Annotated[Optional[float], typer.Option(show_default=_default("simulate", "elevation_mask_deg"), help="Elevation mask of what is written, deg.")] = None,
+    orbit_rms: Annotated[Optional[float], typer.Option(metavar="M", rich_help_panel="Errors", show_default=_default("errors", "orbit_rms_m"), help="3-D RMS of the broadcast orbit error, m.")] = None,
+    iono_factor: Annotated[Optional[float], typer.Option(metavar="FACTOR", rich_help_panel="Errors", show_default=_default("errors", "iono_factor"), help="True ionosphere / Klobuchar.")] = None,
+    outlier_sats: Annotated[Optional[str], typer.Option(metavar="LIST", rich_help_panel="Errors", show_default=_default("errors", "outlier_sats"), help="Satellites with injected outliers, e.g. G05,G07.")] = None,
+    outlier_m: Annotated[Optional[str], typer.Option(metavar="M", rich_help_panel="Errors", show_default=_default("errors", "outlier_m"), help="Outlier size, m (with --outlier-sats); LOW,HIGH: the range of the random outliers' sizes (with --outlier-rate).")] = None,
+    outlier_rate: Annotated[Optional[float], typer.Option(metavar="SHARE", rich_help_panel="Errors", show_default=_default("errors", "outlier_rate"), help="Share of epochs with a random outlier on one random satellite (writes faults.csv).")] = None,
+    elevation_mask: Annotated[Optional[float], typer.Option(metavar="DEG", rich_help_panel="Scenario", show_default=_default("simulate", "elevation_mask_deg"), help="Elevation mask of what is written, deg.")] = None,
     position: Annotated[
-        Optional[str], typer.Option(show_default=",".join(_default("simulate", k) for k in ("latitude_deg", "longitude_deg", "height_m")), help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
+        Optional[str], typer.Option(metavar="LAT,LON,H", rich_help_panel="Scenario", show_default=",".join(_default("simulate", k) for k in ("latitude_deg", "longitude_deg", "height_m")), help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
     ] = None,
-    rinex_version: Annotated[Optional[str], typer.Option(show_default=_default("simulate", "rinex_version"), help="3 (3.04), 3.05 or 2 (2.11).")] = None,
+    rinex_version: Annotated[Optional[str], typer.Option(metavar="VERSION", rich_help_panel="Output", show_default=_default("simulate", "rinex_version"), help="3 (3.04), 3.05 or 2 (2.11).")] = None,
     dual_frequency: Annotated[
-        Optional[bool], typer.Option("--dual-frequency/--single-frequency", help="Also C2W / C7Q / C7I.", show_default="dual" if _SIM.get("simulate", {}).get("dual_frequency") else "single")
+        Optional[bool], typer.Option("--dual-frequency/--single-frequency", rich_help_panel="Scenario", help="Also C2W / C7Q / C7I.", show_default="dual" if _SIM.get("simulate", {}).get("dual_frequency") else "single")
     ] = None,
     truth_ranges: Annotated[
-        Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", help="Also write truth_ranges.csv.", show_default="truth-ranges" if _SIM.get("simulate", {}).get("truth_ranges") else "no-truth-ranges")
+        Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", rich_help_panel="Output", help="Also write truth_ranges.csv.", show_default="truth-ranges" if _SIM.get("simulate", {}).get("truth_ranges") else "no-truth-ranges")
     ] = None,
-    config: Annotated[Optional[Path], typer.Option(help="TOML settings (any key of the packaged simulate.toml; flags override it).", show_default="packaged defaults")] = None,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No summary on stderr.")] = False,
-    debug: Annotated[bool, typer.Option("--debug", help="Tracebacks for internal errors.")] = False,
-    version: Annotated[bool, typer.Option("--version", callback=version_callback("gnss-simulate"), is_eager=True,
+    config: Annotated[Optional[Path], typer.Option(metavar="FILE", rich_help_panel="Scenario", help="TOML settings (any key of the packaged simulate.toml; flags override it).", show_default="packaged defaults")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", rich_help_panel="Run", help="No summary on stderr.")] = False,
+    debug: Annotated[bool, typer.Option("--debug", rich_help_panel="Run", help="Tracebacks for internal errors.")] = False,
+    version: Annotated[bool, typer.Option("--version", rich_help_panel="Run", callback=version_callback("gnss-simulate"), is_eager=True,
                                           help="Print the version and exit.")] = False,
 ) -> None:
     """Write obs.rnx, nav.rnx and truth.csv for a simulated receiver."""

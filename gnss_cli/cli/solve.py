@@ -18,6 +18,7 @@ from typing import Any, NoReturn, Optional
 import typer
 
 from gnss_cli.cli.exits import HELP_OPTIONS, mark_missing, run_app, single_blas_thread, version_callback, without_dask
+from gnss_cli.cli.help import PanelCommand
 from gnss_cli.cli.options import (
     Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method,
     Motion, OldModel, OldSmoother, Order, Processes, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex,
@@ -26,12 +27,27 @@ from gnss_cli.cli.options import (
 )
 from gnss_cli.errors import UsageError
 
+EXAMPLES = """\
+Examples:
+  A static station against its SINEX coordinates; every table in a folder:
+    gnss-solve site.rnx nav.rnx --method ls,wls --reference-sinex site.snx \\
+        --out-dir site
+
+  A kinematic file: the fixed-model smoother and the identified Hankel STLS:
+    gnss-solve flight/obs.rnx flight/nav.rnx --method smoother,stls --lag 3 \\
+        --reference-csv flight/truth.csv -o flight.csv
+
+  An RTKLIB .pos file (for pos2kml, rtkplot); faulty satellites excluded (FDE):
+    gnss-solve site.rnx nav.rnx --integrity fde -o site.pos
+"""
+"""The epilog of ``gnss-solve --help`` (``tests/cli/test_help.py`` runs every example)."""
+
 app = typer.Typer(add_completion=False, help=__doc__, context_settings=HELP_OPTIONS, rich_markup_mode=None)
 
 
-@app.command()
+@app.command(cls=PanelCommand, epilog=EXAMPLES)
 def solve(
-    files: Optional[list[Path]] = typer.Argument(None, help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV [NAV]...", show_default=False),
+    files: Optional[list[Path]] = typer.Argument(None, help="A RINEX observation file and one or more navigation files.", metavar="OBS NAV...", show_default=False, rich_help_panel="Inputs"),
     method: Method = None,
     systems: Systems = None,
     iono: Iono = None,
@@ -42,9 +58,9 @@ def solve(
     reference_csv: ReferenceCsv = None,
     reference_pos: ReferencePos = None,
     config: Config = None,
-    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: FILE.<method>.pos / .nmea.", show_default="stdout"),
-    out_dir: Optional[Path] = typer.Option(None, "--out-dir", help="Write positions (in --format), errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
-    fmt: Optional[str] = typer.Option(None, "--format", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
+    output: Optional[str] = typer.Option(None, "-o", "--output", metavar="FILE", rich_help_panel="Output", help="Write the positions here ('-' = stdout); pos and nmea with several methods: one file per method, FILE.METHOD.pos / .nmea.", show_default="stdout"),
+    out_dir: Optional[Path] = typer.Option(None, "--out-dir", metavar="DIR", rich_help_panel="Output", help="Write positions (in --format), errors.csv, dop.csv, summary.csv, satellites.csv here.", show_default="none"),
+    fmt: Optional[str] = typer.Option(None, "--format", metavar="FORMAT", rich_help_panel="Output", help="csv | pos | geojson | kml | nmea | parquet: format of the positions (default: from the -o extension, else csv).", show_default="csv"),
     time_system: TimeSystem = None,
     lag: Lag = None,
     kernel: Kernel = None,
@@ -59,15 +75,15 @@ def solve(
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
     processes: Processes = None,
-    model_out: Optional[Path] = typer.Option(None, "--model-out", help="Write what each multi-epoch method ran and its window models (kernels, poles, misfits, statuses) here (JSON).", show_default="none"),
-    plots: Optional[Path] = typer.Option(None, "--plots", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
-    report: Optional[Path] = typer.Option(None, "--report", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
-    print_config: bool = typer.Option(False, "--print-config", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
+    model_out: Optional[Path] = typer.Option(None, "--model-out", metavar="FILE", rich_help_panel="Output", help="Write what each multi-epoch method ran and its window models (kernels, poles, misfits, statuses) here (JSON).", show_default="none"),
+    plots: Optional[Path] = typer.Option(None, "--plots", metavar="DIR", rich_help_panel="Output", help="Write the figures (PNG: errors, ellipses, GDOP, track, sky plot, satellites, residuals) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
+    report: Optional[Path] = typer.Option(None, "--report", metavar="FILE", rich_help_panel="Output", help="Write one self-contained HTML page: settings, summary table, figures; needs matplotlib.", show_default="none"),
+    print_config: bool = typer.Option(False, "--print-config", rich_help_panel="Run", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
     model: OldModel = None,
     smoother: OldSmoother = None,
     quiet: Quiet = False,
     debug: Debug = False,
-    version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, help="Print the version and exit."),
+    version: bool = typer.Option(False, "--version", callback=version_callback("gnss-solve"), is_eager=True, rich_help_panel="Run", help="Print the version and exit."),
 ) -> None:
     """Solve every epoch of OBS with the broadcast orbits of NAV and write CSV tables."""
     values = dict(locals())

@@ -1,0 +1,102 @@
+"""The ``--help`` page of every command: options in panels, plain metavars, examples kept as written.
+
+Each option names its panel with Typer's ``rich_help_panel``. Typer draws panels only through
+Rich, which costs about 0.3 s of every ``--help`` (importing and rendering it; the target is
+``gnss-solve --help`` <= 0.3 s in all, ``benchmarks/bench_startup.py``), so the commands keep
+Click's plain-text formatter and :class:`PanelCommand` writes the panels with it:
+
+- one section per panel, in the order of :data:`PANELS`, the options in the order declared;
+  ``-h, --help`` in the last panel;
+- an option's value is its ``metavar`` (``FILE``, ``LIST``, ``METHOD[,METHOD...]``), never a
+  type name (``<str>``, ``<list[Path]>``); the usage line shows the arguments' metavars as
+  they are (``OBS NAV...``, not ``[OBS NAV [NAV]...]...``);
+- defaults read ``[default: wls]`` (the packaged value as written on the command line);
+- the epilog (the examples) is printed line for line, not re-wrapped, so an example can be
+  copied as it stands.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import typer.core
+
+PANELS = ("Inputs", "Scenario", "Errors", "Processing", "Model", "Multi-epoch", "Integrity", "Reference", "Output",
+          "Run")
+"""Panel titles in the order they are printed (a command shows the ones its options name)."""
+NAME_COLUMN = 24
+"""Width of the names column of every panel; a longer name (``-m, --method METHOD[,METHOD...]``)
+has its help text start on the next line."""
+
+
+class PanelCommand(typer.core.TyperCommand):
+    """A Typer command whose plain-text help groups the options by their ``rich_help_panel``.
+
+    Use as ``@app.command(cls=PanelCommand, epilog=...)``.
+    """
+
+    def collect_usage_pieces(self, ctx: Any) -> list[str]:
+        """``[OPTIONS]`` and each argument's metavar as declared (``OBS NAV...``)."""
+        pieces = [self.options_metavar] if self.options_metavar else []
+        for param in self.get_params(ctx):
+            if param.param_type_name == "argument" and not getattr(param, "hidden", False):
+                pieces.append(param.metavar or param.name.upper())
+        return pieces
+
+    def format_options(self, ctx: Any, formatter: Any) -> None:
+        """One section per panel (:data:`PANELS` order; an unnamed panel: ``Arguments`` / ``Options``)."""
+        help_option = self.get_help_option(ctx)
+        panels: dict[str, list[tuple[str, str]]] = {}
+        for param in self.get_params(ctx):
+            if getattr(param, "hidden", False) or param is help_option:
+                continue
+            default = "Arguments" if param.param_type_name == "argument" else "Options"
+            panels.setdefault(getattr(param, "rich_help_panel", None) or default, []).append(help_record(param))
+        order = sorted(panels, key=lambda p: PANELS.index(p) if p in PANELS else -1 if p == "Arguments" else len(PANELS))
+        if help_option is not None:
+            panels.setdefault(order[-1] if order else "Options", []).append(help_record(help_option))
+            order = order or ["Options"]
+        # one column for the help texts of every panel; a longer name puts its text on the next line
+        width = min(max(len(name) for rows in panels.values() for name, _ in rows), NAME_COLUMN)
+        for title in order:
+            with formatter.section(title):
+                formatter.write_dl([(name.ljust(width), text) for name, text in panels[title]], col_max=width)
+
+    def format_epilog(self, ctx: Any, formatter: Any) -> None:
+        """The epilog line for line (examples are not re-wrapped), indented like a section."""
+        if not self.epilog:
+            return
+        formatter.write_paragraph()
+        for line in self.epilog.strip("\n").splitlines():
+            formatter.write(f"{'':>{formatter.current_indent}}{line}".rstrip() + "\n")
+
+
+def help_record(param: Any) -> tuple[str, str]:
+    """``(names, help)`` of one parameter: ``-m, --method METHOD[,METHOD...]`` and its help text
+    with ``[default: wls]`` (or ``[required]``).
+
+    >>> import typer.core
+    >>> help_record(typer.core.TyperOption(param_decls=["--lag"], type_descriptor=None, metavar="L", help="Lag.",
+    ...                                    show_default="3"))
+    ('--lag L', 'Lag.  [default: 3]')
+    """
+    metavar = param.metavar or param.name.upper()
+    if param.param_type_name == "argument":
+        names = metavar
+    else:
+        names = ", ".join(sorted(param.opts, key=lambda opt: opt.startswith("--")))
+        if param.secondary_opts:
+            names += " / " + ", ".join(param.secondary_opts)
+        if not param.is_flag:
+            names += f" {metavar}"
+    extra = []
+    if isinstance(param.show_default, str):
+        extra.append(f"default: {param.show_default}")
+    elif param.show_default and param.default is not None and not getattr(param, "is_flag", False):
+        extra.append(f"default: {param.default}")
+    if param.required:
+        extra.append("required")
+    text = param.help or ""
+    if extra:
+        text = f"{text}  [{'; '.join(extra)}]" if text else f"[{'; '.join(extra)}]"
+    return names, text
