@@ -1,4 +1,4 @@
-"""The "Measured results" page: one Markdown table per JSON file in ``benchmarks/results/``.
+"""The "Benchmark tables" page: one Markdown table per JSON file in ``benchmarks/results/``.
 
 A result file that has ``"title"``, ``"command"`` and ``"table": {"columns": [...], "rows":
 [[...], ...]}`` (and optionally ``"notes"``, a string) becomes a section: the title, the
@@ -7,7 +7,7 @@ written before that shape; :data:`ADAPTERS` turns their numbers into the same fi
 neither shape is listed by name at the end, so nothing is dropped silently.
 
 Usage: ``python benchmarks/results_page.py [RESULTS_DIR] > measured.md``; the MkDocs hook
-(``tools/mkdocs_hooks.py``) runs it at every build into the page ``measured-results.md``.
+(``tools/mkdocs_hooks.py``) runs it at every build into the page ``benchmark-tables.md``.
 """
 
 from __future__ import annotations
@@ -84,10 +84,10 @@ def section(data: dict[str, Any], source: str) -> str:
 
 def page(results: Path = RESULTS) -> str:
     """The whole page: a section per result file, then the files of another shape by name."""
-    lines = ["# Measured results", "",
+    lines = ["# Benchmark tables", "",
              "Every table below is made at build time from a JSON file the benchmark wrote into "
              "`benchmarks/results/`; rerun its command to measure again. What each experiment means "
-             "is in [Results](results.md).", ""]
+             "is in [Measured results](results.md).", ""]
     other = []
     files = sorted(results.glob("*.json")) if results.is_dir() else []
     for path in files:

@@ -2,7 +2,7 @@
 
 - ``reference/<command>.md``: one page per console script, from its Typer app
   (``tools/cli_reference.py``);
-- ``measured-results.md``: the tables of ``benchmarks/results/*.json``
+- ``benchmark-tables.md``: the tables of ``benchmarks/results/*.json``
   (``benchmarks/results_page.py``);
 - ``overview.md``: the README, its ``docs/`` links made relative to the site.
 
@@ -40,7 +40,7 @@ def on_files(files: Files, config: Any) -> Files:
     results_page = _load(ROOT / "benchmarks" / "results_page.py")
     for name, text in cli_reference.pages().items():
         files.append(File.generated(config, f"reference/{name}.md", content=text))
-    files.append(File.generated(config, "measured-results.md", content=results_page.page()))
+    files.append(File.generated(config, "benchmark-tables.md", content=results_page.page()))
     files.append(File.generated(config, "overview.md", content=readme_page((ROOT / "README.md").read_text("utf-8"))))
     return files
 

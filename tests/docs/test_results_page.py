@@ -1,4 +1,4 @@
-"""The "Measured results" page: a table per result file, with its command; the older shapes are
+"""The "Benchmark tables" page: a table per result file, with its command; the older shapes are
 adapted; a file of no known shape is listed, never dropped."""
 
 from __future__ import annotations
