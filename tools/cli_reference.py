@@ -71,7 +71,7 @@ def command_page(name: str, app: typer.Typer) -> str:
         groups.setdefault(panel, []).append(record)
     lines = [f"# {name}", "", _paragraphs(command.help), "", "```text", command.get_usage(ctx), "```", ""]
     for panel, records in groups.items():
-        lines += [f"## {panel}", "", "| option | description |", "|---|---|"]
+        lines += [f"## {panel}", "", "| argument or option | description |", "|---|---|"]
         lines += [f"| `{opts}` | {_cell(help_text)} |" for opts, help_text in records]
         lines.append("")
     epilog = _paragraphs(command.epilog)
