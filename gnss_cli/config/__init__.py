@@ -95,7 +95,15 @@ class ProcessingConfig:
     integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
     alert_limit_h_m: float = float("inf")
-    """An ``ok`` ls/wls epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
+    """An ``ok`` epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
+    alert_limit_v_m: float = float("inf")
+    """An ``ok`` epoch whose VPL exceeds this (m) gets ``vpl_limit``; inf: no limit (see default.toml)."""
+    integrity_risk: float = 1e-3
+    """Probability per epoch that the error exceeds a protection level (solution separation)."""
+    prior_fault_satellite: float = 1e-3
+    """Prior probability per epoch that one satellite's pseudorange is faulty."""
+    prior_fault_constellation: float = 1e-4
+    """Prior probability per epoch that a whole constellation is faulty."""
     max_exclusions: int = 4
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
@@ -217,8 +225,12 @@ class ProcessingConfig:
                               f"received {self.fde_min_dof}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
-        if not self.alert_limit_h_m > 0:
-            raise ConfigError(f"alert_limit_h_m: expected > 0 (inf: no limit); received {self.alert_limit_h_m}")
+        for name in ("alert_limit_h_m", "alert_limit_v_m"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name}: expected > 0 (inf: no limit); received {getattr(self, name)}")
+        for name in ("integrity_risk", "prior_fault_satellite", "prior_fault_constellation"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ConfigError(f"{name}: expected 0 < value < 1; received {getattr(self, name)}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
@@ -316,6 +328,7 @@ _SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "ka
 _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m",
+           "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
            "phase_sigma_m", "phase_slip_m")
 _INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
