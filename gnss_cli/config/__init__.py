@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "load_config",
     "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
+    "parse_alert_limits",
     "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
     "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "RENAMED",
 ]
@@ -283,6 +284,22 @@ def parse_satellites(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...
         if item:
             out.append(f"{item[0]}{int(item[1:]):02d}" if item[1:].isdigit() else item)
     return tuple(out)
+
+
+def parse_alert_limits(value: str) -> tuple[float, float]:
+    """``"H,V"`` (m; ``inf`` for none) -> ``(alert_limit_h_m, alert_limit_v_m)``.
+
+    >>> parse_alert_limits("40, inf")
+    (40.0, inf)
+    """
+    parts = [p.strip() for p in str(value).split(",")]
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        h, v = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ConfigError(f"alert limits: expected H,V in metres (inf: no limit), e.g. 40,60; received {value!r}") from None
+    return h, v
 
 
 RENAMED = {

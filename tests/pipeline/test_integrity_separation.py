@@ -223,3 +223,36 @@ def test_new_settings_are_validated():
                       {"alert_limit_v_m": 0.0}):
         with pytest.raises(ConfigError):
             load_config(None, overrides)
+
+
+def test_alert_limit_flag_sets_both_keys_and_the_statuses(rinex_dir, tmp_path):
+    import pandas as pd
+    import typer
+    from typer.testing import CliRunner
+
+    from gnss_cli.cli import batch as batch_cli
+    from gnss_cli.cli import solve as solve_cli
+    from gnss_cli.cli.options import run_config
+    from gnss_cli.config import packaged_defaults
+
+    toml = packaged_defaults()["processing"]
+    for app in (solve_cli.app, batch_cli.app):
+        opt = {o: p for p in typer.main.get_command(app).params for o in getattr(p, "opts", [])}["--alert-limit"]
+        assert opt.default is None and opt.show_default == f"{toml['alert_limit_h_m']},{toml['alert_limit_v_m']}"
+    cfg = run_config(None, {"alert_limit": "35, 60"})
+    assert (cfg.alert_limit_h_m, cfg.alert_limit_v_m) == (35.0, 60.0)
+    with pytest.raises(ConfigError):
+        run_config(None, {"alert_limit": "35"})
+    d = rinex_dir / "rtklib-0759"
+    out = tmp_path / "pos.csv"
+    res = CliRunner().invoke(solve_cli.app, [str(d / "07590920.05o"), str(d / "07590920.05n"), "--alert-limit", "36.9,inf",
+                                             "-o", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    table = pd.read_csv(out)
+    assert set(table["status"]) == {"ok", "hpl_limit"}
+    assert ((table["status"] == "hpl_limit") == (table["hpl_m"] > 36.9)).all()
+    from gnss_cli.cli.exits import run_app
+
+    with pytest.raises(SystemExit) as bad:  # a bad value is a configuration error: exit 3
+        run_app(solve_cli.app, "gnss-solve", [str(d / "07590920.05o"), str(d / "07590920.05n"), "--alert-limit", "x,1"])
+    assert bad.value.code == 3
