@@ -93,7 +93,6 @@ class ProcessingConfig:
     integrity: str = "fde"
     """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
     integrity_pfa: float = 1e-3
-    integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
     alert_limit_h_m: float = float("inf")
     """An ``ok`` epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
@@ -216,7 +215,7 @@ class ProcessingConfig:
     def _validate_integrity(self) -> None:
         if self.integrity not in INTEGRITY_OPTIONS:
             raise ConfigError(f"integrity: expected one of {', '.join(INTEGRITY_OPTIONS)}; received {self.integrity!r}")
-        for name in ("integrity_pfa", "integrity_pmd"):
+        for name in ("integrity_pfa",):
             if not 0.0 < getattr(self, name) < 0.5:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
         if self.max_exclusions < 0:
@@ -303,6 +302,8 @@ def parse_alert_limits(value: str) -> tuple[float, float]:
 
 
 RENAMED = {
+    "integrity_pmd": "integrity_pmd is gone with the slope-based protection levels: the solution-separation "
+                     "levels take integrity_risk, prior_fault_satellite and prior_fault_constellation",
     "[smoothing]": "the section [smoothing] is gone: lag, kernel, order, window, tolerance, max_iterations are "
                    "[stls] keys (the identified Hankel STLS, methods = ['stls'] with stls.lag >= 1); model = 'doppler' "
                    "is methods = ['smoother'] with [smoother] motion and lag; carrier_phase is [processing] "
@@ -344,7 +345,7 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 _SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman")
 _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
-_FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m",
+_FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
            "phase_sigma_m", "phase_slip_m")
@@ -359,6 +360,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(_SECTIONS)}")
     proc = dict(data.get("processing", {}))
+    if "integrity_pmd" in proc:
+        raise ConfigError(f"{source}: {RENAMED['integrity_pmd']}")
     names = {f.name for f in fields(ProcessingConfig)} - _OWN_TABLES
     bad = set(proc) - names
     if bad:

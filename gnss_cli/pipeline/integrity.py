@@ -1,6 +1,6 @@
 """Integrity monitoring of the snapshot fixes: chi-square test, fault detection and exclusion
-(FDE), protection levels, GDOP limit for ls/wls (:func:`monitor`); the chi-square test and GDOP
-limit for the methods solved once at the WLS fix, tls, dls, mtls, stls and wtls
+(FDE), protection levels by solution separation, GDOP and alert limits for ls/wls
+(:func:`monitor`); the chi-square test and GDOP limit for the methods solved once at the WLS fix, tls, dls, mtls, stls and wtls
 (:func:`monitor_fixes`: the test at each method's own fix, last paragraph).
 
 At the converged fix of an epoch, with the used satellite rows ``A`` (``n x (3 + k)``), the
@@ -11,8 +11,8 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   the clock constraint rows of absent systems are not observations), ``dof = n - (3 + k)``
   (``k``: clocks of the systems with satellites in the epoch);
 - the test fails when ``T > chi2.isf(pfa, dof)`` (``integrity_pfa``); with ``dof = 0`` there is
-  no redundancy and nothing to test (the epoch passes, as in RTKLIB's ``valsol``, with empty
-  protection levels);
+  no redundancy and nothing to test: the epoch is ``untested`` (position kept, no protection
+  level; RTKLIB's ``valsol`` lets it pass);
 - w-test: ``w_i = |r_i| / sqrt(Qr_ii)``, ``Qr = (I - A K) Sigma (I - A K)^T`` the residual
   covariance. FDE excludes the satellite with the largest ``w_i`` and solves the epoch again
   (Gauss-Newton from the previous fix) while the test fails, ``dof >= fde_min_dof`` (default 3:
@@ -20,15 +20,32 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   cannot tell a second fault) and fewer than ``max_exclusions`` satellites are out;
   several satellites per epoch may go, one per round.
   Each round works on the still-failing epochs only, stacked.
-- protection levels, classic slope-based RAIM (Brown 1992; the weighted form of Walter and
-  Enge 1995): a bias ``b`` on satellite ``i`` moves the position by ``K_i b`` (ENU) and the test
-  statistic's noncentrality by ``lambda = b^2 m_ii``, ``m = (I - A K)^T W (I - A K)`` (for wls
-  ``m_ii = (1 - h_ii) / sigma_i^2``). With ``Hslope_i = |K_E,i, K_N,i| / sqrt(m_ii)``,
-  ``Vslope_i = |K_U,i| / sqrt(m_ii)`` and ``lambda*`` the noncentrality at which a noncentral
-  chi-square with ``dof`` degrees of freedom stays below the threshold with probability
-  ``integrity_pmd``: ``HPL = max_i Hslope_i sqrt(lambda*)``, ``VPL = max_i Vslope_i sqrt(lambda*)``.
-  (The bias on one satellite that the test misses with probability ``pmd`` gives at most
-  this error; noise is not added on top, as in the classic formulation.)
+
+Solution separation (ARAIM-style, Blanch et al. 2015; the simplified protection level of the
+ARAIM Airborne Algorithm Description Document): the fault hypotheses are each used satellite
+and, with several systems in the epoch, each constellation of two or more satellites (all of
+them out), where the remaining subset still solves (a subset that leaves a system without
+satellites fixes that clock by a pseudo-observation). For hypothesis ``k`` the subset solution
+``x_k`` (one linear step at the fix, :func:`separate_subsets`: the normal matrix less the left-out
+rows' outer products), the separation ``Delta_k = x_k - x_0`` in ENU and its standard deviation
+per axis ``sigma_ss,k,q`` from ``(K_k - K_0) Sigma (K_k - K_0)^T`` (``sigma_k^2 - sigma_0^2`` for
+wls). With ``N_h`` hypotheses, prior fault probabilities ``p_k`` (``prior_fault_satellite``,
+``prior_fault_constellation``), the risk ``IR = integrity_risk - P_nm`` left after the faults no
+hypothesis covers (``P_nm``: two or more satellites at once, constellation faults with one
+constellation, hypotheses whose subset cannot solve) and split ``1/4, 1/4, 1/2`` over E, N, U
+(``integrity_pfa`` split the same way):
+
+- threshold ``T_k,q = K_fa,q sigma_ss,k,q``, ``K_fa,q = Q^-1(pfa_q / (2 N_h))``; the separation test
+  detects a fault when some ``|Delta_k,q| > T_k,q``;
+- ``PL_q = max(K_ff,q sigma_0,q, max_k (T_k,q + K_md,k,q sigma_k,q))``,
+  ``K_ff,q = Q^-1(IR_q / (2 (N_h + 1)))``, ``K_md,k,q = Q^-1(IR_q / (p_k (N_h + 1)))`` (at least 0);
+  ``VPL = PL_U``, ``HPL = hypot(PL_E, PL_N)`` (each horizontal axis bounded at half the
+  horizontal risk, combined conservatively); infinite when ``P_nm >= integrity_risk``.
+
+A fault the test misses leaves the fault-free subset within ``K_md sigma_k`` of the truth and
+the full fix within ``T_k`` of that subset: the error stays within the level except with the
+allocated probability. The chi-square test decides the exclusions; an epoch whose separation
+test still detects a fault after them is ``integrity_fail`` too (its levels do not hold).
 
 With a robust estimator (``robust = "huber" | "cauchy"``, :func:`gnss_cli.pipeline.snapshot.solve_method`)
 the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(w_i / sigma_i^2)``
@@ -36,7 +53,7 @@ the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(
 ``r = (I - A K) q = q``: the statistic is the sum of the squared final (reweighted) residuals over
 the a-priori variances, ``T = sum_i r_i^2 / sigma_i^2``, with the same threshold and ``dof``. A
 fault the robust fit down-weights keeps its large residual, so the test still fails and the
-status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` and the slopes with the
+status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` with the
 same ``K``) and the epoch is solved again, robustly. The protection levels are those of the
 linear estimator with the final weights (a first-order description of the M-estimate).
 
@@ -45,9 +62,10 @@ large fault can keep Gauss-Newton from converging (measured: a 250 m bias left a
 static fix oscillating across Saastamoinen's -100 m height cut-off), and excluding it lets the
 epoch converge; ones that still do not converge keep the status with empty numbers.
 Epochs that still fail get ``integrity_fail``; epochs that pass but have ``GDOP > max_gdop``
-get ``gdop_limit``; epochs that pass with a horizontal protection level above
-``alert_limit_h_m`` get ``hpl_limit`` (an epoch without redundancy has no protection level and
-is not limited). All keep their position.
+get ``gdop_limit``; epochs without redundancy ``untested``; epochs that pass with a horizontal
+protection level above ``alert_limit_h_m`` get ``hpl_limit``, with a vertical one above
+``alert_limit_v_m`` ``vpl_limit`` (:func:`final_status`). All keep their position. With
+``integrity = "off"`` nothing is tested and the solver's word stays (``ok``: solved, not tested).
 
 The other methods take one step at the final WLS fix with the WLS epoch's satellites (after its
 exclusions) and weights. Their fix gets the same test at its own estimate (:func:`check_fixes`):
@@ -55,8 +73,10 @@ exclusions) and weights. Their fix gets the same test at its own estimate (:func
 method's position and clocks (the physical model, not the method's own misfit: an
 errors-in-variables estimator also moves ``A``), the WLS sigmas, ``dof = n - (3 + k)`` and the
 same threshold; then the method's own GDOP against ``max_gdop``. Nothing is excluded for them
-(they have the WLS set); ``dof = 0`` passes as above; ``hpl_limit`` comes from the WLS epoch (no
-protection levels of their own). With ``integrity = "off"`` they keep the WLS epoch's word.
+(they have the WLS set); ``dof = 0`` is ``untested`` as above (for a multi-epoch row, tested
+with ``position_unknowns = 0``, ``dof = n - k``); ``hpl_limit`` and ``vpl_limit`` come from the
+WLS epoch (no protection levels of their own). With ``integrity = "off"`` they keep the WLS
+epoch's word.
 """
 
 from __future__ import annotations
@@ -67,14 +87,15 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import chdtri, chndtrinc, ndtri
+from scipy.special import chdtri, ndtri
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.range_model import ISB_CONSTRAINT_VAR_M2, linearize, width_groups
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
-__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality",
-           "FixCheck", "check_fixes", "monitor_fixes"]
+__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold",
+           "FixCheck", "check_fixes", "monitor_fixes", "Separation", "separate_subsets", "separation_levels",
+           "final_status"]
 
 F64 = NDArray[np.float64]
 Solver = Callable[[EpochData, F64, F64], MethodSolution]
@@ -94,15 +115,6 @@ def chi2_threshold(dof: int, pfa: float) -> float:
     return float(chdtri(dof, pfa))
 
 
-@lru_cache(maxsize=256)
-def noncentrality(dof: int, pfa: float, pmd: float) -> float:
-    """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``: the noncentrality the
-    test misses with probability ``pmd`` (:func:`scipy.special.chndtrinc`); NaN for ``dof < 1``."""
-    if dof < 1:
-        return float("nan")
-    return float(chndtrinc(chi2_threshold(dof, pfa), dof, pmd))
-
-
 @dataclass
 class IntegrityCheck:
     """The test of ``t`` epochs: statistic, degrees of freedom, pass, worst satellite, PLs."""
@@ -114,7 +126,7 @@ class IntegrityCheck:
     hpl_m: F64
     vpl_m: F64
     separated: NDArray[np.bool_]
-    """The solution-separation test detected a fault (``passed`` is then False)."""
+    """The solution-separation test detected a fault (``passed``: the chi-square test only)."""
 
 
 def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool,
@@ -162,8 +174,7 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
                                                         lin.rot[t], n, config)
     # the satellite (column of data.sv) of the largest w-test; 0 when no satellite is used
     worst = np.where(sat.any(axis=1), np.take_along_axis(lin.sv_index, np.argmax(wtest, axis=1)[:, None], 1)[:, 0], 0)
-    return IntegrityCheck(stat=stat, dof=dof, passed=(stat <= thr) & ~detected, worst=worst, hpl_m=hpl, vpl_m=vpl,
-                          separated=detected)
+    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst, hpl_m=hpl, vpl_m=vpl, separated=detected)
 
 
 @dataclass
@@ -387,7 +398,7 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     while rows.size:
         chk = _check_blocks(data, sol, rows, excluded, config, weighted)
         stat[rows], hpl[rows], vpl[rows], dof[rows] = chk.stat, chk.hpl_m, chk.vpl_m, chk.dof
-        failed[rows] = ~chk.passed
+        failed[rows] = ~chk.passed | chk.separated  # exclusion on the chi-square test alone (below)
         if config.integrity != "fde":
             break
         retry = ~chk.passed & (chk.dof >= config.fde_min_dof) & (excluded[rows].sum(axis=1) < config.max_exclusions)
