@@ -256,3 +256,22 @@ def test_alert_limit_flag_sets_both_keys_and_the_statuses(rinex_dir, tmp_path):
     with pytest.raises(SystemExit) as bad:  # a bad value is a configuration error: exit 3
         run_app(solve_cli.app, "gnss-solve", [str(d / "07590920.05o"), str(d / "07590920.05n"), "--alert-limit", "x,1"])
     assert bad.value.code == 3
+
+
+def test_a_multi_epoch_row_without_redundancy_is_untested(data_0759):
+    """A multi-epoch row is tested with ``n - k`` degrees of freedom (its position is fixed by
+    several epochs): with one satellite of one system nothing is left to test (``untested``);
+    with two it is tested, as ``monitor_fixes(..., position_unknowns=0)`` does for them."""
+    from gnss_cli.pipeline.integrity import monitor_fixes
+
+    cfg = load_config()
+    wls = solve_method(data_0759, "wls", cfg)
+    rows = np.arange(30, 40)
+    for keep, word in ((1, "untested"), (2, "ok")):
+        sigma = wls.sigma_m.copy()
+        for r in rows:
+            sigma[r, np.flatnonzero(np.isfinite(sigma[r]))[keep:]] = np.nan
+        out = monitor_fixes(data_0759, replace(wls, sigma_m=sigma), wls.status, cfg, position_unknowns=0)
+        assert (out.status[rows] == word).all() and np.isfinite(out.x_ecef_m[rows]).all()
+        others = np.setdiff1d(np.arange(120), rows)
+        assert (out.status[others] == wls.status[others]).all()
