@@ -63,6 +63,7 @@ OldModel = Annotated[Optional[str], typer.Option("--model", hidden=True, help="R
 OldSmoother = Annotated[Optional[str], typer.Option("--smoother", hidden=True, help="Replaced by --kf-output.")]
 Robust = Annotated[Optional[str], typer.Option("--robust", metavar="MODE", rich_help_panel="Integrity", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=shown(_PROC.get("robust")))]
 Integrity = Annotated[Optional[str], typer.Option("--integrity", metavar="MODE", rich_help_panel="Integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
+AlertLimit = Annotated[Optional[str], typer.Option("--alert-limit", metavar="H,V", rich_help_panel="Integrity", help="Horizontal and vertical alert limits, m (inf: none): an epoch whose protection level exceeds one is hpl_limit / vpl_limit, not ok.", show_default=f"{_PROC.get('alert_limit_h_m')},{_PROC.get('alert_limit_v_m')}")]
 Exclude = Annotated[Optional[str], typer.Option("--exclude", metavar="LIST", rich_help_panel="Processing", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
 SnrMask = Annotated[Optional[float], typer.Option("--snr-mask", metavar="DBHZ", rich_help_panel="Processing", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=shown(_PROC.get("snr_mask_dbhz")))]
 Processes = Annotated[Optional[int], typer.Option("--processes", rich_help_panel="Run", metavar="N", help="Processes that read and solve the parts of a day file at once (snapshot methods, CSV); 0 = one per core, 1 = this one only.", show_default=shown(_PROC.get("processes")))]
@@ -96,10 +97,14 @@ def run_config(config: Optional[Path], values: Mapping[str, Any]) -> Any:
     (flags > ``config`` TOML > packaged defaults); only the names of :data:`CONFIG_KEYS` are used."""
     from gnss_cli.config import load_config
 
+    from gnss_cli.config import parse_alert_limits
+
     overrides: dict[str, Any] = {}
     for name, keys in CONFIG_KEYS.items():
         for key in (keys,) if isinstance(keys, str) else keys:
             overrides[key] = values.get(name)
+    if values.get("alert_limit") is not None:  # one flag, two keys
+        overrides["alert_limit_h_m"], overrides["alert_limit_v_m"] = parse_alert_limits(values["alert_limit"])
     return load_config(config, overrides)
 
 

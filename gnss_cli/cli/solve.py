@@ -20,7 +20,7 @@ import typer
 from gnss_cli.cli.exits import HELP_OPTIONS, mark_missing, run_app, single_blas_thread, version_callback, without_dask
 from gnss_cli.cli.help import PanelCommand
 from gnss_cli.cli.options import (
-    Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method,
+    AlertLimit, Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method,
     Motion, OldModel, OldSmoother, Order, Processes, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex,
     Robust, SnrMask, Systems, TimeSystem, Tropo, Window, check_method_flags, check_old_spellings,
     check_reference_options, reference_inputs, run_config,
@@ -71,6 +71,7 @@ def solve(
     kf_model: KfModel = None,
     kf_output: KfOutput = None,
     integrity: Integrity = None,
+    alert_limit: AlertLimit = None,
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
@@ -203,7 +204,7 @@ def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cf
     settings = solve_settings(files, cfg, run.result, reference)
     title = f"gnss-solve: {Path(files[0]).name}"
     stage_figures(outputs, targets, run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg,
-                                                  (cfg.alert_limit_h_m, float("inf"))), RUN_FIGURES,
+                                                  (cfg.alert_limit_h_m, cfg.alert_limit_v_m)), RUN_FIGURES,
                   lambda figs: html_report(title, figs, run.summary, settings))
 
 

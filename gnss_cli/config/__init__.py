@@ -43,6 +43,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "load_config",
     "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
+    "parse_alert_limits",
     "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
     "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "RENAMED",
 ]
@@ -92,10 +93,17 @@ class ProcessingConfig:
     integrity: str = "fde"
     """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
     integrity_pfa: float = 1e-3
-    integrity_pmd: float = 1e-3
     max_gdop: float = 30.0
     alert_limit_h_m: float = float("inf")
-    """An ``ok`` ls/wls epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
+    """An ``ok`` epoch whose HPL exceeds this (m) gets ``hpl_limit``; inf: no limit (see default.toml)."""
+    alert_limit_v_m: float = float("inf")
+    """An ``ok`` epoch whose VPL exceeds this (m) gets ``vpl_limit``; inf: no limit (see default.toml)."""
+    integrity_risk: float = 1e-3
+    """Probability per epoch that the error exceeds a protection level (solution separation)."""
+    prior_fault_satellite: float = 1e-3
+    """Prior probability per epoch that one satellite's pseudorange is faulty."""
+    prior_fault_constellation: float = 1e-4
+    """Prior probability per epoch that a whole constellation is faulty."""
     max_exclusions: int = 4
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
@@ -207,7 +215,7 @@ class ProcessingConfig:
     def _validate_integrity(self) -> None:
         if self.integrity not in INTEGRITY_OPTIONS:
             raise ConfigError(f"integrity: expected one of {', '.join(INTEGRITY_OPTIONS)}; received {self.integrity!r}")
-        for name in ("integrity_pfa", "integrity_pmd"):
+        for name in ("integrity_pfa",):
             if not 0.0 < getattr(self, name) < 0.5:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
         if self.max_exclusions < 0:
@@ -217,8 +225,12 @@ class ProcessingConfig:
                               f"received {self.fde_min_dof}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
-        if not self.alert_limit_h_m > 0:
-            raise ConfigError(f"alert_limit_h_m: expected > 0 (inf: no limit); received {self.alert_limit_h_m}")
+        for name in ("alert_limit_h_m", "alert_limit_v_m"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name}: expected > 0 (inf: no limit); received {getattr(self, name)}")
+        for name in ("integrity_risk", "prior_fault_satellite", "prior_fault_constellation"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ConfigError(f"{name}: expected 0 < value < 1; received {getattr(self, name)}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
@@ -273,7 +285,25 @@ def parse_satellites(value: str | list[str] | tuple[str, ...]) -> tuple[str, ...
     return tuple(out)
 
 
+def parse_alert_limits(value: str) -> tuple[float, float]:
+    """``"H,V"`` (m; ``inf`` for none) -> ``(alert_limit_h_m, alert_limit_v_m)``.
+
+    >>> parse_alert_limits("40, inf")
+    (40.0, inf)
+    """
+    parts = [p.strip() for p in str(value).split(",")]
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        h, v = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise ConfigError(f"alert limits: expected H,V in metres (inf: no limit), e.g. 40,60; received {value!r}") from None
+    return h, v
+
+
 RENAMED = {
+    "integrity_pmd": "integrity_pmd is gone with the slope-based protection levels: the solution-separation "
+                     "levels take integrity_risk, prior_fault_satellite and prior_fault_constellation",
     "[smoothing]": "the section [smoothing] is gone: lag, kernel, order, window, tolerance, max_iterations are "
                    "[stls] keys (the identified Hankel STLS, methods = ['stls'] with stls.lag >= 1); model = 'doppler' "
                    "is methods = ['smoother'] with [smoother] motion and lag; carrier_phase is [processing] "
@@ -315,7 +345,8 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 _SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman")
 _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
-_FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "integrity_pmd", "max_gdop", "alert_limit_h_m",
+_FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
+           "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
            "phase_sigma_m", "phase_slip_m")
 _INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
@@ -329,6 +360,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
     if unknown:
         raise ConfigError(f"{source}: unknown section(s) {sorted(unknown)}; expected {sorted(_SECTIONS)}")
     proc = dict(data.get("processing", {}))
+    if "integrity_pmd" in proc:
+        raise ConfigError(f"{source}: {RENAMED['integrity_pmd']}")
     names = {f.name for f in fields(ProcessingConfig)} - _OWN_TABLES
     bad = set(proc) - names
     if bad:

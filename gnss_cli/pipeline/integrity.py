@@ -1,6 +1,6 @@
 """Integrity monitoring of the snapshot fixes: chi-square test, fault detection and exclusion
-(FDE), protection levels, GDOP limit for ls/wls (:func:`monitor`); the chi-square test and GDOP
-limit for the methods solved once at the WLS fix, tls, dls, mtls, stls and wtls
+(FDE), protection levels by solution separation, GDOP and alert limits for ls/wls
+(:func:`monitor`); the chi-square test and GDOP limit for the methods solved once at the WLS fix, tls, dls, mtls, stls and wtls
 (:func:`monitor_fixes`: the test at each method's own fix, last paragraph).
 
 At the converged fix of an epoch, with the used satellite rows ``A`` (``n x (3 + k)``), the
@@ -11,8 +11,8 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   the clock constraint rows of absent systems are not observations), ``dof = n - (3 + k)``
   (``k``: clocks of the systems with satellites in the epoch);
 - the test fails when ``T > chi2.isf(pfa, dof)`` (``integrity_pfa``); with ``dof = 0`` there is
-  no redundancy and nothing to test (the epoch passes, as in RTKLIB's ``valsol``, with empty
-  protection levels);
+  no redundancy and nothing to test: the epoch is ``untested`` (position kept, no protection
+  level; RTKLIB's ``valsol`` lets it pass);
 - w-test: ``w_i = |r_i| / sqrt(Qr_ii)``, ``Qr = (I - A K) Sigma (I - A K)^T`` the residual
   covariance. FDE excludes the satellite with the largest ``w_i`` and solves the epoch again
   (Gauss-Newton from the previous fix) while the test fails, ``dof >= fde_min_dof`` (default 3:
@@ -20,15 +20,32 @@ and the estimator's gain ``K = (A^T W_e A)^-1 A^T W_e`` (``W_e = W`` for wls, ``
   cannot tell a second fault) and fewer than ``max_exclusions`` satellites are out;
   several satellites per epoch may go, one per round.
   Each round works on the still-failing epochs only, stacked.
-- protection levels, classic slope-based RAIM (Brown 1992; the weighted form of Walter and
-  Enge 1995): a bias ``b`` on satellite ``i`` moves the position by ``K_i b`` (ENU) and the test
-  statistic's noncentrality by ``lambda = b^2 m_ii``, ``m = (I - A K)^T W (I - A K)`` (for wls
-  ``m_ii = (1 - h_ii) / sigma_i^2``). With ``Hslope_i = |K_E,i, K_N,i| / sqrt(m_ii)``,
-  ``Vslope_i = |K_U,i| / sqrt(m_ii)`` and ``lambda*`` the noncentrality at which a noncentral
-  chi-square with ``dof`` degrees of freedom stays below the threshold with probability
-  ``integrity_pmd``: ``HPL = max_i Hslope_i sqrt(lambda*)``, ``VPL = max_i Vslope_i sqrt(lambda*)``.
-  (The bias on one satellite that the test misses with probability ``pmd`` gives at most
-  this error; noise is not added on top, as in the classic formulation.)
+
+Solution separation (ARAIM-style, Blanch et al. 2015; the simplified protection level of the
+ARAIM Airborne Algorithm Description Document): the fault hypotheses are each used satellite
+and, with several systems in the epoch, each constellation of two or more satellites (all of
+them out), where the remaining subset still solves (a subset that leaves a system without
+satellites fixes that clock by a pseudo-observation). For hypothesis ``k`` the subset solution
+``x_k`` (one linear step at the fix, :func:`separate_subsets`: the normal matrix less the left-out
+rows' outer products), the separation ``Delta_k = x_k - x_0`` in ENU and its standard deviation
+per axis ``sigma_ss,k,q`` from ``(K_k - K_0) Sigma (K_k - K_0)^T`` (``sigma_k^2 - sigma_0^2`` for
+wls). With ``N_h`` hypotheses, prior fault probabilities ``p_k`` (``prior_fault_satellite``,
+``prior_fault_constellation``), the risk ``IR = integrity_risk - P_nm`` left after the faults no
+hypothesis covers (``P_nm``: two or more satellites at once, constellation faults with one
+constellation, hypotheses whose subset cannot solve) and split ``1/4, 1/4, 1/2`` over E, N, U
+(``integrity_pfa`` split the same way):
+
+- threshold ``T_k,q = K_fa,q sigma_ss,k,q``, ``K_fa,q = Q^-1(pfa_q / (2 N_h))``; the separation test
+  detects a fault when some ``|Delta_k,q| > T_k,q``;
+- ``PL_q = max(K_ff,q sigma_0,q, max_k (T_k,q + K_md,k,q sigma_k,q))``,
+  ``K_ff,q = Q^-1(IR_q / (2 (N_h + 1)))``, ``K_md,k,q = Q^-1(IR_q / (p_k (N_h + 1)))`` (at least 0);
+  ``VPL = PL_U``, ``HPL = hypot(PL_E, PL_N)`` (each horizontal axis bounded at half the
+  horizontal risk, combined conservatively); infinite when ``P_nm >= integrity_risk``.
+
+A fault the test misses leaves the fault-free subset within ``K_md sigma_k`` of the truth and
+the full fix within ``T_k`` of that subset: the error stays within the level except with the
+allocated probability. The chi-square test decides the exclusions; an epoch whose separation
+test still detects a fault after them is ``integrity_fail`` too (its levels do not hold).
 
 With a robust estimator (``robust = "huber" | "cauchy"``, :func:`gnss_cli.pipeline.snapshot.solve_method`)
 the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(w_i / sigma_i^2)``
@@ -36,7 +53,7 @@ the fix is the M-estimate and ``K`` its gain at the final weights, ``W_e = diag(
 ``r = (I - A K) q = q``: the statistic is the sum of the squared final (reweighted) residuals over
 the a-priori variances, ``T = sum_i r_i^2 / sigma_i^2``, with the same threshold and ``dof``. A
 fault the robust fit down-weights keeps its large residual, so the test still fails and the
-status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` and the slopes with the
+status stays honest; ``fde`` then excludes it (largest w-test, ``Q_r`` with the
 same ``K``) and the epoch is solved again, robustly. The protection levels are those of the
 linear estimator with the final weights (a first-order description of the M-estimate).
 
@@ -45,9 +62,10 @@ large fault can keep Gauss-Newton from converging (measured: a 250 m bias left a
 static fix oscillating across Saastamoinen's -100 m height cut-off), and excluding it lets the
 epoch converge; ones that still do not converge keep the status with empty numbers.
 Epochs that still fail get ``integrity_fail``; epochs that pass but have ``GDOP > max_gdop``
-get ``gdop_limit``; epochs that pass with a horizontal protection level above
-``alert_limit_h_m`` get ``hpl_limit`` (an epoch without redundancy has no protection level and
-is not limited). All keep their position.
+get ``gdop_limit``; epochs without redundancy ``untested``; epochs that pass with a horizontal
+protection level above ``alert_limit_h_m`` get ``hpl_limit``, with a vertical one above
+``alert_limit_v_m`` ``vpl_limit`` (:func:`final_status`). All keep their position. With
+``integrity = "off"`` nothing is tested and the solver's word stays (``ok``: solved, not tested).
 
 The other methods take one step at the final WLS fix with the WLS epoch's satellites (after its
 exclusions) and weights. Their fix gets the same test at its own estimate (:func:`check_fixes`):
@@ -55,8 +73,10 @@ exclusions) and weights. Their fix gets the same test at its own estimate (:func
 method's position and clocks (the physical model, not the method's own misfit: an
 errors-in-variables estimator also moves ``A``), the WLS sigmas, ``dof = n - (3 + k)`` and the
 same threshold; then the method's own GDOP against ``max_gdop``. Nothing is excluded for them
-(they have the WLS set); ``dof = 0`` passes as above; ``hpl_limit`` comes from the WLS epoch (no
-protection levels of their own). With ``integrity = "off"`` they keep the WLS epoch's word.
+(they have the WLS set); ``dof = 0`` is ``untested`` as above (for a multi-epoch row, tested
+with ``position_unknowns = 0``, ``dof = n - k``); ``hpl_limit`` and ``vpl_limit`` come from the
+WLS epoch (no protection levels of their own). With ``integrity = "off"`` they keep the WLS
+epoch's word.
 """
 
 from __future__ import annotations
@@ -67,14 +87,15 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import chdtri, chndtrinc
+from scipy.special import chdtri, ndtri
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.range_model import linearize, width_groups
+from gnss_cli.gnss.range_model import ISB_CONSTRAINT_VAR_M2, linearize, width_groups
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
-__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold", "noncentrality",
-           "FixCheck", "check_fixes", "monitor_fixes"]
+__all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold",
+           "FixCheck", "check_fixes", "monitor_fixes", "Separation", "separate_subsets", "separation_levels",
+           "final_status"]
 
 F64 = NDArray[np.float64]
 Solver = Callable[[EpochData, F64, F64], MethodSolution]
@@ -94,15 +115,6 @@ def chi2_threshold(dof: int, pfa: float) -> float:
     return float(chdtri(dof, pfa))
 
 
-@lru_cache(maxsize=256)
-def noncentrality(dof: int, pfa: float, pmd: float) -> float:
-    """``lambda`` with ``P(ncx2(dof, lambda) < chi2.isf(pfa, dof)) = pmd``: the noncentrality the
-    test misses with probability ``pmd`` (:func:`scipy.special.chndtrinc`); NaN for ``dof < 1``."""
-    if dof < 1:
-        return float("nan")
-    return float(chndtrinc(chi2_threshold(dof, pfa), dof, pmd))
-
-
 @dataclass
 class IntegrityCheck:
     """The test of ``t`` epochs: statistic, degrees of freedom, pass, worst satellite, PLs."""
@@ -113,6 +125,8 @@ class IntegrityCheck:
     worst: NDArray[np.intp]
     hpl_m: F64
     vpl_m: F64
+    separated: NDArray[np.bool_]
+    """The solution-separation test detected a fault (``passed``: the chi-square test only)."""
 
 
 def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig, weighted: bool,
@@ -145,23 +159,173 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     h = np.einsum("tnm,tmn->tn", A, K)  # diag(A K)
     C = (K * (var * mask)[:, None, :]) @ np.swapaxes(K, 1, 2)  # K Sigma K^T (matmul: 5-20x faster than einsum)
     qr = var - 2.0 * h * var + np.sum((A @ C) * A, axis=2)
-    nw = np.swapaxes(A * w[..., None], 1, 2) @ A  # A^T W A
-    mii = w - 2.0 * h * w + np.sum((nw @ K) * K, axis=1)
     sat = mask[:, :n]
     stat = np.sum(np.where(sat, r[:, :n] ** 2 * w[:, :n], 0.0), axis=1)
     n_clocks = k - mask[:, n:].sum(axis=1) if k > 1 else np.ones(rows.size, dtype=np.int64)
     dof = sat.sum(axis=1) - 3 - n_clocks
     thr = np.array([chi2_threshold(int(d), config.integrity_pfa) for d in dof])
     wtest = np.where(sat, np.abs(r[:, :n]) / np.sqrt(np.clip(qr[:, :n], 1e-12, None)), -1.0)
-    ke = np.einsum("tij,tjn->tin", lin.rot, K[:, :3, :n])  # ENU rows of the position gain
-    root = np.sqrt(np.clip(mii[:, :n], 1e-30, None))
-    lam = np.array([noncentrality(int(d), config.integrity_pfa, config.integrity_pmd) for d in dof])
-    hslope = np.where(sat & (dof[:, None] >= 1), np.hypot(ke[:, 0], ke[:, 1]) / root, 0.0)
-    vslope = np.where(sat & (dof[:, None] >= 1), np.abs(ke[:, 2]) / root, 0.0)
+    tested = dof >= 1
+    hpl, vpl = np.full(rows.size, np.nan), np.full(rows.size, np.nan)
+    detected = np.zeros(rows.size, dtype=bool)
+    if tested.any():
+        t = np.flatnonzero(tested)
+        hpl[t], vpl[t], detected[t] = separation_levels(A[t], q[t], mask[t], var[t], np.where(mask, we, 0.0)[t],
+                                                        lin.rot[t], n, config)
     # the satellite (column of data.sv) of the largest w-test; 0 when no satellite is used
     worst = np.where(sat.any(axis=1), np.take_along_axis(lin.sv_index, np.argmax(wtest, axis=1)[:, None], 1)[:, 0], 0)
-    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst,
-                          hpl_m=hslope.max(axis=1) * np.sqrt(lam), vpl_m=vslope.max(axis=1) * np.sqrt(lam))
+    return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst, hpl_m=hpl, vpl_m=vpl, separated=detected)
+
+
+@dataclass
+class Separation:
+    """Subset solutions of ``t`` epochs under ``h`` fault hypotheses (:func:`separate_subsets`).
+
+    Attributes
+    ----------
+    delta : ``(t, h, m)`` subset minus full-set solution (the unknowns' units).
+    cov_delta : ``(t, h, m, m)`` covariance of ``delta``.
+    cov_subset : ``(t, h, m, m)`` covariance of each subset solution.
+    cov_full : ``(t, m, m)`` covariance of the full-set solution.
+    solvable : ``(t, h)`` the hypothesis is active and its subset determines every unknown.
+    """
+
+    delta: F64
+    cov_delta: F64
+    cov_subset: F64
+    cov_full: F64
+    solvable: NDArray[np.bool_]
+
+
+def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,
+                     fixed_weight: float) -> Separation:
+    """Linear least-squares solutions of ``t`` stacked systems ``A x = q`` with each of ``h``
+    row subsets left out, against the full-set solution, with their covariances.
+
+    Parameters
+    ----------
+    A : ``(t, N, m)`` design rows (rows of weight 0 take no part).
+    q : ``(t, N)`` right-hand sides.
+    we : ``(t, N)`` the estimator's row weights (``x = (A^T W_e A)^-1 A^T W_e q``).
+    var : ``(t, N)`` row variances (``Sigma``).
+    removed : ``(t, h, N)`` the rows subset ``k`` leaves out.
+    fixed : ``(t, h, m)`` 1 for the unknowns subset ``k`` fixes by a pseudo-observation
+        ``x_j = 0`` of weight ``fixed_weight`` (and variance ``1 / fixed_weight``): an unknown its
+        left-out rows alone determined (a receiver clock of a removed constellation).
+    fixed_weight : weight of those pseudo-observations.
+
+    Returns
+    -------
+    Separation
+        ``delta_k = x_k - x_0``; ``cov_subset_k = K_k Sigma K_k^T`` and
+        ``cov_delta_k = (K_k - K_0) Sigma (K_k - K_0)^T`` with ``K = (A^T W_e A)^-1 A^T W_e``
+        (for ``W_e = Sigma^-1``: ``cov_subset_k - cov_full``). A subset whose normal matrix is
+        singular (scaled smallest eigenvalue below 1e-10) is not solvable; its numbers are NaN.
+
+    Notes
+    -----
+    Removing rows changes the normal matrix ``N = A^T W_e A`` by the sum of their outer products,
+    ``N_k = N - sum_{i in S_k} w_i a_i a_i^T (+ fixed_weight e_j e_j^T)``, so every subset of every
+    epoch is formed from the ``(t, N, m, m)`` row products at once (one batched matmul) and
+    solved by a batched ``(m, m)`` solve: ``h`` is a few tens and ``m`` at most 3 + clocks.
+    """
+    t, N, m = A.shape
+    D = (A[..., :, None] * A[..., None, :]).reshape(t, N, m * m)
+    wv = we * we * var
+    N0 = np.einsum("tn,tnk->tk", we, D).reshape(t, m, m)
+    V0 = np.einsum("tn,tnk->tk", wv, D).reshape(t, m, m)
+    b0 = np.einsum("tn,tna->ta", we * q, A)
+    rem = removed.astype(np.float64)
+    E = fixed[..., :, None] * np.eye(m) * fixed_weight  # (t, h, m, m)
+    Nk = N0[:, None] - ((rem * we[:, None, :]) @ D).reshape(t, -1, m, m) + E
+    Xk = V0[:, None] - ((rem * wv[:, None, :]) @ D).reshape(t, -1, m, m)  # K_k Sigma W_e A without the new rows
+    Vk = Xk + E  # the pseudo-observations: weight^2 * variance = weight
+    bk = b0[:, None] - np.einsum("thn,tna->tha", rem * (we * q)[:, None, :], A)
+    scale = np.sqrt(np.clip(np.diagonal(Nk, axis1=2, axis2=3), 1e-300, None))
+    unit = Nk / scale[..., :, None] / scale[..., None, :]
+    solvable = (np.diagonal(Nk, axis1=2, axis2=3) > 0).all(axis=2) & np.isfinite(unit).all(axis=(2, 3))
+    unit = np.where(solvable[..., None, None], unit, np.eye(m))
+    solvable &= np.linalg.eigvalsh(unit)[..., 0] > 1e-10
+    Nk = np.where(solvable[..., None, None], Nk, np.eye(m))
+    G0 = np.linalg.inv(N0)
+    Gk = np.linalg.inv(Nk)
+    x0 = np.einsum("tab,tb->ta", G0, b0)
+    xk = np.einsum("thab,thb->tha", Gk, bk)
+    P0 = G0 @ V0 @ G0
+    Pk = Gk @ Vk @ Gk
+    Ck = Gk @ Xk @ G0[:, None]  # cross covariance of x_k and x_0
+    cov_delta = Pk - Ck - np.swapaxes(Ck, 2, 3) + P0[:, None]
+    bad = ~solvable
+    delta = np.where(bad[..., None], np.nan, xk - x0[:, None])
+    return Separation(delta=delta, cov_delta=np.where(bad[..., None, None], np.nan, cov_delta),
+                      cov_subset=np.where(bad[..., None, None], np.nan, Pk), cov_full=P0, solvable=solvable)
+
+
+def _q_inverse(p: F64) -> F64:
+    """The normal quantile exceeded with probability ``p``, ``Q^-1(p) = -ndtri(p)``."""
+    return -ndtri(p)
+
+
+def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
+                      config: ProcessingConfig) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """ARAIM-style protection levels by solution separation, and the separation test, of
+    ``t`` epochs linearized at their fixes (module docstring, "Solution separation").
+
+    ``lin_A``, ``q``, ``mask``, ``var`` (``(t, N)``, m^2), ``we`` (the estimator's weights, 0
+    for rows not used) and ``rot`` (ECEF -> ENU) of :func:`~gnss_cli.gnss.range_model.linearize`;
+    ``n_sat`` satellite rows, then (several systems) one clock constraint row per system.
+    Returns ``hpl_m``, ``vpl_m`` (``(t,)``; inf when the unmonitored faults alone exceed
+    ``integrity_risk``) and ``detected`` (some ``|Delta_k,q| > T_k,q``).
+    """
+    t, N, m = lin_A.shape
+    k = m - 3
+    sat = mask[:, :n_sat]
+    sysid = np.argmax(lin_A[:, :n_sat, 3:], axis=2)  # (t, n): the clock column of each satellite row
+    members = sat[:, None, :] & (sysid[:, None, :] == np.arange(k)[None, :, None])  # (t, k, n)
+    count = members.sum(axis=2)  # (t, k)
+    h_sat = np.zeros((t, n_sat, N), dtype=bool)
+    h_sat[:, np.arange(n_sat), np.arange(n_sat)] = sat
+    fix_sat = np.zeros((t, n_sat, m))
+    alone = sat & (np.take_along_axis(count, sysid, axis=1) == 1) & (k > 1)
+    fix_sat[np.nonzero(alone)[0], np.nonzero(alone)[1], 3 + sysid[alone]] = 1.0
+    p_sat, p_con = config.prior_fault_satellite, config.prior_fault_constellation
+    unseen_constellation = 0.0
+    if k > 1:  # a constellation of two or more satellites, with another constellation present
+        h_con = np.zeros((t, k, N), dtype=bool)
+        h_con[:, :, :n_sat] = members
+        con = (count >= 2) & ((count > 0).sum(axis=1) >= 2)[:, None]
+        removed = np.concatenate([h_sat, h_con & con[..., None]], axis=1)
+        fixed = np.concatenate([fix_sat, np.broadcast_to(np.eye(m)[3:], (t, k, m)) * con[..., None]], axis=1)
+        candidate = np.concatenate([sat, count >= 2], axis=1)
+        prior = np.concatenate([np.full(n_sat, p_sat), np.full(k, p_con)])
+    else:  # one constellation: its own fault cannot be told from the others'
+        removed, fixed, candidate, prior = h_sat, fix_sat, sat, np.full(n_sat, p_sat)
+        unseen_constellation = p_con
+    sep = separate_subsets(lin_A, np.where(mask, q, 0.0), we, var, removed, fixed, 1.0 / ISB_CONSTRAINT_VAR_M2)
+    active = candidate & sep.solvable
+    n_h = active.sum(axis=1)
+    n = sat.sum(axis=1)
+    # faults no hypothesis covers: two or more satellites at once, and the unsolvable hypotheses
+    multiple = 1.0 - (1.0 - p_sat) ** n - n * p_sat * (1.0 - p_sat) ** np.maximum(n - 1, 0)
+    budget = config.integrity_risk - multiple - unseen_constellation - np.sum(np.where(candidate & ~active, prior, 0.0), axis=1)
+    # E, N, U: half the risk and the false-alert probability vertically, a quarter to each horizontal axis
+    share = np.array([0.25, 0.25, 0.5])
+    ir = np.clip(budget, 1e-300, None)[:, None] * share  # (t, 3)
+    k_ff = _q_inverse(ir / (2.0 * (n_h + 1))[:, None])
+    k_fa = _q_inverse(config.integrity_pfa * share / (2.0 * np.maximum(n_h, 1))[:, None])  # (t, 3)
+    k_md = _q_inverse(np.minimum(0.5, ir[:, None, :] / (prior[None, :, None] * (n_h + 1)[:, None, None])))
+    pos = slice(0, 3)
+    enu = lambda c: np.einsum("tij,thjk,tlk->thil", rot, c[..., pos, pos], rot)  # noqa: E731
+    var_d = np.diagonal(enu(sep.cov_delta), axis1=2, axis2=3)
+    var_k = np.diagonal(enu(sep.cov_subset), axis1=2, axis2=3)
+    var_0 = np.diagonal(enu(sep.cov_full[:, None]), axis1=2, axis2=3)[:, 0]
+    d_enu = np.einsum("tij,thj->thi", rot, sep.delta[..., pos])
+    thr = k_fa[:, None, :] * np.sqrt(np.clip(var_d, 0.0, None))
+    detected = (active[..., None] & (np.abs(d_enu) > thr)).any(axis=(1, 2))
+    per_k = np.where(active[..., None], thr + k_md * np.sqrt(np.clip(var_k, 0.0, None)), 0.0)
+    pl = np.maximum(k_ff * np.sqrt(var_0), per_k.max(axis=1))  # (t, 3)
+    pl = np.where((budget > 0)[:, None], pl, np.inf)
+    return np.hypot(pl[:, 0], pl[:, 1]), pl[:, 2], detected
 
 
 def take_epochs(data: EpochData, rows: NDArray[np.intp], excluded: NDArray[np.bool_] | None = None) -> EpochData:
@@ -228,12 +392,13 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     excluded = np.zeros((T, n), dtype=bool)
     stat, hpl, vpl = np.full(T, np.nan), np.full(T, np.nan), np.full(T, np.nan)
     failed = np.zeros(T, dtype=bool)
+    dof = np.zeros(T, dtype=np.int64)
     tried = (EpochStatus.OK.value, EpochStatus.ITERATION_LIMIT.value)  # (iteration_limit: kept by "fde" only)
     rows = np.flatnonzero(np.isin(sol.status, tried)) if config.integrity != "off" else np.zeros(0, dtype=np.intp)
     while rows.size:
         chk = _check_blocks(data, sol, rows, excluded, config, weighted)
-        stat[rows], hpl[rows], vpl[rows] = chk.stat, chk.hpl_m, chk.vpl_m
-        failed[rows] = ~chk.passed
+        stat[rows], hpl[rows], vpl[rows], dof[rows] = chk.stat, chk.hpl_m, chk.vpl_m, chk.dof
+        failed[rows] = ~chk.passed | chk.separated  # exclusion on the chi-square test alone (below)
         if config.integrity != "fde":
             break
         retry = ~chk.passed & (chk.dof >= config.fde_min_dof) & (excluded[rows].sum(axis=1) < config.max_exclusions)
@@ -248,12 +413,33 @@ def monitor(data: EpochData, sol: MethodSolution, config: ProcessingConfig, solv
     unconverged = sol.status == EpochStatus.ITERATION_LIMIT
     sol = _blank(sol, unconverged)
     stat[unconverged], hpl[unconverged], vpl[unconverged] = np.nan, np.nan, np.nan
-    status = sol.status.copy()
-    ok = status == EpochStatus.OK
-    status[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
-    status[ok & ~failed & ~(sol.gdop <= config.max_gdop)] = EpochStatus.GDOP_LIMIT.value
-    status[ok & ~failed & (sol.gdop <= config.max_gdop) & (hpl > config.alert_limit_h_m)] = EpochStatus.HPL_LIMIT.value
+    if config.integrity == "off":
+        return replace(sol, excluded=excluded, test_stat=stat, hpl_m=hpl, vpl_m=vpl)
+    status = final_status(sol.status, failed, dof, sol.gdop, hpl, vpl, config)
     return replace(sol, status=status, excluded=excluded, test_stat=stat, hpl_m=hpl, vpl_m=vpl)
+
+
+def final_status(status: NDArray[np.str_], failed: NDArray[np.bool_], dof: NDArray[np.int64], gdop: F64,
+                 hpl_m: F64, vpl_m: F64, config: ProcessingConfig) -> NDArray[np.str_]:
+    """The words of the ``ok`` epochs of ``status`` after their test, in this order:
+    ``integrity_fail`` (``failed``), ``gdop_limit`` (``gdop > max_gdop``, also NaN), ``untested``
+    (``dof < 1``: no redundancy, no test, no protection level), ``hpl_limit``
+    (``hpl_m > alert_limit_h_m``, or no HPL under a finite limit), ``vpl_limit`` (the same
+    vertically); the rest stays ``ok``. Every other word is kept."""
+    out = status.copy()
+    ok = status == EpochStatus.OK
+    wide = ~(gdop <= config.max_gdop)
+    untested = dof < 1
+    over_h = ~(hpl_m <= config.alert_limit_h_m)  # NaN (no PL) is over any limit but inf
+    over_v = ~(vpl_m <= config.alert_limit_v_m)
+    over_h &= np.isfinite(config.alert_limit_h_m) | ~np.isnan(hpl_m)
+    over_v &= np.isfinite(config.alert_limit_v_m) | ~np.isnan(vpl_m)
+    out[ok & untested] = EpochStatus.UNTESTED.value
+    out[ok & ~untested & over_v] = EpochStatus.VPL_LIMIT.value
+    out[ok & ~untested & over_h] = EpochStatus.HPL_LIMIT.value
+    out[ok & wide] = EpochStatus.GDOP_LIMIT.value
+    out[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
+    return out
 
 
 @dataclass
@@ -334,12 +520,10 @@ def monitor_fixes(data: EpochData, sol: MethodSolution, wls_status: NDArray[np.s
                       position_unknowns)
     stat, residuals = np.full(T, np.nan), sol.residuals_m.copy()
     stat[rows], residuals[rows] = chk.stat, chk.residuals_m
-    failed = np.zeros(T, dtype=bool)
-    failed[rows] = ~chk.passed
-    status = sol.status.copy()
-    ok = status == EpochStatus.OK
-    status[ok & failed] = EpochStatus.INTEGRITY_FAIL.value
-    wide = ok & ~failed & ~(sol.gdop <= config.max_gdop)
-    status[wide] = EpochStatus.GDOP_LIMIT.value
-    status[ok & ~failed & ~wide & (wls_status == EpochStatus.HPL_LIMIT)] = EpochStatus.HPL_LIMIT.value
+    failed, dof = np.zeros(T, dtype=bool), np.zeros(T, dtype=np.int64)
+    failed[rows], dof[rows] = ~chk.passed, chk.dof
+    status = final_status(sol.status, failed, dof, sol.gdop, np.full(T, np.nan), np.full(T, np.nan),
+                          replace(config, alert_limit_h_m=np.inf, alert_limit_v_m=np.inf))
+    for word in (EpochStatus.VPL_LIMIT, EpochStatus.HPL_LIMIT):  # the WLS epoch's protection levels
+        status[(status == EpochStatus.OK) & (wls_status == word)] = word.value
     return replace(sol, status=status, test_stat=stat, residuals_m=residuals)

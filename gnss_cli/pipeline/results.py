@@ -12,8 +12,10 @@ value                   meaning
 ======================  ==========================================================================
 ``ok``                  solved: Gauss-Newton converged (ls, wls), the one linear step succeeded
                         (tls, dls, mtls, stls, wtls), or the epoch was solved by a multi-epoch
-                        method (stls with lag, smoother, kf); and the fix passed its integrity
-                        test and GDOP limit where it has them
+                        method (stls with lag, smoother, kf); and, with ``integrity`` not
+                        ``off``, the fix passed its integrity test (with at least one degree of
+                        freedom), its GDOP limit and the alert limits (with ``off``: solved,
+                        not tested)
 ``iteration_limit``     ls/wls: no convergence within ``max_iterations`` (position left empty)
 ``too_few_satellites``  fewer usable satellites than ``min_satellites`` or than 3 + clocks
 ``rank_deficient``      solver: the (weighted) design matrix is rank deficient
@@ -29,14 +31,20 @@ value                   meaning
                         method's own fix; position kept
 ``gdop_limit``          GDOP above ``max_gdop`` (position kept; for tls ... wtls their own GDOP,
                         with ``integrity`` check or fde)
-``hpl_limit``           ls/wls: the test passes but the horizontal protection level exceeds
-                        ``alert_limit_h_m`` (position kept)
+``hpl_limit``           the test passes but the horizontal protection level (of the WLS epoch)
+                        exceeds ``alert_limit_h_m`` (position kept)
+``vpl_limit``           the test passes and the HPL is within its limit, but the vertical
+                        protection level exceeds ``alert_limit_v_m`` (position kept)
+``untested``            the fix has no redundancy to test (``dof = n - (3 + k) = 0``; a
+                        multi-epoch row ``n - k = 0``): no test, no protection level; position
+                        kept, not counted as solved
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
                         model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
 
 A kf epoch is ``ok`` when the filter updated it with at least one pseudorange (1-3 satellites
-included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``hpl_limit`` and ``predicted`` epochs have a position
+included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``hpl_limit``,
+``vpl_limit``, ``untested`` and ``predicted`` epochs have a position
 (:data:`KEEPS_POSITION`); only ``ok`` ones count as solved. A window model record
 (:class:`WindowModel`) has its own status: the identification outcome
 (:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
@@ -76,6 +84,8 @@ class EpochStatus(str, Enum):
     INTEGRITY_FAIL = "integrity_fail"
     GDOP_LIMIT = "gdop_limit"
     HPL_LIMIT = "hpl_limit"
+    VPL_LIMIT = "vpl_limit"
+    UNTESTED = "untested"
     PREDICTED = "predicted"
 
     def __str__(self) -> str:
@@ -84,7 +94,7 @@ class EpochStatus(str, Enum):
 
 KEEPS_POSITION = (EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,
                   EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
-                  EpochStatus.PREDICTED.value)
+                  EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value, EpochStatus.PREDICTED.value)
 """Statuses of epochs whose position, clocks and DOPs are written."""
 
 _SOLVER_STATUS = {

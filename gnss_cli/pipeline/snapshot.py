@@ -44,7 +44,8 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 """Methods whose definition includes row weights: they get the configured pseudorange variances."""
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
-_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value)
+_FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
+            EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 
@@ -226,7 +227,7 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
     x = base.x_ecef_m.copy()
     b = base.clocks_m.copy()
     status = base.status.copy()
-    flagged = np.isin(status, _FLAGGED)  # integrity_fail, gdop_limit: solved, and keep the WLS word
+    flagged = np.isin(status, _FLAGGED)  # integrity_fail ... untested: solved, and keep the WLS word
     iterations = np.where((status == EpochStatus.OK) | flagged, 1, 0).astype(np.int64)
     out = _Accumulator(T, n, k, method)
     solved = np.flatnonzero((status == EpochStatus.OK) | flagged)

@@ -13,7 +13,7 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import process
 from gnss_cli.pipeline.epochs import load_epochs
-from gnss_cli.pipeline.integrity import chi2_threshold, noncentrality
+from gnss_cli.pipeline.integrity import chi2_threshold
 from gnss_cli.pipeline.snapshot import solve_method
 from gnss_cli.sim.scenario import ScenarioConfig, config_from_mapping, run_scenario, write_scenario
 
@@ -25,32 +25,20 @@ def _rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
 
-def test_thresholds_are_the_chi_square_and_noncentral_quantiles():
-    from scipy.stats import chi2, ncx2
+def test_thresholds_equal_scipy_stats_quantiles():
+    """scipy.special's inverse against scipy.stats' distribution, for the default false-alarm
+    probability over 1 ... 100 degrees of freedom and for others; none for dof 0."""
+    from scipy.stats import chi2
 
-    assert chi2_threshold(3, 1e-3) == pytest.approx(chi2.isf(1e-3, 3))
-    assert chi2_threshold(0, 1e-3) == np.inf and np.isnan(noncentrality(0, 1e-3, 1e-3))
-    lam = noncentrality(4, 1e-3, 1e-3)
-    assert ncx2.cdf(chi2.isf(1e-3, 4), 4, lam) == pytest.approx(1e-3, rel=1e-4)
-
-
-def test_thresholds_equal_scipy_stats_quantiles_and_root_search():
-    """scipy.special's inverses against scipy.stats' distributions and a root search, for the
-    default probabilities over 1 ... 100 degrees of freedom and for others."""
-    from scipy.optimize import brentq
-    from scipy.stats import chi2, ncx2
-
-    for pfa, pmd, dofs in ((1e-3, 1e-3, range(1, 101)), (1e-2, 1e-3, (1, 2, 7, 40)), (1e-5, 1e-2, (1, 3, 150))):
+    assert chi2_threshold(0, 1e-3) == np.inf
+    for pfa, dofs in ((1e-3, range(1, 101)), (1e-2, (1, 2, 7, 40)), (1e-5, (1, 3, 150))):
         for dof in dofs:
-            thr = float(chi2.isf(pfa, dof))
-            lam = float(brentq(lambda x: ncx2.cdf(thr, dof, x) - pmd, 1e-9, 1e4, xtol=1e-12, rtol=1e-14))
-            assert chi2_threshold(dof, pfa) == pytest.approx(thr, rel=1e-12), (pfa, dof)
-            # rel 1e-8: scipy 1.10's chndtrix (the lowest allowed scipy) agrees to 2e-9 relative
-            assert noncentrality(dof, pfa, pmd) == pytest.approx(lam, rel=1e-8), (pfa, pmd, dof)
+            assert chi2_threshold(dof, pfa) == pytest.approx(float(chi2.isf(pfa, dof)), rel=1e-12), (pfa, dof)
 
 
 def test_bad_integrity_settings_are_configuration_errors():
-    for overrides in ({"integrity": "maybe"}, {"integrity_pfa": 0.0}, {"max_gdop": -1.0}, {"exclude": "X99"},
+    for overrides in ({"integrity": "maybe"}, {"integrity_pfa": 0.0}, {"integrity_pmd": 1e-3}, {"max_gdop": -1.0},
+                      {"exclude": "X99"},
                       {"alert_limit_h_m": 0.0}, {"fde_min_dof": 1}):
         with pytest.raises(ConfigError):
             load_config(None, overrides)
@@ -185,32 +173,7 @@ def test_urban_static_tst_most_epochs_ok_and_close(rinex_dir):
         assert window.sum() == 157
         ok = window & (sol.status == "ok")
         out[name] = (ok.sum() / window.sum(), _rms(np.linalg.norm(sol.x_ecef_m[ok] - TST_TRUTH, axis=1)))
-    # measured: fde 96.8 % ok at 6.8 m (off: 63.5 m, rnx2rtkp: 9 epochs at 7.2 m)
-    assert out["fde"][0] >= 0.9 and out["fde"][1] <= 15.0
+    # measured: fde 87.3 % ok at 5.8 m (before the solution-separation test 96.8 % at 6.8 m;
+    # off: 63.5 m, rnx2rtkp: 9 epochs at 7.2 m); snr30 100 % at 4.1 m
+    assert out["fde"][0] >= 0.8 and out["fde"][1] <= 15.0
     assert out["snr30"][0] >= 0.9 and out["snr30"][1] < 6.0
-
-
-def test_protection_levels_are_the_largest_slope_times_the_critical_bias(data_0759):
-    """HPL = max_i Hslope_i sqrt(lambda*): measured slopes from biases of +-b on each satellite
-    (position shift per bias, and the statistic's quadratic growth b^2 m_ii)."""
-    cfg = replace(load_config(), integrity="check")
-    t = 0
-    base = solve_method(data_0759, "wls", cfg)
-    used = np.flatnonzero(np.isfinite(base.residuals_m[t]))
-    dof = used.size - 4
-    lam = noncentrality(dof, cfg.integrity_pfa, cfg.integrity_pmd)
-    from gnss_cli.report import enu_errors
-
-    h_slopes, v_slopes = [], []
-    for j in used:
-        runs = []
-        for b in (10.0, -10.0):
-            pr = data_0759.pr_corrected_m.copy()
-            pr[t, j] += b
-            runs.append(solve_method(replace(data_0759, pr_corrected_m=pr), "wls", cfg))
-        shift = enu_errors(runs[0].x_ecef_m[t : t + 1], base.x_ecef_m[t])[0] / 10.0  # m per m of bias
-        m_jj = ((runs[0].test_stat[t] + runs[1].test_stat[t]) / 2 - base.test_stat[t]) / 100.0
-        h_slopes.append(np.hypot(shift[0], shift[1]) / np.sqrt(m_jj))
-        v_slopes.append(abs(shift[2]) / np.sqrt(m_jj))
-    assert base.hpl_m[t] == pytest.approx(max(h_slopes) * np.sqrt(lam), rel=2e-3)
-    assert base.vpl_m[t] == pytest.approx(max(v_slopes) * np.sqrt(lam), rel=2e-3)

@@ -26,7 +26,10 @@ def test_esbc_each_system_and_all_within_5_percent_of_rtklib(rinex_dir, systems)
     cfg = load_config(overrides={"methods": "wls", "systems": systems.split(",")})
     data = load_epochs(d / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz", [d / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"], cfg)
     s = solve_method(data, "wls", cfg)
-    assert (s.status == EpochStatus.OK).sum() == 2880
+    # every epoch solved, as rnx2rtkp; Galileo alone (few satellites in 2020) has 9 epochs of four
+    # satellites, without redundancy: untested, not ok
+    assert np.isin(s.status, (EpochStatus.OK, EpochStatus.UNTESTED)).all()
+    assert (s.status == EpochStatus.UNTESTED).sum() == (9 if systems == "E" else 0)
     rms = _rms(s.x_ecef_m, REF_ESBC)
     assert rms <= 1.05 * RTKLIB_ESBC[systems], rms
     if systems == "G,E,C,R,J":
