@@ -37,8 +37,9 @@ Examples:
     gnss-solve flight/obs.rnx flight/nav.rnx --method smoother,stls --lag 3 \\
         --reference-csv flight/truth.csv -o flight.csv
 
-  An RTKLIB .pos file (for pos2kml, rtkplot); faulty satellites excluded (FDE):
-    gnss-solve site.rnx nav.rnx --integrity fde -o site.pos
+  An RTKLIB .pos file (for pos2kml, rtkplot); epochs whose protection levels
+  exceed 30 m horizontally or 50 m vertically are not ok:
+    gnss-solve site.rnx nav.rnx --alert-limit 30,50 -o site.pos
 """
 """The epilog of ``gnss-solve --help`` (``tests/cli/test_help.py`` runs every example)."""
 
