@@ -79,7 +79,7 @@ def solve(
     reference : array (3,) or path, optional
         Reference for the error variables: an ECEF position (m) or ``"X,Y,Z"``, a SINEX file
         (the station is the observation file's marker name), a CSV with ``time, x_m, y_m, z_m``
-        (a moving reference, matched to 1 ms; ``.csv`` suffix) or an RTKLIB ``.pos`` file.
+        (a moving reference, matched within 10 ms; ``.csv`` suffix) or an RTKLIB ``.pos`` file.
     config : path, optional
         TOML file of processing options (as ``--config``).
     **options

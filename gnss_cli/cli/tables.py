@@ -187,8 +187,15 @@ def solve_files(files: list[Path], cfg: Any, progress: Any, reference: Any, *, t
         out.close()
         raise
     assert last is not None
+    from gnss_cli.io.reference import coverage_warning
+
+    warnings = list(run.warnings)
+    if reference.moving:
+        note = coverage_warning(*out.summary.coverage(), reference.source)
+        if note is not None:
+            warnings.append(note)
     result = RunOutput(out.spools, out.models, out.summary.table(last), tuple(last.solutions), dict(last.settings),
-                       list(run.warnings), reference.given, tuple(last.epochs.systems), last.epochs.marker_name,
+                       warnings, reference.given, tuple(last.epochs.systems), last.epochs.marker_name,
                        files=list(files))
     if keep_positions:
         import pandas as pd
@@ -239,6 +246,22 @@ class _Summary:
         for m, columns in fields.items():
             self.parts.setdefault(m, []).append(columns)
         self.refs.append(ref if ref is None or np.ndim(ref) == 1 else ref.copy())
+
+    def coverage(self) -> tuple[int, int]:
+        """``(matched, solved)``: the epochs solved by some method that have a reference, and
+        the epochs solved by some method."""
+        from gnss_cli.pipeline.results import EpochStatus
+
+        solved = None
+        for parts in self.parts.values():
+            ok = np.concatenate([p["status"] for p in parts]) == EpochStatus.OK
+            solved = ok if solved is None else solved | ok
+        if solved is None:
+            return 0, 0
+        refs = [np.broadcast_to(r, (n, 3)) if r is not None else np.full((n, 3), np.nan)
+                for r, n in zip(self.refs, (p["status"].size for p in next(iter(self.parts.values()))))]
+        have = np.isfinite(np.concatenate(refs)).all(axis=1) if refs else np.zeros(solved.size, dtype=bool)
+        return int((have & solved).sum()), int(solved.sum())
 
     def table(self, last: Any) -> Any:
         """``summary_table`` of the whole run (``last``: the last part, for the other fields)."""

@@ -49,6 +49,7 @@ CASES = [
     ("elevation mask out of range", "solve", ["{obs}", "{nav}", "--elevation-mask", "95"], 3, r"elevation_mask_deg: expected 0 <= value < 90"),
     ("negative lag", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "-1"], 3, r"stls.lag: expected an integer >= 0"),
     ("bad reference", "solve", ["{obs}", "{nav}", "--reference", "1,2"], 3, r"--reference: expected"),
+    ("geodetic reference without its prefix", "solve", ["{obs}", "{nav}", "--reference", "22.3,114.2,4.9"], 3, r"--reference: .*write geodetic:LAT,LON,H"),
     ("bad TOML", "solve", ["{obs}", "{nav}", "--config", "{here}/bad.toml"], 3, r"bad.toml: invalid TOML"),
     ("-o names an input", "solve", ["{here}/obs.rnx", "{nav}", "-o", "{here}/obs.rnx"], 3, r"is one of the input files"),
     ("--plots without matplotlib", "solve", ["{obs}", "{nav}", "--plots", "{here}/figs"], 3, r"--plots: needs matplotlib.*pip install 'gnss-solve\[plot\]'"),
