@@ -126,8 +126,14 @@ def batch(
         finally:
             runner.close(finished)
         dataset.finish()
-        _write_tables(outputs, csv_targets, results)
-    return _finish(results, out, quiet)
+        from gnss_cli.cli.exits import command_line
+        from gnss_cli.cli.tables import run_settings
+
+        given = [v for v in (reference, reference_sinex, reference_csv, reference_pos) if v is not None]
+        written = _write_tables(outputs, csv_targets, results, command_line(),
+                                run_settings(cfg, str(given[0]) if given else "none"))
+        written.insert(0, (out / "positions", dataset.description()))
+    return _finish(results, out, quiet, written)
 
 
 def _check_references(values: dict[str, Any]) -> None:
@@ -249,21 +255,31 @@ def _progress_line(result: Any, done: int, total: int, elapsed_s: float) -> str:
     return f"{line}, {result.seconds:.1f} s\n"
 
 
-def _write_tables(outputs: Any, targets: dict[str, Path], results: list[Any]) -> None:
+def _write_tables(outputs: Any, targets: dict[str, Path], results: list[Any], command: str,
+                  settings: dict[str, str]) -> list[tuple[Path, str]]:
+    """Stage ``files.csv`` and ``summary.csv`` (the command line and the settings first); what was written."""
     from gnss_cli.cli.batch_output import files_table, summary_table
+    from gnss_cli.cli.tables import count, with_run_columns
     from gnss_cli.report import to_csv_text
 
-    outputs.write_text(targets["files"], to_csv_text(files_table(results)))
-    outputs.write_text(targets["summary"], to_csv_text(summary_table(results)))
+    files, summary = files_table(results), summary_table(results)
+    outputs.write_text(targets["files"], to_csv_text(files))
+    outputs.write_text(targets["summary"], to_csv_text(with_run_columns(summary, command, settings)))
+    return [(targets["files"], count(len(files), "row") + ", one per observation file"),
+            (targets["summary"], count(len(summary), "row") + ", one per file and method")]
 
 
-def _finish(results: list[Any], out: Path, quiet: bool) -> int:
-    """The closing line and the exit code: 0, or that of the first failed file in input order."""
+def _finish(results: list[Any], out: Path, quiet: bool, written: list[tuple[Path, str]]) -> int:
+    """The closing lines (the files solved, then the outputs written) and the exit code: 0, or
+    that of the first failed file in input order."""
+    from gnss_cli.cli.tables import written_lines
+
     failures = sorted((r for r in results if r.status != "ok"), key=lambda r: r.index)
     if not quiet:
         ok = len(results) - len(failures)
         tail = f", {len(failures)} failed (errors in {out / 'files.csv'})" if failures else ""
         sys.stderr.write(f"{PROG}: {ok} of {len(results)} files solved{tail}; results in {out}\n")
+        sys.stderr.write("".join(f"{line}\n" for line in written_lines(written, PROG)))
     return failures[0].exit_code if failures else 0
 
 

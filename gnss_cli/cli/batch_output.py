@@ -44,6 +44,14 @@ class PositionsDataset:
         self.folder = folder
         self.files: list[tuple[int, Path]] = []
         self.schemas: list[Any] = []
+        self.rows = 0
+        self.stations: set[str] = set()
+
+    def description(self) -> str:
+        """What the dataset holds, for the closing lines of gnss-batch."""
+        from gnss_cli.cli.tables import count
+
+        return f"Parquet dataset: {count(self.rows, 'row')} in {count(len(self.files), 'file')}, {count(len(self.stations), 'station')}"
 
     def add(self, result: FileResult) -> None:
         """Write the rows of a finished file (nothing for a failed one) and forget them."""
@@ -60,6 +68,8 @@ class PositionsDataset:
                          existing_data_behavior="overwrite_or_ignore",
                          file_visitor=lambda f: written.append(Path(f.path)))
         self.files += [(result.index, p) for p in written]
+        self.rows += table.num_rows
+        self.stations.add(str(result.station))
         self.schemas += [pa.schema([f for f in table.schema if f.name not in PARTITIONS])] * len(written)
         result.positions = None
 
