@@ -1,8 +1,12 @@
 """The outputs of ``gnss-batch``: a Parquet dataset of positions, ``files.csv`` and ``summary.csv``.
 
-``OUT/positions/`` is a Hive-partitioned Parquet dataset, ``station=<id>/day=<GPS date>/``,
-one file per observation file and partition (``<n>-<obs file>-0.parquet``), holding
-gnss-solve's positions columns (typed as by ``--format parquet``) plus ``obs_file``. Each
+``OUT/positions/`` is a Parquet dataset, ``<station>/day=<GPS date>/``, one file per
+observation file and day (``<n>-<obs file>-0.parquet``), holding gnss-solve's positions
+columns (typed as by ``--format parquet``) plus ``obs_file`` and ``station`` (a string
+column). The station folder is a plain folder, not a Hive key ``station=<id>``: readers infer
+a Hive key's type from the folder names, so ``station=0759`` came back as the integer 759 (and a
+column of the same name in the files clashes with it); ``day=`` stays a Hive key (a date is never
+read as a number). Each
 file's rows are written as soon as it finishes, into a staged folder of the run's
 :class:`~gnss_cli.cli.output.OutputSet`; if the files disagree on their columns (one file
 with several systems has ``tdop_<letter>`` columns, another has not), every file is rewritten
@@ -18,7 +22,8 @@ from typing import Any
 
 from gnss_cli.cli.batch_task import FileResult
 
-PARTITIONS = ("station", "day")
+PARTITIONS = ("day",)
+"""The Hive keys of the positions dataset (below the station folder)."""
 FILES_COLUMNS = ["obs_path", "nav_paths", "station", "status", "exit_code", "epochs", "solved", "method", "rms_3d_m",
                  "seconds", "error", "warnings"]
 """``files.csv`` columns (README: gnss-batch)."""
@@ -63,7 +68,8 @@ class PositionsDataset:
         table = pa.Table.from_pandas(result.positions, preserve_index=False).replace_schema_metadata(None)
         name = "".join(c if c.isalnum() or c in "-_." else "_" for c in Path(result.obs_path).name)
         written: list[Path] = []
-        ds.write_dataset(table, self.folder, format="parquet", partitioning=list(PARTITIONS), partitioning_flavor="hive",
+        ds.write_dataset(table, self.folder / station_folder(str(result.station)), format="parquet",
+                         partitioning=list(PARTITIONS), partitioning_flavor="hive",
                          basename_template=f"{result.index:05d}-{name}-{{i}}.parquet", file_options=_write_options(),
                          existing_data_behavior="overwrite_or_ignore",
                          file_visitor=lambda f: written.append(Path(f.path)))
@@ -90,6 +96,16 @@ class PositionsDataset:
             table = pq.read_table(path, partitioning=None)
             columns = [table[f.name] if f.name in schema.names else pa.nulls(table.num_rows, f.type) for f in union]
             pq.write_table(pa.Table.from_arrays(columns, schema=union), path, version="2.6")
+
+
+def station_folder(station: str) -> str:
+    """The folder of a station in the positions dataset: its name, with an ``s`` before a name
+    that readers would skip (``_`` or ``.`` first). The ``station`` column keeps the name as is.
+
+    >>> station_folder("0759"), station_folder("_X1")
+    ('0759', 's_X1')
+    """
+    return "s" + station if station.startswith(("_", ".")) else station
 
 
 def files_table(results: list[FileResult]) -> Any:

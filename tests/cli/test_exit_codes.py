@@ -81,9 +81,9 @@ CASES = [
     ("batch, a file fails", "batch", ["{truth}", "{obs}", "--nav", "{nav}", "--out", "{here}/out"], 4, r"truth.csv: failed \(exit 4\): \S*truth.csv: .*1 of 2 files solved, 1 failed"),
 ]
 
-WRITES = {"batch, a file fails": {"out", "out/files.csv", "out/summary.csv", "out/positions", "out/positions/station=SIM",
-                                  "out/positions/station=SIM/day=2024-03-01",
-                                  "out/positions/station=SIM/day=2024-03-01/00001-obs.rnx-0.parquet"}}
+WRITES = {"batch, a file fails": {"out", "out/files.csv", "out/summary.csv", "out/positions", "out/positions/SIM",
+                                  "out/positions/SIM/day=2024-03-01",
+                                  "out/positions/SIM/day=2024-03-01/00001-obs.rnx-0.parquet"}}
 """Cases that write their outputs (the other files are solved): what they leave."""
 
 
