@@ -122,3 +122,50 @@ def summary_table(results: list[FileResult]) -> Any:
 
     frames = [r.summary for r in sorted(results, key=lambda r: r.index) if r.summary is not None]
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["obs_path", "station", "method"])
+
+
+NETWORK_COLUMNS = ["station", "method", "files", "epochs", "ok_%", "rms_3d_m", "rms_horizontal_m", "rms_vertical_m",
+                   "mean_gdop", "mean_lat_deg", "mean_lon_deg", "mean_height_m"]
+"""The network page's table (``gnss-batch --report``): one row per station (and method)."""
+
+
+def network_table(summary: Any) -> Any:
+    """One row per station and method from gnss-batch's ``summary.csv`` rows (one per file and method).
+
+    ``epochs`` and ``ok_%`` (epochs solved, per cent) are over the station's files; the RMS
+    errors (m) pool the files' squared errors over their epochs with a reference
+    (``√(Σ nᵢ rmsᵢ² / Σ nᵢ)``; horizontal ``√(rms_e² + rms_n²)``, vertical ``rms_u``), empty
+    without a reference; ``mean_gdop`` and the mean position are weighted by the solved epochs.
+    """
+    import numpy as np
+    import pandas as pd
+
+    rows = []
+    if summary is None or not len(summary):
+        return pd.DataFrame(columns=NETWORK_COLUMNS)
+
+    def col(df: Any, name: str) -> Any:
+        return df[name].to_numpy(dtype=np.float64) if name in df.columns else np.full(len(df), np.nan)
+
+    for (station, method), df in summary.groupby(["station", "method"], sort=False):
+        epochs, solved = col(df, "epochs"), col(df, "epochs_solved")
+        n_ref = np.nan_to_num(col(df, "epochs_with_reference"))
+
+        def pooled(name: str) -> float:
+            v = col(df, name)
+            use = np.isfinite(v) & (n_ref > 0)
+            return float(np.sqrt(np.sum(n_ref[use] * v[use] ** 2) / np.sum(n_ref[use]))) if use.any() else float("nan")
+
+        def weighted(name: str) -> float:
+            v = col(df, name)
+            use = np.isfinite(v) & (solved > 0)
+            return float(np.sum(solved[use] * v[use]) / np.sum(solved[use])) if use.any() else float("nan")
+
+        rms_e, rms_n = pooled("rms_e_m"), pooled("rms_n_m")
+        rows.append({"station": str(station), "method": method, "files": len(df), "epochs": int(epochs.sum()),
+                     "ok_%": 100.0 * solved.sum() / epochs.sum() if epochs.sum() else float("nan"),
+                     "rms_3d_m": pooled("rms_3d_m"), "rms_horizontal_m": float(np.hypot(rms_e, rms_n)),
+                     "rms_vertical_m": pooled("rms_u_m"), "mean_gdop": weighted("mean_gdop"),
+                     "mean_lat_deg": weighted("mean_lat_deg"), "mean_lon_deg": weighted("mean_lon_deg"),
+                     "mean_height_m": weighted("mean_height_m")})
+    return pd.DataFrame(rows, columns=NETWORK_COLUMNS)

@@ -67,7 +67,7 @@ def key_summary(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: pd.DataFrame,
-                settings: Mapping[str, object]) -> str:
+                settings: Mapping[str, object], key: pd.DataFrame | None = None) -> str:
     """The report page.
 
     Parameters
@@ -81,6 +81,9 @@ def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: p
         every column in a folded ``<details>`` block.
     settings : mapping
         The run's settings (input files, options), shown as a two-column table.
+    key : DataFrame, optional
+        The table shown first instead of :func:`key_summary` of ``summary`` (gnss-batch: one
+        row per station).
     """
     settings_rows = "".join(f'<tr><td class="key">{html.escape(str(k))}</td><td class="key">{html.escape(str(v))}</td></tr>\n'
                             for k, v in settings.items())
@@ -89,7 +92,7 @@ def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: p
         f"<title>{html.escape(title)}</title>", f"<style>{_STYLE}</style>", "</head>", "<body>",
         f"<h1>{html.escape(title)}</h1>",
         "<h2>Settings</h2>", f'<table class="settings">\n<tr><th class="key">setting</th><th class="key">value</th></tr>\n{settings_rows}</table>',
-        "<h2>Summary</h2>", table_html(key_summary(summary), "key-summary"),
+        "<h2>Summary</h2>", table_html(key_summary(summary) if key is None else key, "key-summary"),
         f"<details><summary>All {len(summary.columns)} summary columns (as summary.csv)</summary>",
         table_html(summary, "summary"), "</details>",
         "<h2>Figures</h2>",
