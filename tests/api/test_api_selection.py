@@ -56,3 +56,13 @@ def test_unknown_keyword_names_it_and_the_nearest_valid_one(options, message) ->
         gnss_cli.solve(SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", **options)
     assert isinstance(info.value, TypeError) and isinstance(info.value, ConfigError)
     assert str(info.value).startswith("gnss_cli.solve: ")
+
+
+def test_geodetic_reference_string_equals_the_ecef_array(ds) -> None:  # type: ignore[no-untyped-def]
+    import pymap3d
+
+    ecef = np.array(pymap3d.geodetic2ecef(55.5, 8.5, 50.0))
+    a = gnss_cli.solve(SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", methods="wls", reference="geodetic:55.5,8.5,50")
+    b = gnss_cli.solve(SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", methods="wls", reference=ecef)
+    assert np.isfinite(a["err_3d_m"].values).all()
+    np.testing.assert_allclose(a["err_3d_m"].values, b["err_3d_m"].values, rtol=0, atol=1e-6)
