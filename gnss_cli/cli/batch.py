@@ -270,7 +270,10 @@ def _progress_line(result: Any, done: int, total: int, elapsed_s: float) -> str:
         line += f", 3D RMS {result.rms_3d_m:.3f} m"
     if result.warnings:
         line += f", {len(result.warnings)} warning(s) in files.csv"
-    return f"{line}, {result.seconds:.1f} s\n"
+    # a reference that misses the epochs voids the file's errors: said here too, not only in files.csv
+    notes = "".join(f"{PROG}: warning: {Path(result.obs_path).name}: {w}\n" for w in result.warnings
+                    if w.startswith("reference "))
+    return f"{line}, {result.seconds:.1f} s\n{notes}"
 
 
 def _write_tables(outputs: Any, targets: dict[str, Path], results: list[Any], command: str,

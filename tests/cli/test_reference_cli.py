@@ -119,3 +119,4 @@ def test_batch_takes_the_geodetic_reference_and_warns_in_files_csv(tmp_path, cap
     assert code == 0, err
     files = pd.read_csv(tmp_path / "none" / "files.csv")
     assert "matches none of the 121 solved epochs" in files["warnings"].iloc[0]
+    assert f"gnss-batch: warning: obs.rnx: reference {ref} matches none of the 121 solved epochs" in err
