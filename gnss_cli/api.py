@@ -5,10 +5,13 @@ The same run as ``gnss-solve`` (:class:`gnss_cli.pipeline.run.Run`, its parts jo
 
     import gnss_cli
     ds = gnss_cli.solve("obs.rnx", "nav.rnx", methods="ls,wls", elevation_mask_deg=15)
-    ds["x_m"].sel({"method": "wls"})     # (time,) ECEF X, m (a dict: ``sel``'s own ``method=`` is the lookup method)
+    ds.sel(method="wls")["x_m"]          # (time,) ECEF X, m, of WLS only
     ds.to_dataframe()                    # one row per (time, method)
 
-Dimensions: ``time`` (``datetime64[ns]`` in the **GPS time scale**, not UTC) and ``method``;
+Dimensions: ``time`` (``datetime64[ns]`` in the **GPS time scale**, not UTC) and ``method``
+(:class:`SolutionDataset`: ``sel(method="wls")`` selects a method, although xarray's ``sel``
+has a ``method=`` argument of its own, the lookup rule; ``sel(time=t, method="nearest")`` still
+means that);
 ``tdop_<letter>`` variables per system when several systems are processed, ``gdop_paper``
 with TLS, and the error variables when a reference is given. Every variable has ``units``
 and ``long_name`` attributes.
@@ -26,13 +29,14 @@ import xarray as xr
 from numpy.typing import ArrayLike, NDArray
 
 from gnss_cli.config import load_config
+from gnss_cli.errors import KeywordError
 from gnss_cli.gnss.frames import ecef2geodetic
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.io.reference import Reference
 from gnss_cli.pipeline import RunResult, process
 from gnss_cli.report import enu_errors, tdop_columns, utc_offset_s
 
-__all__ = ["solve", "to_dataset"]
+__all__ = ["solve", "to_dataset", "SolutionDataset"]
 
 F64 = NDArray[np.float64]
 PathArg = str | PathLike[str]
@@ -79,7 +83,7 @@ def solve(
     reference : array (3,) or path, optional
         Reference for the error variables: an ECEF position (m) or ``"X,Y,Z"``, a SINEX file
         (the station is the observation file's marker name), a CSV with ``time, x_m, y_m, z_m``
-        (a moving reference, matched to 1 ms; ``.csv`` suffix) or an RTKLIB ``.pos`` file.
+        (a moving reference, matched within 10 ms; ``.csv`` suffix) or an RTKLIB ``.pos`` file.
     config : path, optional
         TOML file of processing options (as ``--config``).
     **options
@@ -103,12 +107,111 @@ def solve(
     NoSolutionError
         No epoch could be solved by any method.
     """
+    _check_keywords(options)
     cfg = load_config(config, _overrides(options))
     ref = Reference.from_value(reference)
     navs = [nav] if isinstance(nav, (str, PathLike)) else list(nav)
     result = process(obs, navs, cfg)
     epochs = result.epochs
     return to_dataset(result, ref.of(epochs.time_gps_s, epochs.marker_name, utc_offset_s(result), Path(obs).name))
+
+
+def _keyword_names() -> dict[str, set[str] | None]:
+    """Every keyword :func:`solve` takes -> the keys of its table (None: not a table, or any key)."""
+    from dataclasses import fields
+
+    from gnss_cli.config import ProcessingConfig
+
+    cfg = load_config()
+    tables = {"weights": {f.name for f in fields(cfg.weights)}, "stls": {f.name for f in fields(cfg.stls)} | {"orbit_sigma_m"},
+              "smoother": {f.name for f in fields(cfg.smoother)}, "kalman": {f.name for f in fields(cfg.kalman)},
+              "wtls": {"column_scaling"}, "signals": None}
+    names: dict[str, set[str] | None] = {f.name: None for f in fields(ProcessingConfig)}
+    for own in ("signals_second", "orbit_sigma_m", "wtls_column_scaling"):
+        names.pop(own, None)
+    names.update(tables)
+    names.update(dict.fromkeys(_DIRECT_KEYS))
+    names.update({"reference": None, "config": None})
+    return names
+
+
+def _check_keywords(options: Mapping[str, Any]) -> None:
+    """Unknown keywords (and unknown keys of a table given as a mapping) raise
+    :class:`~gnss_cli.errors.KeywordError` naming the nearest valid one (difflib)."""
+    import difflib
+
+    names = _keyword_names()
+    for key, value in options.items():
+        if key not in names:
+            near = difflib.get_close_matches(key, sorted(names), n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else f"; expected one of {', '.join(sorted(names))}"
+            raise KeywordError(f"gnss_cli.solve: unknown keyword {key!r}{hint}")
+        table = names[key]
+        if table is not None and isinstance(value, Mapping):
+            for sub in value:
+                if sub not in table:
+                    near = difflib.get_close_matches(str(sub), sorted(table), n=1)
+                    hint = f"did you mean {near[0]!r}?" if near else f"expected some of {', '.join(sorted(table))}"
+                    raise KeywordError(f"gnss_cli.solve: {key}=: unknown key {sub!r}; {hint}")
+
+
+class SolutionDataset(xr.Dataset):
+    """The dataset :func:`solve` returns: an :class:`xarray.Dataset` whose ``sel`` (and its
+    variables' ``sel``) also takes ``method="wls"`` (or a list of method keys) as the selection of
+    the ``method`` dimension. xarray's own ``method=`` (the lookup rule: ``"nearest"``, ``"pad"``,
+    ...) keeps its meaning for any value that is not a method key of the dataset.
+
+    >>> import numpy as np
+    >>> ds = SolutionDataset({"x_m": (("time", "method"), np.arange(4.0).reshape(2, 2))},
+    ...                      coords={"method": ["ls", "wls"]})
+    >>> ds.sel(method="wls")["x_m"].values.tolist()
+    [1.0, 3.0]
+    """
+
+    __slots__ = ()
+
+    def sel(self, indexers: Mapping[Any, Any] | None = None, method: Any = None, tolerance: Any = None,  # type: ignore[override]
+            drop: bool = False, **indexers_kwargs: Any) -> Any:
+        indexers, method = _method_selection(self, indexers, method, indexers_kwargs)
+        return super().sel(indexers, method=method, tolerance=tolerance, drop=drop, **indexers_kwargs)
+
+    def __getitem__(self, key: Any) -> Any:
+        out = super().__getitem__(key)
+        return SolutionArray(out) if type(out) is xr.DataArray else out
+
+
+class SolutionArray(xr.DataArray):
+    """A variable of a :class:`SolutionDataset`: ``sel(method="wls")`` selects the method."""
+
+    __slots__ = ()
+
+    def sel(self, indexers: Mapping[Any, Any] | None = None, method: Any = None, tolerance: Any = None,  # type: ignore[override]
+            drop: bool = False, **indexers_kwargs: Any) -> Any:
+        indexers, method = _method_selection(self, indexers, method, indexers_kwargs)
+        return super().sel(indexers, method=method, tolerance=tolerance, drop=drop, **indexers_kwargs)
+
+
+def _method_selection(obj: Any, indexers: Mapping[Any, Any] | None, method: Any,
+                      kwargs: dict[str, Any]) -> tuple[Mapping[Any, Any] | None, Any]:
+    """``method=`` as the selection of the ``method`` dimension when its value(s) are method keys
+    of ``obj`` and the dimension is not selected otherwise; else xarray's lookup rule."""
+    if method is None or "method" not in obj.dims or "method" in (indexers or {}) or "method" in kwargs:
+        return indexers, method
+    keys = set(np.asarray(obj["method"].values).tolist())
+    values = [method] if isinstance(method, str) else list(method) if isinstance(method, (list, tuple)) else None
+    if values and all(isinstance(v, str) and v in keys for v in values):
+        return {**(indexers or {}), "method": method}, None
+    if isinstance(method, str) and method not in _LOOKUP_RULES:  # a mistyped method key, not a lookup rule
+        import difflib
+
+        near = difflib.get_close_matches(method, sorted(keys), n=1)
+        raise KeyError(f"sel(method={method!r}): not a method of this dataset ({', '.join(sorted(keys))})"
+                       + (f"; did you mean {near[0]!r}?" if near else ""))
+    return indexers, method
+
+
+_LOOKUP_RULES = ("nearest", "pad", "ffill", "backfill", "bfill")
+"""xarray's own values of ``sel(method=...)``."""
 
 
 def _overrides(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -124,8 +227,9 @@ def _overrides(options: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> xr.Dataset:
-    """A :class:`~gnss_cli.pipeline.RunResult` as a dataset (dims ``time``, ``method``).
+def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> "SolutionDataset":
+    """A :class:`~gnss_cli.pipeline.RunResult` as a dataset (dims ``time``, ``method``;
+    ``sel(method="wls")`` selects a method: :class:`SolutionDataset`).
 
     ``reference_ecef_m`` ``(3,)`` or ``(T, 3)`` (ECEF m) adds the E/N/U and 3D errors.
     """
@@ -170,4 +274,4 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> xr.Dat
         "marker_name": epochs.marker_name, "systems": list(epochs.systems), "warnings": list(epochs.warnings),
         "reference_clock_system": epochs.systems[0] if epochs.systems else "",
     }
-    return xr.Dataset(data_vars, coords=coords, attrs=attrs)
+    return SolutionDataset(data_vars, coords=coords, attrs=attrs)

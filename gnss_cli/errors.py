@@ -37,6 +37,10 @@ class ConfigError(GnssError, ValueError):
     exit_code = 3
 
 
+class KeywordError(ConfigError, TypeError):
+    """A keyword argument of the Python API that is not an option (it names the nearest one)."""
+
+
 class InputError(GnssError):
     """An input file is missing, unreadable or not what it should be."""
 

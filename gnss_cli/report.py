@@ -196,9 +196,9 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
         if reference_ecef_m is not None:
             enu = enu_errors(s.x_ecef_m, reference_ecef_m)
             integrity = integrity_statistics(ok, enu, s.hpl_m, s.vpl_m)
-            ok = ok & np.isfinite(enu).all(axis=1)
-            row["epochs_with_reference"] = int(ok.sum())
-            enu = enu[ok]
+            matched = ok & np.isfinite(enu).all(axis=1)
+            row["epochs_with_reference"] = int(matched.sum())
+            enu = enu[matched]
             err3 = np.linalg.norm(enu, axis=1)
             for k, name in enumerate("enu"):
                 row[f"mean_{name}_m"] = _stat(np.mean, enu[:, k])
@@ -219,7 +219,7 @@ def summary_table(result: RunResult, reference_ecef_m: F64 | None = None) -> pd.
                 dops[col] = s.tdops[:, j]
         if s.gdop_paper is not None:
             dops["gdop_paper"] = s.gdop_paper
-        for d, v in dops.items():
+        for d, v in dops.items():  # over the solved epochs, with or without a reference
             v = v[ok]
             row[f"mean_{d}"] = _stat(np.mean, v)
             row[f"median_{d}"] = _stat(np.median, v)

@@ -6,7 +6,8 @@ Navigation files are matched to each observation file by time (the records' toc 
 against the file's first and last epoch; several may match). Results: ``DIR/positions/``,
 a Parquet dataset partitioned by station and GPS day, ``DIR/files.csv`` (one row per input:
 status, epochs, solved, 3D RMS with a reference, seconds, error) and ``DIR/summary.csv``,
-written together or not at all. A failing file never stops the others; the exit code is 0
+written together or not at all; ``--plots DIR`` / ``--report FILE.html`` add the network's
+figures and one page with a row per station. A failing file never stops the others; the exit code is 0
 when every file was solved, else the code of the first failed file in the order given.
 Progress: one line per finished file on stderr.
 """
@@ -82,6 +83,8 @@ def batch(
     robust: Robust = None,
     exclude: Exclude = None,
     snr_mask: SnrMask = None,
+    plots: Optional[Path] = typer.Option(None, "--plots", metavar="DIR", rich_help_panel="Output", help="Write the network's figures (PNG: per-station RMS and mean GDOP, station map) into this folder; needs matplotlib (pip install 'gnss-solve[plot]').", show_default="none"),
+    report: Optional[Path] = typer.Option(None, "--report", metavar="FILE", rich_help_panel="Output", help="Write one self-contained HTML page for the network: settings, a row per station, figures; needs matplotlib.", show_default="none"),
     print_config: bool = typer.Option(False, "--print-config", rich_help_panel="Run", help="Print the effective configuration (packaged defaults < --config < flags) as TOML and exit."),
     quiet: Quiet = False,
     debug: Debug = False,
@@ -120,6 +123,10 @@ def batch(
 
             raise OutputError(f"{out}: cannot write output (not a folder)")
         csv_targets = {name: outputs.add(out / f"{name}.csv", "--out") for name in ("files", "summary")}
+        from gnss_cli.cli.figures import register_figures
+        from gnss_cli.plots import NETWORK_FIGURES
+
+        figure_targets = register_figures(outputs, plots, report, list(NETWORK_FIGURES))
         dataset = PositionsDataset(outputs.stage_folder(out / "positions", "--out"))
         from gnss_cli.cli.batch_runner import forks_workers, open_runner
         from gnss_cli.parallel import cores
@@ -139,8 +146,25 @@ def batch(
         finally:
             runner.close(finished)
         dataset.finish()
-        _write_tables(outputs, csv_targets, results)
-    return _finish(results, out, quiet)
+        written = _write_outputs(outputs, {**csv_targets, **figure_targets}, dataset, results, settings, obs_paths, nav_paths)
+    return _finish(results, out, quiet, written)
+
+
+def _write_outputs(outputs: Any, targets: dict[str, Path], dataset: Any, results: list[Any], batch: Any,
+                   obs_paths: list[Path], nav_paths: list[Path]) -> list[tuple[Path, str]]:
+    """Stage files.csv, summary.csv and the network's figures and page; what was written (the
+    dataset, already staged, first)."""
+    from gnss_cli.cli.exits import command_line
+    from gnss_cli.cli.tables import run_settings
+
+    given = [v for v in (batch.reference, batch.reference_sinex, batch.reference_csv, batch.reference_pos) if v is not None]
+    settings = run_settings(batch.config, str(given[0]) if given else "none")
+    written = [(dataset.folder.parent / "positions", dataset.description())]
+    written += _write_tables(outputs, targets, results, command_line(), settings)
+    figures = {k: v for k, v in targets.items() if k not in ("files", "summary")}
+    if figures:
+        written += _stage_network(outputs, figures, results, command_line(), settings, obs_paths, nav_paths)
+    return written
 
 
 def _check_references(values: dict[str, Any]) -> None:
@@ -259,24 +283,58 @@ def _progress_line(result: Any, done: int, total: int, elapsed_s: float) -> str:
         line += f", 3D RMS {result.rms_3d_m:.3f} m"
     if result.warnings:
         line += f", {len(result.warnings)} warning(s) in files.csv"
-    return f"{line}, {result.seconds:.1f} s\n"
+    # a reference that misses the epochs voids the file's errors: said here too, not only in files.csv
+    notes = "".join(f"{PROG}: warning: {Path(result.obs_path).name}: {w}\n" for w in result.warnings
+                    if w.startswith("reference "))
+    return f"{line}, {result.seconds:.1f} s\n{notes}"
 
 
-def _write_tables(outputs: Any, targets: dict[str, Path], results: list[Any]) -> None:
+def _write_tables(outputs: Any, targets: dict[str, Path], results: list[Any], command: str,
+                  settings: dict[str, str]) -> list[tuple[Path, str]]:
+    """Stage ``files.csv`` and ``summary.csv`` (the command line and the settings first); what was written."""
     from gnss_cli.cli.batch_output import files_table, summary_table
+    from gnss_cli.cli.tables import count, with_run_columns
     from gnss_cli.report import to_csv_text
 
-    outputs.write_text(targets["files"], to_csv_text(files_table(results)))
-    outputs.write_text(targets["summary"], to_csv_text(summary_table(results)))
+    files, summary = files_table(results), summary_table(results)
+    outputs.write_text(targets["files"], to_csv_text(files))
+    outputs.write_text(targets["summary"], to_csv_text(with_run_columns(summary, command, settings)))
+    return [(targets["files"], count(len(files), "row") + ", one per observation file"),
+            (targets["summary"], count(len(summary), "row") + ", one per file and method")]
 
 
-def _finish(results: list[Any], out: Path, quiet: bool) -> int:
-    """The closing line and the exit code: 0, or that of the first failed file in input order."""
+def _stage_network(outputs: Any, targets: dict[str, Path], results: list[Any], command: str, settings: dict[str, str],
+                   obs_paths: list[Path], nav_paths: list[Path]) -> list[tuple[Path, str]]:
+    """Draw the network's figures (``--plots``) and its page (``--report``: a row per station
+    and method first, every summary row folded) and stage them."""
+    from gnss_cli.cli.batch_output import network_table, summary_table
+    from gnss_cli.cli.figures import stage_figures
+    from gnss_cli.plots import NETWORK_FIGURES
+    from gnss_cli.plots.html import html_report
+    from gnss_cli.plots.network import network_figures
+
+    summary = summary_table(results)
+    table = network_table(summary)
+    ok = sum(r.status == "ok" for r in results)
+    page = {"command": command, "observation files": f"{len(obs_paths)} ({ok} solved)",
+            "navigation files": ", ".join(str(p) for p in nav_paths), "stations": str(len(set(table["station"]))),
+            **settings}
+    return stage_figures(outputs, targets, network_figures(table), NETWORK_FIGURES,
+                         lambda figs: html_report(f"{PROG}: {len(set(table['station']))} stations", figs, summary, page,
+                                                  key=table))
+
+
+def _finish(results: list[Any], out: Path, quiet: bool, written: list[tuple[Path, str]]) -> int:
+    """The closing lines (the files solved, then the outputs written) and the exit code: 0, or
+    that of the first failed file in input order."""
+    from gnss_cli.cli.tables import written_lines
+
     failures = sorted((r for r in results if r.status != "ok"), key=lambda r: r.index)
     if not quiet:
         ok = len(results) - len(failures)
         tail = f", {len(failures)} failed (errors in {out / 'files.csv'})" if failures else ""
         sys.stderr.write(f"{PROG}: {ok} of {len(results)} files solved{tail}; results in {out}\n")
+        sys.stderr.write("".join(f"{line}\n" for line in written_lines(written, PROG)))
     return failures[0].exit_code if failures else 0
 
 

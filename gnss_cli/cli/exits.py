@@ -38,6 +38,17 @@ class PipeClosed(BaseException):
 
 
 HELP_OPTIONS = {"help_option_names": ["-h", "--help"]}
+
+_COMMAND: list[str] = []
+"""The program name and arguments of the command :func:`run_app` is running."""
+
+
+def command_line() -> str:
+    """The running command as a shell would take it back (``gnss-solve obs.rnx nav.rnx -o 'a b.csv'``),
+    for the outputs that record how they were made."""
+    import shlex
+
+    return shlex.join(_COMMAND) if _COMMAND else shlex.join([os.path.basename(sys.argv[0]), *sys.argv[1:]])
 """Typer ``context_settings`` of every command: ``-h`` as well as ``--help``."""
 
 
@@ -106,6 +117,7 @@ def run_app(app: typer.Typer, prog_name: str, argv: list[str] | None = None) -> 
         Arguments (default: ``sys.argv[1:]``).
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    _COMMAND[:] = [prog_name, *args]
     debug = _debug_requested(args)
     click_exc = _click_exceptions()
     exits = tuple({click_exc.Exit, typer.Exit} if hasattr(click_exc, "Exit") else {typer.Exit})

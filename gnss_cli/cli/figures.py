@@ -38,24 +38,36 @@ REPORT = "report.html"
 
 
 def stage_figures(outputs: Any, targets: Mapping[str, Path], figures: Mapping[str, Any],
-                  captions: Mapping[str, str], report_page: Any = None) -> None:
+                  captions: Mapping[str, str], report_page: Any = None, progress: Any = None) -> list[tuple[Path, str]]:
     """Render every figure once (PNG bytes) and stage the PNG files and the HTML report.
 
-    ``report_page(figures)`` builds the HTML text from ``{name: (caption, png bytes)}``.
+    ``report_page(figures)`` builds the HTML text from ``{name: (caption, png bytes)}``;
+    ``progress("figures", fraction)`` runs from 0.5 to 1 as the figures are rendered (the
+    drawing was the first half). Returns ``(path, what)`` of every staged file.
     """
     from gnss_cli.plots.common import png_bytes
 
-    pngs = {name: png_bytes(fig) for name, fig in figures.items()}
+    pngs = {}
+    for k, (name, fig) in enumerate(figures.items()):
+        pngs[name] = png_bytes(fig)
+        if progress is not None:
+            progress("figures", 0.5 + 0.5 * (k + 1) / len(figures))
+    written: list[tuple[Path, str]] = []
     for name, path in targets.items():
         if name in pngs:
             outputs.write_with(path, lambda tmp, data=pngs[name]: Path(tmp).write_bytes(data))
+            written.append((path, "PNG figure"))
     if REPORT in targets and report_page is not None:
         page = report_page({name: (captions.get(name, name), png) for name, png in pngs.items()})
         outputs.write_text(targets[REPORT], page)
+        written.append((targets[REPORT], f"HTML report, {len(pngs)} figures"))
+    if progress is not None:
+        progress("figures", 1.0)
+    return written
 
 
-def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str) -> dict[str, object]:
-    """The settings of a ``gnss-solve`` run, as shown in the HTML report."""
+def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str, command: str = "") -> dict[str, object]:
+    """The settings of a ``gnss-solve`` run, as shown in the HTML report (the command line first)."""
     import numpy as np
 
     from gnss_cli import __version__
@@ -64,6 +76,7 @@ def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str)
     t = result.epochs.time_gps_s
     span = np.datetime_as_string(gps_s2datetime(t[[0, -1]]), unit="s") if t.size else ["", ""]
     settings: dict[str, object] = {
+        "command": command,
         "observation file": str(files[0]),
         "navigation files": ", ".join(str(f) for f in files[1:]),
         "epochs": f"{t.size} ({span[0]} to {span[1]} GPST)",

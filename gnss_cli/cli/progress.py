@@ -47,6 +47,8 @@ class Progress:
         self.stage = ""
         self.fraction = 0.0
         self._last_line_s = -1.0
+        self._shown: tuple[str, bool] = ("", False)
+        """The stage of the last line written, and whether it was unfinished (below 100 %)."""
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -71,6 +73,8 @@ class Progress:
                 self.stream.flush()
             elif new_stage and self._elapsed() >= self.start_delay_s and self._elapsed() - self._last_line_s >= self.min_gap_s:
                 self._write_line()
+            elif not new_stage and self.fraction >= 1.0 and self._shown == (stage, True):
+                self._write_line()  # a stage shown unfinished gets its closing line (no "figures 0.0 %" left last)
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(0.25):
@@ -82,6 +86,7 @@ class Progress:
 
     def _write_line(self) -> None:
         self._last_line_s = self._elapsed()
+        self._shown = (self.stage, self.fraction < 1.0)
         self.stream.write(self._line() + "\n")
         self.stream.flush()
 
@@ -94,3 +99,4 @@ class Progress:
         if self.enabled and self.tty and self.stage:
             self.stream.write("\n")
             self.stream.flush()
+        self.enabled = False  # done once: later calls (a second done, a late stage) write nothing

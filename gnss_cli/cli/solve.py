@@ -118,29 +118,43 @@ def solve(
 
         figure_targets = register_figures(outputs, plots, report, list(RUN_FIGURES))
         progress = Progress("gnss-solve", enabled=not quiet)
-        from gnss_cli.cli.tables import closing_lines, solve_files, stage
+        from gnss_cli.cli.exits import command_line
+        from gnss_cli.cli.tables import closing_lines, solve_files, stage, written_lines
         from gnss_cli.io.reference import Reference
 
         ref = Reference.from_options(reference, reference_sinex, reference_csv, reference_pos)
         try:
             run = solve_files(files, cfg, progress, ref, tables=tuple(n for n in targets if ":" not in n),
-                              models="models" in targets, keep_positions=fmt != "csv", keep_result=bool(figure_targets))
-        finally:
+                              models="models" in targets, keep_positions=fmt != "csv", keep_result=bool(figure_targets),
+                              command=command_line())
+        except BaseException:
             progress.done()
+            raise
         try:
-            if figure_targets:
-                _stage_figures(outputs, figure_targets, files, cfg, run, ref.source)
+            written = []
+            if figure_targets:  # the figures report their own progress; the line ends when they are done
+                written = _stage_figures(outputs, figure_targets, files, cfg, run, ref.source, progress)
+            progress.done()
             from gnss_cli.formats import pos_options
 
-            stage(outputs, targets, run, fmt, cfg.time_system,
-                  tuple(pos_options(cfg.elevation_mask_deg, cfg.iono, cfg.tropo, run.systems)))
+            written = stage(outputs, targets, run, fmt, cfg.time_system,
+                            tuple(pos_options(cfg.elevation_mask_deg, cfg.iono, cfg.tropo, run.systems))) + written
         finally:
+            progress.done()
             run.close()
     if not quiet:
-        for w in run.warnings:
-            sys.stderr.write(f"gnss-solve: warning: {w}\n")
-        for line in closing_lines(run):
-            sys.stderr.write(line + "\n")
+        lines = [f"gnss-solve: warning: {w}" for w in run.warnings] + closing_lines(run)
+        sys.stderr.write("".join(f"{line}\n" for line in lines + written_lines(written) + _split_note(targets, output, out_dir, fmt)))
+
+
+def _split_note(targets: dict[str, Path], output: Optional[str], out_dir: Optional[Path], fmt: str) -> list[str]:
+    """The line that says a one-method format went to one file per method (and not to the name given)."""
+    split = [p for name, p in targets.items() if name.startswith("positions:")]
+    if not split:
+        return []
+    asked = Path(output) if out_dir is None and output not in (None, "-") else (out_dir or Path()) / f"positions.{fmt}"
+    return [f"gnss-solve: {fmt} holds one method: {len(split)} files, one per method ({', '.join(p.name for p in split)}); "
+            f"{asked} itself is not written"]
 
 
 FORMAT_NAMES = ("csv", "pos", "geojson", "kml", "nmea", "parquet")
@@ -195,18 +209,20 @@ def _register_outputs(outputs: Any, output: Optional[str], out_dir: Optional[Pat
 
 
 def _stage_figures(outputs: Any, targets: dict[str, Path], files: list[Path], cfg: Any, run: Any,
-                   reference: str) -> None:
-    """Draw the run's figures (``--plots``) and the HTML page (``--report``) and stage them."""
+                   reference: str, progress: Any = None) -> list[tuple[Path, str]]:
+    """Draw the run's figures (``--plots``) and the HTML page (``--report``) and stage them;
+    ``progress("figures", fraction)`` as each figure is done."""
     from gnss_cli.cli.figures import solve_settings, stage_figures
     from gnss_cli.plots import RUN_FIGURES
     from gnss_cli.plots.html import html_report
     from gnss_cli.plots.run import run_figures
 
-    settings = solve_settings(files, cfg, run.result, reference)
+    settings = solve_settings(files, cfg, run.result, reference, run.command)
     title = f"gnss-solve: {Path(files[0]).name}"
-    stage_figures(outputs, targets, run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg,
-                                                  (cfg.alert_limit_h_m, cfg.alert_limit_v_m)), RUN_FIGURES,
-                  lambda figs: html_report(title, figs, run.summary, settings))
+    figures = run_figures(run.result, run.reference_ecef_m, cfg.elevation_mask_deg,
+                          (cfg.alert_limit_h_m, cfg.alert_limit_v_m), progress)
+    return stage_figures(outputs, targets, figures, RUN_FIGURES, lambda figs: html_report(title, figs, run.summary, settings),
+                         progress)
 
 
 def main() -> None:

@@ -38,11 +38,13 @@ class _Spools:
     def __init__(self) -> None:
         self.files: dict[tuple[str, str], IO[str]] = {}
         self.header: dict[str, str] = {}
+        self.rows: dict[tuple[str, str], int] = {}
 
     def write(self, table: str, method: str, text: str) -> None:
         head, _, body = text.partition("\n")
         self.header.setdefault(table, head + "\n")
         key = (table, method)
+        self.rows[key] = self.rows.get(key, 0) + body.count("\n")
         if key not in self.files:
             self.files[key] = tempfile.TemporaryFile("w+", encoding="ascii", newline="")
         self.files[key].write(body)
@@ -64,6 +66,7 @@ class _Spools:
             f.close()
         self.files.clear()
         self.header.clear()
+        self.rows.clear()
 
 
 class _Models:
@@ -137,6 +140,10 @@ class RunOutput:
     result: Any = None
     reference_ecef_m: Any = None
     files: list[Path] = field(default_factory=list)
+    command: str = ""
+    """The command line of the run (the first column of ``summary.csv``)."""
+    run_settings: dict[str, str] = field(default_factory=dict)
+    """The run's resolved settings (:func:`run_settings`; the second column of ``summary.csv``)."""
 
     def close(self) -> None:
         self.spools.close()
@@ -144,7 +151,8 @@ class RunOutput:
 
 
 def solve_files(files: list[Path], cfg: Any, progress: Any, reference: Any, *, tables: tuple[str, ...] = TABLES,
-                models: bool = False, keep_positions: bool = False, keep_result: bool = False) -> RunOutput:
+                models: bool = False, keep_positions: bool = False, keep_result: bool = False,
+                command: str = "") -> RunOutput:
     """Run OBS NAV... (``files``) part by part with ``cfg`` and build the outputs of the run.
 
     Parameters
@@ -158,6 +166,8 @@ def solve_files(files: list[Path], cfg: Any, progress: Any, reference: Any, *, t
     keep_positions, keep_result : bool
         Keep the whole positions table (another format than CSV, ``gnss-batch``) / the whole
         run and its reference (figures).
+    command : str
+        The command line, recorded in ``summary.csv`` and the report.
 
     Raises what :class:`~gnss_cli.pipeline.run.Run` raises. The caller closes the result.
     """
@@ -187,9 +197,17 @@ def solve_files(files: list[Path], cfg: Any, progress: Any, reference: Any, *, t
         out.close()
         raise
     assert last is not None
+    from gnss_cli.io.reference import coverage_warning
+
+    warnings = list(run.warnings)
+    if reference.moving:
+        note = coverage_warning(*out.summary.coverage(), reference.source)
+        if note is not None:
+            warnings.append(note)
     result = RunOutput(out.spools, out.models, out.summary.table(last), tuple(last.solutions), dict(last.settings),
-                       list(run.warnings), reference.given, tuple(last.epochs.systems), last.epochs.marker_name,
-                       files=list(files))
+                       warnings, reference.given, tuple(last.epochs.systems), last.epochs.marker_name,
+                       files=list(files), command=command,
+                       run_settings=run_settings(cfg, reference_text(reference), tuple(last.epochs.systems)))
     if keep_positions:
         import pandas as pd
 
@@ -240,6 +258,22 @@ class _Summary:
             self.parts.setdefault(m, []).append(columns)
         self.refs.append(ref if ref is None or np.ndim(ref) == 1 else ref.copy())
 
+    def coverage(self) -> tuple[int, int]:
+        """``(matched, solved)``: the epochs solved by some method that have a reference, and
+        the epochs solved by some method."""
+        from gnss_cli.pipeline.results import EpochStatus
+
+        solved = None
+        for parts in self.parts.values():
+            ok = np.concatenate([p["status"] for p in parts]) == EpochStatus.OK
+            solved = ok if solved is None else solved | ok
+        if solved is None:
+            return 0, 0
+        refs = [np.broadcast_to(r, (n, 3)) if r is not None else np.full((n, 3), np.nan)
+                for r, n in zip(self.refs, (p["status"].size for p in next(iter(self.parts.values()))))]
+        have = np.isfinite(np.concatenate(refs)).all(axis=1) if refs else np.zeros(solved.size, dtype=bool)
+        return int((have & solved).sum()), int(solved.sum())
+
     def table(self, last: Any) -> Any:
         """``summary_table`` of the whole run (``last``: the last part, for the other fields)."""
         from gnss_cli.report import summary_table
@@ -288,24 +322,30 @@ def _write_from(outputs: Any, path: Path, writer: Any) -> None:
 
 
 def stage(outputs: Any, targets: dict[str, Path], run: RunOutput, fmt: str = "csv", time_system: str = "gpst",
-          pos_options: tuple[str, ...] = ()) -> None:
+          pos_options: tuple[str, ...] = ()) -> list[tuple[Path, str]]:
     """Stage every target (committed together when the ``OutputSet`` closes), or print the positions.
 
     ``targets``: ``positions`` (or ``positions:<method>`` per method for pos / nmea with several
     methods), the tables of :data:`TABLES`, ``summary``, ``models``. Positions in ``fmt`` other
-    than CSV need ``run.positions`` (``solve_files(..., keep_positions=True)``)."""
+    than CSV need ``run.positions`` (``solve_files(..., keep_positions=True)``).
+
+    Returns ``(path, what it holds)`` of every file staged (:func:`written_lines`)."""
     from gnss_cli.formats import render
     from gnss_cli.report import to_csv_text
 
     inputs = [str(f) for f in run.files]
+    written: list[tuple[Path, str]] = []
     for name, path in targets.items():
         if name == "models":
             _write_from(outputs, path, lambda tmp: run.models.write(tmp, run.settings))
+            written.append((path, count(run.models.count, "window record")))
         elif name == "summary":
-            outputs.write_text(path, to_csv_text(run.summary))
+            outputs.write_text(path, to_csv_text(with_run_columns(run.summary, run.command, run.run_settings)))
+            written.append((path, count(len(run.summary), "row") + ", one per method"))
         elif name.startswith("positions") and fmt != "csv":
             _, _, method = name.partition(":")
             table = run.positions[run.positions["method"] == method] if method else run.positions
+            written.append((path, count(len(table), "epoch") + (f" of {method}" if method else _of_methods(run.methods))))
             data = render(fmt, table, time_system, inputs, pos_options)
             if isinstance(data, bytes):
                 outputs.write_with(path, lambda tmp, data=data: tmp.write_bytes(data))
@@ -320,12 +360,54 @@ def stage(outputs: Any, targets: dict[str, Path], run: RunOutput, fmt: str = "cs
                     run.spools.copy(table, order, f)
 
             _write_from(outputs, path, write)
+            rows = sum(run.spools.rows.get((table, m), 0) for m in order)
+            written.append((path, count(rows, "row") + (f" of {order[0]}" if ":" in name else
+                                                         _of_methods(run.methods) if table != "satellites" else "")))
     if not any(name.startswith("positions") for name in targets):
         if fmt == "csv":
             run.spools.copy("positions", run.methods, write_stdout)
         else:
             text = render(fmt, run.positions, time_system, inputs, pos_options)
             write_stdout(text if isinstance(text, str) else text.decode())
+    return written
+
+
+def count(n: int, noun: str) -> str:
+    """``n`` and the noun, singular for one (``1 row``, ``2 rows``)."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
+def _of_methods(methods: tuple[str, ...]) -> str:
+    return f": {', '.join(methods)}" if methods else ""
+
+
+def written_lines(written: list[tuple[Path, str]], program: str = "gnss-solve") -> list[str]:
+    """The closing stderr lines that list the files a run wrote: ``<program>: wrote PATH (what)``."""
+    return [f"{program}: wrote {path} ({what})" for path, what in written]
+
+
+def run_settings(cfg: Any, reference: str, systems: tuple[str, ...] = ()) -> dict[str, str]:
+    """The resolved settings of a run that every method shares (``summary.csv``'s ``settings``
+    column; each method's own settings have columns of their own)."""
+    from gnss_cli import __version__
+
+    return {"methods": ",".join(cfg.methods), "systems": ",".join(systems or cfg.systems), "iono": cfg.iono,
+            "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.model,
+            "integrity": cfg.integrity, "robust": cfg.robust, "time_system": cfg.time_system,
+            "reference": reference, "version": __version__}
+
+
+RUN_COLUMNS = ("command", "settings")
+"""The first columns of ``summary.csv``: the same value on every row."""
+
+
+def with_run_columns(summary: Any, command: str, settings: dict[str, str]) -> Any:
+    """``summary`` with :data:`RUN_COLUMNS` first: the command line and ``key=value; ...`` of
+    the settings (one value for every row, so that ``pandas.read_csv`` needs no option)."""
+    out = summary.copy()
+    out.insert(0, "settings", "; ".join(f"{k}={v}" for k, v in settings.items()))
+    out.insert(0, "command", command)
+    return out
 
 
 def closing_lines(run: RunOutput, program: str = "gnss-solve") -> list[str]:

@@ -23,6 +23,7 @@ Modules, one job each::
     common      What every figure shares: method styles, the time axis, scale choices, PNG bytes.
     errors      Position errors: ENU errors over time, the horizontal scatter with 95 % ellipses, an...
     html        The one-page HTML report: figures embedded as base64 PNG, the summary table, the set...
+    network     The figures of a gnss-batch network: per station its RMS errors and mean GDOP, a map.
     run         Every figure of a gnss-solve run, from its RunResult.
     satellites  Satellite geometry over the run: sky plot of used and excluded satellites, satellite...
     stanford    The Stanford diagram: each epoch's horizontal error against its HPL and vertical err...
@@ -33,7 +34,7 @@ from __future__ import annotations
 
 from gnss_cli.errors import ConfigError
 
-__all__ = ["PLOT_EXTRA_HINT", "RUN_FIGURES", "IDENTIFY_FIGURES", "require_matplotlib"]
+__all__ = ["PLOT_EXTRA_HINT", "RUN_FIGURES", "IDENTIFY_FIGURES", "NETWORK_FIGURES", "require_matplotlib"]
 
 RUN_FIGURES = {
     "enu_errors": "E, N and U errors over time per method (deviations from each method's mean without a reference)",
@@ -52,6 +53,12 @@ IDENTIFY_FIGURES = {
     "identification": "Identified and predicted trajectory against the data (E, N, U and horizontal track)",
 }
 """The figures of ``gnss-identify --plots``: file stem -> caption."""
+
+NETWORK_FIGURES = {
+    "stations": "Per station and method: 3D RMS error against the reference and mean GDOP",
+    "station_map": "Mean positions of the stations",
+}
+"""The figures of ``gnss-batch --plots``: file stem -> caption."""
 
 PLOT_EXTRA_HINT = "pip install 'gnss-solve[plot]'"
 """How to install the optional plotting dependency."""

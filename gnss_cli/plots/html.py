@@ -40,8 +40,34 @@ def table_html(df: pd.DataFrame, css_class: str) -> str:
     return f'<div class="scroll"><table class="{css_class}">\n<tr>{head}</tr>\n{rows}</table></div>'
 
 
+KEY_COLUMNS = ["method", "epochs", "ok_%", "rms_3d_m", "rms_horizontal_m", "rms_vertical_m", "mean_gdop"]
+"""The columns of the report's first summary table (:func:`key_summary`)."""
+
+
+def key_summary(summary: pd.DataFrame) -> pd.DataFrame:
+    """The key columns of a summary table, one row per method: ``method``, ``epochs``, ``ok_%``
+    (epochs solved, per cent), the 3D, horizontal (``√(rms_e² + rms_n²)``) and vertical
+    (``rms_u``) RMS errors in m (empty without a reference), ``mean_gdop``.
+
+    >>> print(key_summary(pd.DataFrame({"method": ["wls"], "epochs": [4], "epochs_solved": [3], "rms_e_m": [3.0],
+    ...       "rms_n_m": [4.0], "rms_u_m": [1.0], "rms_3d_m": [5.1], "mean_gdop": [2.0]})).to_string(index=False))
+    method  epochs  ok_%  rms_3d_m  rms_horizontal_m  rms_vertical_m  mean_gdop
+       wls       4  75.0       5.1               5.0             1.0        2.0
+    """
+    def col(name: str) -> pd.Series:
+        return summary[name] if name in summary.columns else pd.Series(np.nan, index=summary.index)
+
+    epochs = col("epochs")
+    return pd.DataFrame({
+        "method": col("method"), "epochs": epochs,
+        "ok_%": 100.0 * col("epochs_solved") / epochs.where(epochs > 0),
+        "rms_3d_m": col("rms_3d_m"), "rms_horizontal_m": np.hypot(col("rms_e_m"), col("rms_n_m")),
+        "rms_vertical_m": col("rms_u_m"), "mean_gdop": col("mean_gdop"),
+    })[KEY_COLUMNS]
+
+
 def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: pd.DataFrame,
-                settings: Mapping[str, object]) -> str:
+                settings: Mapping[str, object], key: pd.DataFrame | None = None) -> str:
     """The report page.
 
     Parameters
@@ -51,9 +77,13 @@ def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: p
     figures : mapping name -> (caption, PNG bytes)
         In page order; each becomes an ``<img>`` with a ``data:image/png;base64`` URI.
     summary : DataFrame
-        The summary table (one row per method).
+        The summary table (one row per method): its key columns (:func:`key_summary`) first,
+        every column in a folded ``<details>`` block.
     settings : mapping
         The run's settings (input files, options), shown as a two-column table.
+    key : DataFrame, optional
+        The table shown first instead of :func:`key_summary` of ``summary`` (gnss-batch: one
+        row per station).
     """
     settings_rows = "".join(f'<tr><td class="key">{html.escape(str(k))}</td><td class="key">{html.escape(str(v))}</td></tr>\n'
                             for k, v in settings.items())
@@ -62,7 +92,9 @@ def html_report(title: str, figures: Mapping[str, tuple[str, bytes]], summary: p
         f"<title>{html.escape(title)}</title>", f"<style>{_STYLE}</style>", "</head>", "<body>",
         f"<h1>{html.escape(title)}</h1>",
         "<h2>Settings</h2>", f'<table class="settings">\n<tr><th class="key">setting</th><th class="key">value</th></tr>\n{settings_rows}</table>',
-        "<h2>Summary</h2>", table_html(summary, "summary"),
+        "<h2>Summary</h2>", table_html(key_summary(summary) if key is None else key, "key-summary"),
+        f"<details><summary>All {len(summary.columns)} summary columns (as summary.csv)</summary>",
+        table_html(summary, "summary"), "</details>",
         "<h2>Figures</h2>",
     ]
     for name, (caption, png) in figures.items():

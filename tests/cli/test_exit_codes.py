@@ -49,6 +49,7 @@ CASES = [
     ("elevation mask out of range", "solve", ["{obs}", "{nav}", "--elevation-mask", "95"], 3, r"elevation_mask_deg: expected 0 <= value < 90"),
     ("negative lag", "solve", ["{obs}", "{nav}", "--method", "stls", "--lag", "-1"], 3, r"stls.lag: expected an integer >= 0"),
     ("bad reference", "solve", ["{obs}", "{nav}", "--reference", "1,2"], 3, r"--reference: expected"),
+    ("geodetic reference without its prefix", "solve", ["{obs}", "{nav}", "--reference", "22.3,114.2,4.9"], 3, r"--reference: .*write geodetic:LAT,LON,H"),
     ("bad TOML", "solve", ["{obs}", "{nav}", "--config", "{here}/bad.toml"], 3, r"bad.toml: invalid TOML"),
     ("-o names an input", "solve", ["{here}/obs.rnx", "{nav}", "-o", "{here}/obs.rnx"], 3, r"is one of the input files"),
     ("--plots without matplotlib", "solve", ["{obs}", "{nav}", "--plots", "{here}/figs"], 3, r"--plots: needs matplotlib.*pip install 'gnss-solve\[plot\]'"),
@@ -80,9 +81,9 @@ CASES = [
     ("batch, a file fails", "batch", ["{truth}", "{obs}", "--nav", "{nav}", "--out", "{here}/out"], 4, r"truth.csv: failed \(exit 4\): \S*truth.csv: .*1 of 2 files solved, 1 failed"),
 ]
 
-WRITES = {"batch, a file fails": {"out", "out/files.csv", "out/summary.csv", "out/positions", "out/positions/station=SIM",
-                                  "out/positions/station=SIM/day=2024-03-01",
-                                  "out/positions/station=SIM/day=2024-03-01/00001-obs.rnx-0.parquet"}}
+WRITES = {"batch, a file fails": {"out", "out/files.csv", "out/summary.csv", "out/positions", "out/positions/SIM",
+                                  "out/positions/SIM/day=2024-03-01",
+                                  "out/positions/SIM/day=2024-03-01/00001-obs.rnx-0.parquet"}}
 """Cases that write their outputs (the other files are solved): what they leave."""
 
 

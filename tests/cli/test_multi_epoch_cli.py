@@ -69,7 +69,8 @@ def test_what_ran_is_written_down(tmp_path: Path, capsys) -> None:  # type: igno
                          "--measurements", "pseudorange", "--out-dir", out, "--model-out", tmp_path / "m.json"], capsys)
     assert code == 0, err
     summary = pd.read_csv(out / "summary.csv").set_index("method")
-    assert list(summary.columns[:6]) == ["estimator", "model", "lag", "window", "measurements", "integrity"]
+    assert list(summary.columns[:8]) == ["command", "settings", "estimator", "model", "lag", "window", "measurements",
+                                         "integrity"]
     assert summary.loc["stls", "estimator"] == "identified Hankel STLS" and summary.loc["stls", "window"] == "15 epochs"
     assert summary.loc["smoother", "estimator"] == "fixed-model batch smoother"
     assert summary.loc["kf", "measurements"] == "pseudorange" and summary.loc["smoother", "measurements"] == "pseudorange"

@@ -60,7 +60,7 @@ def test_plots_and_report_written_with_the_csv(tmp_path, capsys):
     page = (tmp_path / "run.html").read_text(encoding="utf-8")
     parser = _Images()
     parser.feed(page)
-    assert len(parser.images) == len(RUN_FIGURES) and parser.tables == 2
+    assert len(parser.images) == len(RUN_FIGURES) and parser.tables == 3  # settings, key columns, all (folded)
     assert all(src.startswith("data:image/png;base64,") for src in parser.images)
     assert "obs.rnx" in page and "truth.csv" in page and "rms_3d_m" in page
     assert (tmp_path / "positions.csv").is_file()

@@ -157,7 +157,8 @@ def test_html_report_embeds_figures_and_summary(static_run, figures):
     parser = _Page()
     parser.feed(page)
     assert len(parser.images) == 2 and all(src.startswith("data:image/png;base64,") for src in parser.images)
-    settings, table = parser.tables
+    settings, key, table = parser.tables
     assert settings == ["setting", "value", "methods", "ls, wls"]
+    assert key[:7] == ["method", "epochs", "ok_%", "rms_3d_m", "rms_horizontal_m", "rms_vertical_m", "mean_gdop"]
     assert table[: len(summary.columns)] == list(summary.columns) and "wls" in table
     assert "<title>run &lt;1&gt;</title>" in page
