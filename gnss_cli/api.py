@@ -57,7 +57,7 @@ _UNITS = {
     "u_err_m": ("m", "up error against the reference"), "err_3d_m": ("m", "3D error against the reference"),
     "n_excluded": ("1", "satellites excluded by the integrity monitoring (FDE) of the WLS fix"),
     "test_stat": ("1", "chi-square statistic of the pseudorange residuals at the fix"),
-    "hpl_m": ("m", "horizontal protection level (ls, wls)"), "vpl_m": ("m", "vertical protection level (ls, wls)"),
+    "hpl_m": ("m", "horizontal protection level by solution separation (ls, wls)"), "vpl_m": ("m", "vertical protection level by solution separation (ls, wls)"),
     "vx_m_s": ("m/s", "ECEF X velocity (Doppler)"), "vy_m_s": ("m/s", "ECEF Y velocity (Doppler)"),
     "vz_m_s": ("m/s", "ECEF Z velocity (Doppler)"), "clock_drift_m_s": ("m/s", "receiver clock drift, times c"),
     "gdop_vel": ("1", "velocity DOP of velocity and clock drift"),
