@@ -27,9 +27,11 @@ Brunner 1999; Kuusniemi et al. 2004)::
 
 and the carrier noise is the thermal jitter of a PLL of bandwidth ``B_n`` (Kaplan and Hegarty
 2017, eq. 8.34): ``sigma_phase = lambda / (2 pi) sqrt(B_n / 10^(C/N0 / 10))``. Cycle slips occur
-at the rate ``slip_rate_per_s 10^((35 - C/N0) / 10)`` (per second, 35 dB-Hz the reference), and
-lock is lost whenever a satellite is not tracked for an epoch; both set the loss-of-lock
-indicator and change the integer ambiguity.
+at the rate ``slip_rate_per_s 10^((35 - C/N0) / 10)`` (per second, 35 dB-Hz the reference);
+lock is lost whenever a satellite is not tracked for an epoch and whenever its signal path
+changes (direct to reflected and back, another reflecting arc or block). Each sets the loss-of-lock
+indicator and changes the integer ambiguity; the carrier is continuous otherwise. The Doppler
+carries the NLOS delay rate ``w d(cos(el) |sin az_rel|)/dt`` (central differences).
 """
 
 from __future__ import annotations
@@ -186,7 +188,8 @@ def street_heading_rad(vel_enu_m_s: F64, t_rel_s: F64, street_azimuth_rad: float
     t_rel_s
         Times since the start ``(T,)``, s.
     street_azimuth_rad
-        Axis while the receiver has not yet moved (all the time for a static one), rad.
+        Axis of a receiver that never moves, rad (one that moves starts in the street of its
+        first heading).
     min_speed_m_s
         Below this speed the last heading is kept (a stopped car stays in its street).
 
@@ -197,8 +200,11 @@ def street_heading_rad(vel_enu_m_s: F64, t_rel_s: F64, street_azimuth_rad: float
     speed = np.hypot(vel_enu_m_s[:, 0], vel_enu_m_s[:, 1])
     moving = speed >= min_speed_m_s
     raw = np.arctan2(vel_enu_m_s[:, 0], vel_enu_m_s[:, 1])
-    last = np.maximum.accumulate(np.where(moving, np.arange(speed.size), -1))
-    heading = np.where(last >= 0, raw[np.maximum(last, 0)], street_azimuth_rad)
+    if not moving.any():
+        heading = np.full(speed.size, street_azimuth_rad)
+    else:  # the last heading while stopped; before the first move, the street it starts in
+        last = np.maximum.accumulate(np.where(moving, np.arange(speed.size), -1))
+        heading = raw[np.where(last >= 0, last, np.argmax(moving))]
     distance = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(t_rel_s))])
     return heading, distance
 
@@ -324,9 +330,10 @@ def urban_observables(
     # the reflection point on the far wall is (w / 2) / |sin az_rel| away, tan(el) times that higher
     point_m = np.tan(np.clip(el_rad, 0.0, 1.5)) * 0.5 * width / np.maximum(sin_rel, 1e-3)
     nlos = ~los & reflected[arc] & (point_m < h_far) & (el_rad > 0.0)
-    delay_all = width * np.cos(el_rad) * sin_rel + extra[arc]
-    delay_rate = np.gradient(delay_all, t_rel_s, axis=0) if n_t > 1 else np.zeros_like(delay_all)
-    bias = np.where(nlos, delay_all, 0.0)
+    geometry = np.cos(el_rad) * sin_rel
+    bias = np.where(nlos, width * geometry + extra[arc], 0.0)
+    # the rate within one reflector (width and extra path fixed): no spikes where they change
+    delay_rate = width * (np.gradient(geometry, t_rel_s, axis=0) if n_t > 1 else np.zeros_like(geometry))
     received = (los | nlos) & above_mask
     # C/N0 and the noise it sets
     cn0 = profile.cn0_zenith_dbhz - cfg.cn0_elevation_drop_db * (1.0 - np.sin(np.clip(el_rad, 0.0, None)))
@@ -337,7 +344,10 @@ def urban_observables(
     # carrier: loss of lock on reacquisition, slips at a C/N0-dependent rate; new integers
     tracked_before = np.vstack([np.ones((1, n), dtype=bool), received[:-1]])
     p_slip = np.minimum(cfg.slip_rate_per_s * interval * 10.0 ** ((35.0 - cn0) / 10.0), 1.0)
-    slip = received & (~tracked_before | (env_rng.random((n_t, n)) < p_slip))
+    # a new signal path (direct <-> reflected, another reflector) breaks the carrier too
+    new_path = np.zeros((n_t, n), dtype=bool)
+    new_path[1:] = (nlos[1:] != nlos[:-1]) | (nlos[1:] & ((arc[1:] != arc[:-1]) | (block[1:] != block[:-1])[:, None]))
+    slip = received & (~tracked_before | new_path | (env_rng.random((n_t, n)) < p_slip))
     slip[0] = False
     jumps = env_rng.integers(1, 1000, (n_t, n, 2)) * env_rng.choice([-1, 1], (n_t, n, 2))
     start = env_rng.integers(-100_000, 100_000, (1, n, 2))
