@@ -39,7 +39,14 @@ from gnss_cli.gnss.orbits import broadcast_states
 from gnss_cli.sim.constellation import SYSTEMS
 from gnss_cli.sim.error_sources import ErrorConfig, multipath_m, noise_sigma_m, random_outliers_m, receiver_clock_m
 from gnss_cli.sim.trajectory import Trajectory
-from gnss_cli.sim.urban import ReceiverProfile, UrbanConfig, UrbanLabels, street_heading_rad, urban_observables
+from gnss_cli.sim.urban import (
+    ReceiverProfile,
+    UrbanConfig,
+    UrbanLabels,
+    UrbanObservables,
+    street_heading_rad,
+    urban_observables,
+)
 
 F64 = NDArray[np.float64]
 
@@ -224,16 +231,7 @@ def simulate_observations(
         pr, dop, snr = _add_errors(cfg, rng, sv_all, el, np.concatenate(parts["pr"], axis=1),
                                    np.concatenate(parts["dop"], axis=1), t_rel, interval)
     else:
-        urban_cfg, profile, env_rng = canyon
-        heading, distance = street_heading_rad(np.einsum("tij,tj->ti", rx.rot_enu, trajectory.vel_ecef_m_s), t_rel,
-                                               np.deg2rad(urban_cfg.street_azimuth_deg))
-        pr, dop = _add_named_outliers(cfg, sv_all, np.concatenate(parts["pr"], axis=1), t_rel), np.concatenate(parts["dop"], axis=1)
-        city = urban_observables(
-            urban_cfg, profile, t_rel_s=t_rel, heading_rad=heading, distance_m=distance, el_rad=el, az_rad=az,
-            above_mask=visible, pseudorange_m=pr, doppler_hz=dop, phase_m=np.concatenate(parts["phase"], axis=1),
-            wavelength_m=_wavelengths(sv_all), noise=cfg.on("noise"), multipath=cfg.on("multipath"),
-            doppler_sigma_m_s=cfg.doppler_sigma_m_s, env_rng=env_rng, noise_rng=rng,
-        )
+        city = _canyon(canyon, cfg, rng, rx, trajectory, sv_all, parts, el, az, visible, t_rel)
         pr, dop, snr, phase, labels = city.pseudorange_m, city.doppler_hz, city.snr_dbhz, city.phase_cycles, city.labels
         visible = labels.received
     fault = random_outliers_m(cfg, el, rng.spawn(1)[0]) if cfg.outlier_rate > 0 else None
@@ -352,6 +350,24 @@ def _add_errors(
         snr1 = snr1 + rng.normal(0.0, 0.5, snr1.shape)
     snr = np.stack([snr1, snr1 - 3.0], axis=-1)
     return pr, dop, snr
+
+
+def _canyon(
+    canyon: tuple[UrbanConfig, ReceiverProfile, np.random.Generator], cfg: ErrorConfig, rng: np.random.Generator,
+    rx: _Receiver, trajectory: Trajectory, sv_all: NDArray[np.str_], parts: dict[str, list[F64]], el: F64, az: F64,
+    above_mask: NDArray[np.bool_], t_rel: F64,
+) -> UrbanObservables:
+    """The error-free observables (with the named outliers) put through the street canyon."""
+    urban_cfg, profile, env_rng = canyon
+    vel_enu = np.einsum("tij,tj->ti", rx.rot_enu, trajectory.vel_ecef_m_s)
+    heading, distance = street_heading_rad(vel_enu, t_rel, np.deg2rad(urban_cfg.street_azimuth_deg))
+    pr = _add_named_outliers(cfg, sv_all, np.concatenate(parts["pr"], axis=1), t_rel)
+    return urban_observables(
+        urban_cfg, profile, t_rel_s=t_rel, heading_rad=heading, distance_m=distance, el_rad=el, az_rad=az,
+        above_mask=above_mask, pseudorange_m=pr, doppler_hz=np.concatenate(parts["dop"], axis=1),
+        phase_m=np.concatenate(parts["phase"], axis=1), wavelength_m=_wavelengths(sv_all), noise=cfg.on("noise"),
+        multipath=cfg.on("multipath"), doppler_sigma_m_s=cfg.doppler_sigma_m_s, env_rng=env_rng, noise_rng=rng,
+    )
 
 
 def _wavelengths(sv_all: NDArray[np.str_]) -> F64:

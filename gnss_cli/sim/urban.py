@@ -241,6 +241,46 @@ def _arc_index(t_rel_s: F64, n_sv: int, arc_s: tuple[float, float], rng: np.rand
     return np.searchsorted(flat, query, side="right"), n_sv * per_sv
 
 
+def los_cn0_dbhz(cfg: UrbanConfig, profile: ReceiverProfile, el_rad: F64) -> F64:
+    """Line-of-sight C/N0 of the first signal, dB-Hz: ``C/N0_zenith - drop (1 - sin el)`` (el in rad,
+    clipped at 0)."""
+    return profile.cn0_zenith_dbhz - cfg.cn0_elevation_drop_db * (1.0 - np.sin(np.clip(el_rad, 0.0, None)))
+
+
+def _street(
+    cfg: UrbanConfig, distance_m: F64, heading_rad: F64, az_rad: F64, env_rng: np.random.Generator
+) -> tuple[NDArray[np.intp], F64, F64, F64, F64]:
+    """The buildings along the path: block number ``(T,)``, street width ``(T, 1)`` m, azimuth
+    relative to the street ``(T, n)`` rad, and the heights above the antenna of the wall on the
+    satellite's side and of the opposite one ``(T, n)``, m (negative: no building)."""
+    block = np.floor(distance_m / cfg.block_length_m).astype(np.intp)
+    n_blocks = int(block.max()) + 1
+    width = env_rng.uniform(*cfg.street_width_m, n_blocks)[block][:, None]
+    heights = env_rng.uniform(*cfg.building_height_m, (n_blocks, 2)) * (env_rng.random((n_blocks, 2)) >= cfg.gap_share)
+    az_rel = az_rad - heading_rad[:, None]
+    right = np.sin(az_rel) > 0.0
+    h_near = np.where(right, heights[block, 1][:, None], heights[block, 0][:, None]) - cfg.antenna_height_m
+    h_far = np.where(right, heights[block, 0][:, None], heights[block, 1][:, None]) - cfg.antenna_height_m
+    return block, width, az_rel, h_near, h_far
+
+
+def _carrier_slips(
+    cfg: UrbanConfig, received: NDArray[np.bool_], new_path: NDArray[np.bool_], cn0_dbhz: F64, interval_s: float,
+    env_rng: np.random.Generator,
+) -> tuple[NDArray[np.bool_], NDArray[np.int64]]:
+    """Where carrier continuity is lost ``(T, n)`` (reacquisition, a new path, or a slip at the rate
+    ``slip_rate_per_s 10^((35 - C/N0) / 10)``; never at the first epoch) and the integer
+    ambiguities ``(T, n, 2)``: random at the start, changed by a random non-zero integer at each loss."""
+    n_t, n = received.shape
+    tracked_before = np.vstack([np.ones((1, n), dtype=bool), received[:-1]])
+    p_slip = np.minimum(cfg.slip_rate_per_s * interval_s * 10.0 ** ((35.0 - cn0_dbhz) / 10.0), 1.0)
+    slip = received & (~tracked_before | new_path | (env_rng.random((n_t, n)) < p_slip))
+    slip[0] = False
+    jumps = env_rng.integers(1, 1000, (n_t, n, 2)) * env_rng.choice([-1, 1], (n_t, n, 2))
+    start = env_rng.integers(-100_000, 100_000, (1, n, 2))
+    return slip, start + np.cumsum(np.where(slip[..., None], jumps, 0), axis=0)
+
+
 def _gauss_markov(shape: tuple[int, int], interval_s: float, tau_s: float, rng: np.random.Generator) -> F64:
     """Unit-variance first-order Gauss-Markov sequences along axis 0, started stationary."""
     phi = np.exp(-interval_s / tau_s)
@@ -310,15 +350,7 @@ def urban_observables(
     """
     n_t, n = el_rad.shape
     interval = float(np.median(np.diff(t_rel_s))) if n_t > 1 else 1.0
-    # buildings: width and the two heights of each block along the path
-    block = np.floor(distance_m / cfg.block_length_m).astype(np.intp)
-    n_blocks = int(block.max()) + 1
-    width = env_rng.uniform(*cfg.street_width_m, n_blocks)[block][:, None]
-    heights = env_rng.uniform(*cfg.building_height_m, (n_blocks, 2)) * (env_rng.random((n_blocks, 2)) >= cfg.gap_share)
-    az_rel = az_rad - heading_rad[:, None]
-    right = np.sin(az_rel) > 0.0
-    h_near = np.where(right, heights[block, 1][:, None], heights[block, 0][:, None]) - cfg.antenna_height_m
-    h_far = np.where(right, heights[block, 0][:, None], heights[block, 1][:, None]) - cfg.antenna_height_m
+    block, width, az_rel, h_near, h_far = _street(cfg, distance_m, heading_rad, az_rad, env_rng)
     mask = street_mask_rad(az_rel, 0.5 * width, h_near)
     los = el_rad >= mask
     # NLOS arcs: reflected or not, extra path and C/N0 loss, drawn per arc
@@ -335,23 +367,14 @@ def urban_observables(
     # the rate within one reflector (width and extra path fixed): no spikes where they change
     delay_rate = width * (np.gradient(geometry, t_rel_s, axis=0) if n_t > 1 else np.zeros_like(geometry))
     received = (los | nlos) & above_mask
-    # C/N0 and the noise it sets
-    cn0 = profile.cn0_zenith_dbhz - cfg.cn0_elevation_drop_db * (1.0 - np.sin(np.clip(el_rad, 0.0, None)))
-    cn0 = np.where(nlos, cn0 - loss[arc], cn0)
+    cn0 = np.where(nlos, los_cn0_dbhz(cfg, profile, el_rad) - loss[arc], los_cn0_dbhz(cfg, profile, el_rad))
     cn0_2 = np.stack([cn0, cn0 - 3.0], axis=-1)  # the second signal 3 dB weaker, as in open sky
     sigma_code = np.sqrt(profile.sigma_a_m2 + profile.sigma_b_m2_hz * 10.0 ** (-cn0_2 / 10.0))
     sigma_phase = wavelength_m[None] / (2.0 * np.pi) * np.sqrt(cfg.pll_bandwidth_hz * 10.0 ** (-cn0_2 / 10.0))
-    # carrier: loss of lock on reacquisition, slips at a C/N0-dependent rate; new integers
-    tracked_before = np.vstack([np.ones((1, n), dtype=bool), received[:-1]])
-    p_slip = np.minimum(cfg.slip_rate_per_s * interval * 10.0 ** ((35.0 - cn0) / 10.0), 1.0)
-    # a new signal path (direct <-> reflected, another reflector) breaks the carrier too
+    # a new signal path (direct <-> reflected, another reflector) breaks the carrier
     new_path = np.zeros((n_t, n), dtype=bool)
     new_path[1:] = (nlos[1:] != nlos[:-1]) | (nlos[1:] & ((arc[1:] != arc[:-1]) | (block[1:] != block[:-1])[:, None]))
-    slip = received & (~tracked_before | new_path | (env_rng.random((n_t, n)) < p_slip))
-    slip[0] = False
-    jumps = env_rng.integers(1, 1000, (n_t, n, 2)) * env_rng.choice([-1, 1], (n_t, n, 2))
-    start = env_rng.integers(-100_000, 100_000, (1, n, 2))
-    ambiguity = start + np.cumsum(np.where(slip[..., None], jumps, 0), axis=0)
+    slip, ambiguity = _carrier_slips(cfg, received, new_path, cn0, interval, env_rng)
     pr = pseudorange_m + bias[..., None]
     dop = doppler_hz - np.where(nlos, delay_rate, 0.0)[..., None] / wavelength_m[None]
     phase = (phase_m + bias[..., None]) / wavelength_m[None] + ambiguity
