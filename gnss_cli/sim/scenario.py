@@ -74,7 +74,8 @@ class ScenarioConfig:
     urban : the canyon's settings.
     given : the keys among ``systems`` and ``dual_frequency`` set explicitly (by a TOML file or a
         flag): with ``environment = "urban"`` the receiver profile sets the others
-        (:func:`with_receiver_profile`). Not compared.
+        (:func:`with_receiver_profile`, which :func:`config_from_mapping` applies; a config
+        built with ``dataclasses.replace`` runs as it is). Not compared.
     """
 
     trajectory: str = "static"

@@ -337,3 +337,29 @@ def test_gnss_solve_runs_on_the_canyon(method: str, tmp_path: Path, capsys: pyte
     assert f"{method}: " in err and "3D RMS" in err
     errors = pd.read_csv(tmp_path / "out" / "errors.csv")
     assert len(errors) == 121 and (errors["status"] == "ok").any()  # a row per epoch, some accepted
+
+
+def test_canyon_flags_show_the_packaged_defaults() -> None:
+    import typer
+
+    from gnss_cli.config import packaged_defaults
+
+    command = typer.main.get_command(simulate_app)
+    options = {opt: p for p in command.params for opt in getattr(p, "opts", [])}
+    toml, built_in = packaged_defaults("simulate.toml"), ScenarioConfig()
+    for flag, key in (("--environment", "environment"), ("--receiver", "receiver")):
+        assert options[flag].default is None, flag  # type: ignore[attr-defined]
+        assert options[flag].show_default == toml["simulate"][key] == getattr(built_in, key), flag  # type: ignore[attr-defined]
+    assert set(toml["urban"]) == {f for f in built_in.urban.__dataclass_fields__}
+
+
+@pytest.mark.parametrize(("args", "message"), [(["--environment", "city"], "--environment"),
+                                               (["--environment", "urban", "--receiver", "triple"], "--receiver")])
+def test_unknown_environment_or_receiver_is_a_configuration_error(
+    args: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        run_app(simulate_app, "gnss-simulate", ["--out-dir", str(tmp_path), "--duration", "10", *args])
+    assert exc.value.code == 3
+    assert message in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
