@@ -63,7 +63,7 @@ def _values_are_configuration() -> Iterator[None]:
 @app.command(cls=PanelCommand, epilog=EXAMPLES)
 def simulate(
     out_dir: Annotated[Path, typer.Option("--out-dir", metavar="DIR", rich_help_panel="Output", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
-    trajectory: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "trajectory"), help="static | flight | semicircle | csv:FILE")] = None,
+    trajectory: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "trajectory"), help="static | flight | drive | semicircle | csv:FILE")] = None,
     start: Annotated[Optional[str], typer.Option(metavar="TIME", rich_help_panel="Scenario", show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
     duration: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
     interval: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,
@@ -82,6 +82,8 @@ def simulate(
     outlier_sats: Annotated[Optional[str], typer.Option(metavar="LIST", rich_help_panel="Errors", show_default=_default("errors", "outlier_sats"), help="Satellites with injected outliers, e.g. G05,G07.")] = None,
     outlier_m: Annotated[Optional[str], typer.Option(metavar="M", rich_help_panel="Errors", show_default=_default("errors", "outlier_m"), help="Outlier size, m (with --outlier-sats); LOW,HIGH: the range of the random outliers' sizes (with --outlier-rate).")] = None,
     outlier_rate: Annotated[Optional[float], typer.Option(metavar="SHARE", rich_help_panel="Errors", show_default=_default("errors", "outlier_rate"), help="Share of epochs with a random outlier on one random satellite (writes faults.csv).")] = None,
+    environment: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "environment"), help="open | urban (a street canyon: masks, NLOS, C/N0, phase with slips; writes faults.csv).")] = None,
+    receiver: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "receiver"), help="With urban: single (GPS+BeiDou L1) | dual (G,E,C,J two frequencies); --systems and --dual-frequency override.")] = None,
     elevation_mask: Annotated[Optional[float], typer.Option(metavar="DEG", rich_help_panel="Scenario", show_default=_default("simulate", "elevation_mask_deg"), help="Elevation mask of what is written, deg.")] = None,
     position: Annotated[
         Optional[str], typer.Option(metavar="LAT,LON,H", rich_help_panel="Scenario", show_default=",".join(_default("simulate", k) for k in ("latitude_deg", "longitude_deg", "height_m")), help="Site / start point LAT_DEG,LON_DEG,HEIGHT_M.")
@@ -125,7 +127,7 @@ def simulate(
                 "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
                 "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
                 "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
-                "truth_ranges": truth_ranges, "errors": errors,
+                "truth_ranges": truth_ranges, "errors": errors, "environment": environment, "receiver": receiver,
             },
             "errors": {
                 "noise_sigma_m": noise_sigma, "noise_elevation_dependent": None if noise_model is None else noise_model == "elevation",

@@ -19,6 +19,9 @@ Signal model (the convention a standard single-frequency receiver inverts, e.g. 
   ``+ (f1/f7)^2 c BGD``, BeiDou B2I ``+ c TGD2``; ionosphere scaled by ``(f_L1/f)^2``.
 - Doppler ``D = -(d rho/dt + b_dot - c dt_sv_dot) / lambda`` (Hz), the derivatives by central
   differences over 1 s of the light-time range and of the broadcast clock.
+- Carrier phase (street canyon only): ``Phi = (rho + b - c dt_sv + T - I) / lambda + N`` cycles
+  (no group delays; the ionosphere advances the phase); the canyon (:mod:`gnss_cli.sim.urban`)
+  adds the NLOS path to code and carrier and chooses the integers ``N``.
 """
 
 from __future__ import annotations
@@ -36,6 +39,14 @@ from gnss_cli.gnss.orbits import broadcast_states
 from gnss_cli.sim.constellation import SYSTEMS
 from gnss_cli.sim.error_sources import ErrorConfig, multipath_m, noise_sigma_m, random_outliers_m, receiver_clock_m
 from gnss_cli.sim.trajectory import Trajectory
+from gnss_cli.sim.urban import (
+    ReceiverProfile,
+    UrbanConfig,
+    UrbanLabels,
+    UrbanObservables,
+    street_heading_rad,
+    urban_observables,
+)
 
 F64 = NDArray[np.float64]
 
@@ -82,6 +93,10 @@ class Observations:
     rx_clock_drift_m_s: F64
     outlier_bias_m: F64 | None = None
     """``(T, n)`` random outlier biases put on both pseudoranges, m (0: none; None: no random outliers)."""
+    phase_cycles: F64 | None = None
+    """``(T, n, 2)`` carrier phases, cycles (None: not simulated; the street canyon only)."""
+    urban: UrbanLabels | None = None
+    """What the street canyon did (None: open sky)."""
 
 
 def light_time_states(
@@ -157,6 +172,7 @@ def simulate_observations(
     klobuchar_alpha: F64,
     klobuchar_beta: F64,
     elevation_mask_deg: float = 5.0,
+    canyon: tuple[UrbanConfig, ReceiverProfile, np.random.Generator] | None = None,
 ) -> Observations:
     """Observables of every satellite of the systems in ``truth`` at the trajectory's epochs.
 
@@ -176,6 +192,10 @@ def simulate_observations(
         Broadcast ionosphere coefficients ``(4,)`` each.
     elevation_mask_deg
         Satellites below are marked not visible.
+    canyon
+        A street canyon, the receiver in it and the canyon's own generator
+        (:func:`~gnss_cli.sim.urban.urban_observables`; it replaces the open-sky noise,
+        multipath and SNR models and adds carrier phases); None: open sky.
 
     Returns
     -------
@@ -193,7 +213,7 @@ def simulate_observations(
                    drift_m_s)
     tropo_offset_m = rng.normal(0.0, cfg.tropo_zenith_sigma_m) if cfg.on("tropo") else 0.0
 
-    parts: dict[str, list[F64]] = {k: [] for k in ("t_tx", "pos", "range", "el", "az", "clock", "pr", "dop", "snr", "iono", "tropo")}
+    parts: dict[str, list[F64]] = {k: [] for k in ("t_tx", "pos", "range", "el", "az", "clock", "pr", "dop", "phase", "snr", "iono", "tropo")}
     svs: list[NDArray[np.str_]] = []
     for system, eph in truth.items():
         sv, one = _system_observables(system, eph, np.asarray(tgd2_s[system]), rx, cfg, klobuchar_alpha,
@@ -204,21 +224,31 @@ def simulate_observations(
 
     sv_all = np.concatenate(svs)
     el = np.concatenate(parts["el"], axis=1)
-    pr, dop, snr = _add_errors(cfg, rng, sv_all, el, np.concatenate(parts["pr"], axis=1),
-                               np.concatenate(parts["dop"], axis=1), t_rel, interval)
+    az = np.concatenate(parts["az"], axis=1)
+    visible = el >= np.deg2rad(elevation_mask_deg)
+    phase = labels = None
+    if canyon is None:
+        pr, dop, snr = _add_errors(cfg, rng, sv_all, el, np.concatenate(parts["pr"], axis=1),
+                                   np.concatenate(parts["dop"], axis=1), t_rel, interval)
+    else:
+        city = _canyon(canyon, cfg, rng, rx, trajectory, sv_all, parts, el, az, visible, t_rel)
+        pr, dop, snr, phase, labels = city.pseudorange_m, city.doppler_hz, city.snr_dbhz, city.phase_cycles, city.labels
+        visible = labels.received
     fault = random_outliers_m(cfg, el, rng.spawn(1)[0]) if cfg.outlier_rate > 0 else None
     if fault is not None:
         pr = pr + fault[..., None]
     return Observations(
+        phase_cycles=phase,
+        urban=labels,
         outlier_bias_m=fault,
         t_gps_s=t,
         sv=sv_all,
         pseudorange_m=pr,
         doppler_hz=dop,
         snr_dbhz=snr,
-        visible=el >= np.deg2rad(elevation_mask_deg),
+        visible=visible,
         el_rad=el,
-        az_rad=np.concatenate(parts["az"], axis=1),
+        az_rad=az,
         range_m=np.concatenate(parts["range"], axis=1),
         t_tx_gps_s=np.concatenate(parts["t_tx"], axis=1),
         sv_pos_ecef_m=np.concatenate(parts["pos"], axis=1),
@@ -296,8 +326,9 @@ def _system_observables(
         [common + C_M_S * gd[k] + iono_l1 * (FREQ_L1_HZ / f) ** 2 for k, f in enumerate((f1, f2))], axis=-1
     )
     dop = np.stack([-rate / (C_M_S / f) for f in (f1, f2)], axis=-1)
+    phase = np.stack([common - iono_l1 * (FREQ_L1_HZ / f) ** 2 for f in (f1, f2)], axis=-1)
     return sv, {"t_tx": t_tx, "pos": pos, "range": rho, "el": el, "az": az, "clock": C_M_S * clk_s, "pr": pr,
-                "dop": dop, "iono": iono_l1 * (FREQ_L1_HZ / f1) ** 2, "tropo": tropo}
+                "dop": dop, "phase": phase, "iono": iono_l1 * (FREQ_L1_HZ / f1) ** 2, "tropo": tropo}
 
 
 def _add_errors(
@@ -306,21 +337,50 @@ def _add_errors(
 ) -> tuple[F64, F64, F64]:
     """Noise, multipath and outliers on the pseudoranges ``(T, n, 2)``, noise on the Doppler; the SNR."""
     n_t, n = el.shape
-    wavelengths = np.concatenate(
-        [np.broadcast_to(np.array([C_M_S / f for f in SYSTEMS[s[0]].freqs_hz]), (1, 2)) for s in sv_all]
-    )  # (n, 2)
+    wavelengths = _wavelengths(sv_all)
     if cfg.on("noise"):
         sigma = noise_sigma_m(cfg, el)
         pr = pr + rng.normal(0.0, 1.0, (n_t, n, 2)) * sigma[..., None]
         dop = dop + rng.normal(0.0, cfg.doppler_sigma_m_s, (n_t, n, 2)) / wavelengths[None]
     if cfg.on("multipath"):
         pr = pr + np.stack([multipath_m(cfg, el, interval, rng) for _ in range(2)], axis=-1)
-    if cfg.on("outliers") and cfg.outlier_sats:
-        hit_sv = np.isin(sv_all, np.asarray(cfg.outlier_sats))
-        hit_t = (t_rel >= cfg.outlier_start_s) & (t_rel < cfg.outlier_end_s)
-        pr = pr + cfg.outlier_m * (hit_t[:, None] & hit_sv[None, :])[..., None]
+    pr = _add_named_outliers(cfg, sv_all, pr, t_rel)
     snr1 = np.clip(30.0 + 20.0 * np.sin(np.maximum(el, 0.0)), 25.0, 55.0)
     if cfg.on("noise"):
         snr1 = snr1 + rng.normal(0.0, 0.5, snr1.shape)
     snr = np.stack([snr1, snr1 - 3.0], axis=-1)
     return pr, dop, snr
+
+
+def _canyon(
+    canyon: tuple[UrbanConfig, ReceiverProfile, np.random.Generator], cfg: ErrorConfig, rng: np.random.Generator,
+    rx: _Receiver, trajectory: Trajectory, sv_all: NDArray[np.str_], parts: dict[str, list[F64]], el: F64, az: F64,
+    above_mask: NDArray[np.bool_], t_rel: F64,
+) -> UrbanObservables:
+    """The error-free observables (with the named outliers) put through the street canyon."""
+    urban_cfg, profile, env_rng = canyon
+    vel_enu = np.einsum("tij,tj->ti", rx.rot_enu, trajectory.vel_ecef_m_s)
+    heading, distance = street_heading_rad(vel_enu, t_rel, np.deg2rad(urban_cfg.street_azimuth_deg))
+    pr = _add_named_outliers(cfg, sv_all, np.concatenate(parts["pr"], axis=1), t_rel)
+    return urban_observables(
+        urban_cfg, profile, t_rel_s=t_rel, heading_rad=heading, distance_m=distance, el_rad=el, az_rad=az,
+        above_mask=above_mask, pseudorange_m=pr, doppler_hz=np.concatenate(parts["dop"], axis=1),
+        phase_m=np.concatenate(parts["phase"], axis=1), wavelength_m=_wavelengths(sv_all), noise=cfg.on("noise"),
+        multipath=cfg.on("multipath"), doppler_sigma_m_s=cfg.doppler_sigma_m_s, env_rng=env_rng, noise_rng=rng,
+    )
+
+
+def _wavelengths(sv_all: NDArray[np.str_]) -> F64:
+    """Carrier wavelengths ``(n, 2)`` of the two signals of each satellite, m."""
+    return np.concatenate(
+        [np.broadcast_to(np.array([C_M_S / f for f in SYSTEMS[s[0]].freqs_hz]), (1, 2)) for s in sv_all]
+    )
+
+
+def _add_named_outliers(cfg: ErrorConfig, sv_all: NDArray[np.str_], pr: F64, t_rel: F64) -> F64:
+    """The ``outlier_m`` bias on ``outlier_sats`` over the outlier window, both pseudoranges ``(T, n, 2)``."""
+    if cfg.on("outliers") and cfg.outlier_sats:
+        hit_sv = np.isin(sv_all, np.asarray(cfg.outlier_sats))
+        hit_t = (t_rel >= cfg.outlier_start_s) & (t_rel < cfg.outlier_end_s)
+        pr = pr + cfg.outlier_m * (hit_t[:, None] & hit_sv[None, :])[..., None]
+    return pr

@@ -160,16 +160,21 @@ def write_nav_rinex3(
     Path(path).write_text("".join(lines), encoding="ascii")
 
 
-def obs_codes(system: str, layout: ObsLayout) -> list[str]:
-    """RINEX 3 observation codes written for a system, in file order."""
+def obs_codes(system: str, layout: ObsLayout, *, phase: bool = False) -> list[str]:
+    """RINEX 3 observation codes written for a system, in file order (``phase``: with the carrier
+    phase of each signal after its pseudorange)."""
     c1, c2 = SYSTEMS[system].codes
     codes = [c1]
+    if phase:
+        codes.append("L" + c1[1:])
     if layout.doppler:
         codes.append("D" + c1[1:])
     if layout.snr:
         codes.append("S" + c1[1:])
     if layout.dual_frequency:
         codes.append(c2)
+        if phase:
+            codes.append("L" + c2[1:])
         if layout.doppler:
             codes.append("D" + c2[1:])
         if layout.snr:
@@ -182,6 +187,8 @@ def _obs_values(obs: Observations, code_kind: str, signal: int) -> F64:
         return obs.pseudorange_m[..., signal]
     if code_kind == "D":
         return obs.doppler_hz[..., signal]
+    if code_kind == "L" and obs.phase_cycles is not None:
+        return obs.phase_cycles[..., signal]
     return obs.snr_dbhz[..., signal]
 
 
@@ -190,11 +197,12 @@ def _ssi(snr_dbhz: F64) -> NDArray[np.int64]:
     return np.clip(np.floor(snr_dbhz / 6.0), 1, 9).astype(np.int64)
 
 
-def _field(value: float, ssi: int | None) -> str:
+def _field(value: float, ssi: int | None, lli: bool = False) -> str:
+    """F14.3, the loss-of-lock indicator (``1``: lost lock, cycle slip possible; blank) and the SSI."""
     text = f"{value:14.3f}"
     if len(text) > 14:
         raise UsageError(f"observation value {value} does not fit the RINEX F14.3 field")
-    return text + " " + (str(ssi) if ssi is not None else " ")
+    return text + ("1" if lli else " ") + (str(ssi) if ssi is not None else " ")
 
 
 def _header_common(
@@ -241,7 +249,8 @@ def write_obs_rinex3(
         Output file.
     obs
         Simulated observables (``visible`` selects what is written; epochs without any visible
-        satellite are written with 0 satellites).
+        satellite are written with 0 satellites). Carrier phases (``L1C`` ...) are written when
+        ``obs.phase_cycles`` is set, their loss-of-lock indicators from ``obs.urban.slip``.
     approx_ecef_m
         APPROX POSITION XYZ ``(3,)``, m.
     interval_s
@@ -262,7 +271,7 @@ def write_obs_rinex3(
         _hline("NON_PHYSICAL", "MARKER TYPE"),
         *before[2:],
     ]
-    codes_by_sys = {s: obs_codes(s, layout) for s in systems}
+    codes_by_sys = {s: obs_codes(s, layout, phase=obs.phase_cycles is not None) for s in systems}
     for s in systems:
         codes = codes_by_sys[s]
         for k in range(0, len(codes), 13):
@@ -280,6 +289,7 @@ def write_obs_rinex3(
         s: np.stack([_obs_values(obs, kind, sig) for kind, sig in columns[s]], axis=-1) for s in systems
     }  # each (T, n, k)
     ssi = _ssi(obs.snr_dbhz)
+    slip = obs.urban.slip if obs.urban is not None else np.zeros(obs.visible.shape, dtype=bool)
     order = np.argsort(obs.sv, kind="stable")
     for ti, t in enumerate(obs.t_gps_s):
         vis = [j for j in order if obs.visible[ti, j]]
@@ -289,7 +299,7 @@ def write_obs_rinex3(
         for j in vis:
             s = sys_of[j]
             fields = [
-                _field(values[s][ti, j, k], int(ssi[ti, j, sig]) if kind == "C" else None)
+                _field(values[s][ti, j, k], int(ssi[ti, j, sig]) if kind == "C" else None, kind == "L" and bool(slip[ti, j]))
                 for k, (kind, sig) in enumerate(columns[s])
             ]
             lines.append((obs.sv[j] + "".join(fields)).rstrip() + "\n")

@@ -2,7 +2,8 @@
 
 ``run_scenario(config)`` builds the trajectory, the constellations' truth records, the
 observables and the (possibly perturbed) navigation records; ``write_scenario`` writes
-``obs.rnx``, ``nav.rnx``, ``truth.csv`` and optionally ``truth_ranges.csv``. One
+``obs.rnx``, ``nav.rnx``, ``truth.csv`` and optionally ``truth_ranges.csv`` and ``faults.csv`` (the
+random outliers, or in the street canyon the labels of every satellite and epoch). One
 ``numpy.random.Generator`` seeded with ``config.seed`` drives every random draw, in a fixed
 order, so the same settings give the same bytes.
 """
@@ -30,10 +31,12 @@ from gnss_cli.sim.rinex_writer import ObsLayout, write_nav_rinex3, write_obs_rin
 from gnss_cli.sim.trajectory import (
     Trajectory,
     csv_trajectory,
+    drive_trajectory,
     flight_trajectory,
     semicircle_trajectory,
     static_trajectory,
 )
+from gnss_cli.sim.urban import RECEIVERS, UrbanConfig, validate_urban
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -52,7 +55,7 @@ class ScenarioConfig:
 
     Attributes
     ----------
-    trajectory : ``static``, ``flight``, ``semicircle`` or ``csv:FILE``.
+    trajectory : ``static``, ``flight``, ``drive``, ``semicircle`` or ``csv:FILE``.
     start : ISO 8601 start (GPS time).
     duration_s, interval_s : run length and epoch spacing, s.
     systems : system letters (``G``, ``E``, ``C``, ``J``).
@@ -66,6 +69,13 @@ class ScenarioConfig:
     truth_ranges : also write ``truth_ranges.csv``.
     klobuchar_alpha, klobuchar_beta : broadcast ionosphere coefficients.
     constellation_seed : seed of the (fixed) constellation design.
+    environment : ``open`` (open sky) or ``urban`` (a street canyon, :mod:`gnss_cli.sim.urban`).
+    receiver : receiver profile in the canyon, ``single`` or ``dual`` (:data:`~gnss_cli.sim.urban.RECEIVERS`).
+    urban : the canyon's settings.
+    given : the keys among ``systems`` and ``dual_frequency`` set explicitly (by a TOML file or a
+        flag): with ``environment = "urban"`` the receiver profile sets the others
+        (:func:`with_receiver_profile`, which :func:`config_from_mapping` applies; a config
+        built with ``dataclasses.replace`` runs as it is). Not compared.
     """
 
     trajectory: str = "static"
@@ -86,6 +96,10 @@ class ScenarioConfig:
     klobuchar_alpha: tuple[float, ...] = KLOBUCHAR_ALPHA
     klobuchar_beta: tuple[float, ...] = KLOBUCHAR_BETA
     constellation_seed: int = 2024
+    environment: str = "open"
+    receiver: str = "dual"
+    urban: UrbanConfig = field(default_factory=UrbanConfig)
+    given: frozenset[str] = field(default=frozenset(), compare=False)
 
 
 @dataclass(frozen=True)
@@ -121,14 +135,16 @@ def load_config(path: Path, base: ScenarioConfig | None = None) -> ScenarioConfi
 
 
 def config_from_mapping(data: dict[str, Any], base: ScenarioConfig, *, source: str = "configuration") -> ScenarioConfig:
-    """Apply a parsed TOML mapping to ``base`` (see :func:`load_config`)."""
-    unknown_tables = set(data) - {"simulate", "errors", "ionosphere"}
+    """Apply a parsed TOML mapping to ``base`` (see :func:`load_config`); in the street canyon the
+    receiver profile fills in what the mapping and ``base`` left unset (:func:`with_receiver_profile`)."""
+    unknown_tables = set(data) - {"simulate", "errors", "ionosphere", "urban"}
     if unknown_tables:
         raise ConfigError(f"{source}: unknown table(s) {sorted(unknown_tables)}")
     sim = dict(data.get("simulate", {}))
     err = dict(data.get("errors", {}))
     ion = dict(data.get("ionosphere", {}))
-    cfg = base
+    city = dict(data.get("urban", {}))
+    cfg = replace(base, given=base.given | (set(sim) & {"systems", "dual_frequency"}))
     errors = cfg.errors
     try:
         if "errors" in sim:
@@ -137,7 +153,7 @@ def config_from_mapping(data: dict[str, Any], base: ScenarioConfig, *, source: s
         layout = replace(cfg.layout, **{k: bool(sim.pop(k)) for k in list(sim) if k in layout_keys})
         if "systems" in sim:
             sim["systems"] = parse_systems(str(sim["systems"]))
-        scen_keys = {f.name for f in fields(ScenarioConfig)} - {"errors", "layout", "klobuchar_alpha", "klobuchar_beta"}
+        scen_keys = {f.name for f in fields(ScenarioConfig)} - {"errors", "layout", "klobuchar_alpha", "klobuchar_beta", "urban", "given"}
         bad = set(sim) - scen_keys
         if bad:
             raise ConfigError(f"{source}: unknown [simulate] key(s) {sorted(bad)}")
@@ -149,7 +165,12 @@ def config_from_mapping(data: dict[str, Any], base: ScenarioConfig, *, source: s
             if key in err:
                 err[key] = tuple(err[key])
         errors = replace(errors, **err)
-        cfg = replace(cfg, errors=validate(errors), layout=layout, **sim)
+        bad = set(city) - {f.name for f in fields(UrbanConfig)}
+        if bad:
+            raise ConfigError(f"{source}: unknown [urban] key(s) {sorted(bad)}")
+        city = {k: tuple(float(x) for x in v) if isinstance(v, list) else v for k, v in city.items()}
+        urban = validate_urban(replace(cfg.urban, **city))
+        cfg = replace(cfg, errors=validate(errors), layout=layout, urban=urban, **sim)
         if ion:
             bad = set(ion) - {"alpha", "beta"}
             if bad or any(len(ion.get(k, [0] * 4)) != 4 for k in ("alpha", "beta")):
@@ -159,9 +180,31 @@ def config_from_mapping(data: dict[str, Any], base: ScenarioConfig, *, source: s
                 klobuchar_alpha=tuple(float(v) for v in ion.get("alpha", cfg.klobuchar_alpha)),
                 klobuchar_beta=tuple(float(v) for v in ion.get("beta", cfg.klobuchar_beta)),
             )
+        cfg = with_receiver_profile(cfg)
     except (TypeError, UsageError) as exc:
         raise ConfigError(f"{source}: {exc}") from exc
     return cfg
+
+
+def with_receiver_profile(config: ScenarioConfig) -> ScenarioConfig:
+    """In the street canyon, the receiver profile's systems and frequencies where ``config.given``
+    does not name them (unchanged in open sky).
+
+    Raises
+    ------
+    UsageError
+        For an unknown environment or receiver.
+    """
+    if config.environment not in ("open", "urban"):
+        raise UsageError(f"--environment: expected open or urban, got {config.environment!r}")
+    if config.receiver not in RECEIVERS:
+        raise UsageError(f"--receiver: expected one of {sorted(RECEIVERS)}, got {config.receiver!r}")
+    if config.environment == "open":
+        return config
+    profile = RECEIVERS[config.receiver]
+    systems = config.systems if "systems" in config.given else profile.systems
+    dual = config.layout.dual_frequency if "dual_frequency" in config.given else profile.dual_frequency
+    return replace(config, systems=systems, layout=replace(config.layout, dual_frequency=dual))
 
 
 def parse_systems(text: str) -> tuple[str, ...]:
@@ -197,8 +240,9 @@ def epochs_gps_s(config: ScenarioConfig) -> F64:
     return t0 + config.interval_s * np.arange(n)
 
 
-def build_trajectory(config: ScenarioConfig, t_gps_s: F64) -> Trajectory:
-    """The receiver trajectory named by ``config.trajectory``.
+def build_trajectory(config: ScenarioConfig, t_gps_s: F64, rng: np.random.Generator | None = None) -> Trajectory:
+    """The receiver trajectory named by ``config.trajectory`` (``rng`` draws the drive's legs;
+    default: a generator seeded with ``config.seed``).
 
     Raises
     ------
@@ -211,11 +255,14 @@ def build_trajectory(config: ScenarioConfig, t_gps_s: F64) -> Trajectory:
         return static_trajectory(t_gps_s, site)
     if kind == "flight":
         return flight_trajectory(t_gps_s, site)
+    if kind == "drive":
+        drive_rng = rng if rng is not None else np.random.default_rng(config.seed)
+        return drive_trajectory(t_gps_s, site, drive_rng, speed_m_s=config.urban.drive_speed_m_s)
     if kind == "semicircle":
         return semicircle_trajectory(t_gps_s, site, speed_m_s=config.semicircle_speed_m_s)
     if kind.startswith("csv:"):
         return csv_trajectory(Path(kind[4:]), t_gps_s)
-    raise UsageError(f"--trajectory: expected static, flight, semicircle or csv:FILE, got {kind!r}")
+    raise UsageError(f"--trajectory: expected static, flight, drive, semicircle or csv:FILE, got {kind!r}")
 
 
 def run_scenario(config: ScenarioConfig) -> Scenario:
@@ -231,9 +278,13 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
         raise UsageError(f"--rinex-version: expected 3 (3.04), 3.05 or 2 (2.11), got {config.rinex_version!r}")
     if config.rinex_version == "2.11" and ("C" in config.systems or "J" in config.systems):
         raise UsageError("RINEX 2.11 does not define BeiDou or QZSS observations: use --rinex-version 3")
+    with_receiver_profile(config)
     rng = np.random.default_rng(config.seed)
+    # the drive and the canyon draw from their own streams (children of the seed), so runs that
+    # differ only in their error sources share them; open sky without a drive spawns none
+    own = rng.spawn(2) if config.environment == "urban" or config.trajectory == "drive" else None
     t = epochs_gps_s(config)
-    trajectory = build_trajectory(config, t)
+    trajectory = build_trajectory(config, t, own[0] if own else None)
     week_start = float(np.floor(t[0] / SECONDS_PER_WEEK) * SECONDS_PER_WEEK)
     truth: dict[str, KeplerEphemeris] = {}
     tgd2: dict[str, F64] = {}
@@ -251,6 +302,7 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
         klobuchar_alpha=np.asarray(config.klobuchar_alpha),
         klobuchar_beta=np.asarray(config.klobuchar_beta),
         elevation_mask_deg=config.elevation_mask_deg,
+        canyon=(config.urban, RECEIVERS[config.receiver], own[1]) if own and config.environment == "urban" else None,
     )
     nav = dict(truth)
     if config.errors.on("orbit"):
@@ -350,10 +402,49 @@ def write_scenario(scenario: Scenario, out_dir: Path) -> list[Path]:
     if cfg.truth_ranges:
         written.append(out / "truth_ranges.csv")
         _write_csv(truth_ranges_table(scenario), written[-1], {"t_tx_gps_s": "%.9f", "el_deg": "%.4f", "az_deg": "%.4f"})
-    if obs.outlier_bias_m is not None:
+    if obs.urban is not None:
+        written.append(out / "faults.csv")
+        _write_csv(urban_labels_table(scenario), written[-1], {"tow_s": "%.3f", "nlos_bias_m": "%.3f", "outlier_m": "%.3f",
+                                                                "cn0_dbhz": "%.2f", "el_deg": "%.3f", "az_deg": "%.3f", "mask_deg": "%.3f"})
+    elif obs.outlier_bias_m is not None:
         written.append(out / "faults.csv")
         _write_csv(faults_table(scenario), written[-1], {"bias_m": "%.3f"})
     return written
+
+
+def urban_labels_table(scenario: Scenario) -> pd.DataFrame:
+    """The street canyon's labels: one row per satellite and epoch written to ``obs.rnx``.
+
+    Columns: ``time, gps_week, tow_s`` (as truth.csv), ``sv``, ``el_deg, az_deg``, the buildings'
+    ``mask_deg`` in that direction, ``los`` (1 direct, 0 NLOS), ``nlos_bias_m`` (extra path on code
+    and carrier, m), ``cn0_dbhz`` (first signal, as written), ``slip`` (1: carrier continuity lost
+    since the previous epoch, the LLI is set) and ``outlier_m`` (random outlier, m; 0 without).
+    """
+    obs = scenario.observations
+    labels = obs.urban
+    if labels is None:
+        raise UsageError("urban_labels_table: the scenario has no street canyon (environment open)")
+    order = np.argsort(obs.sv, kind="stable")  # the order of obs.rnx
+    ti, si = np.nonzero(obs.visible[:, order])
+    si = order[si]
+    week, tow = gps_s2week_tow(obs.t_gps_s)
+    outlier = obs.outlier_bias_m if obs.outlier_bias_m is not None else np.zeros(obs.visible.shape)
+    return pd.DataFrame(
+        {
+            "time": _iso(obs.t_gps_s)[ti],
+            "gps_week": week[ti],
+            "tow_s": tow[ti],
+            "sv": obs.sv[si],
+            "el_deg": np.rad2deg(obs.el_rad[ti, si]),
+            "az_deg": np.rad2deg(obs.az_rad[ti, si]),
+            "mask_deg": np.rad2deg(labels.mask_el_rad[ti, si]),
+            "los": labels.los[ti, si].astype(np.int64),
+            "nlos_bias_m": labels.nlos_bias_m[ti, si],
+            "cn0_dbhz": labels.cn0_dbhz[ti, si],
+            "slip": labels.slip[ti, si].astype(np.int64),
+            "outlier_m": outlier[ti, si],
+        }
+    )
 
 
 def faults_table(scenario: Scenario) -> pd.DataFrame:

@@ -1,15 +1,18 @@
-"""Receiver trajectories: static, a simulated flight, a constant-speed semicircle, or a CSV file.
+"""Receiver trajectories: static, a simulated flight, a drive through streets, a constant-speed semicircle,
+or a CSV file.
 
 A :class:`Trajectory` holds ECEF positions and velocities at the epochs (GPS seconds).
 The flight is integrated in geodetic coordinates from a smooth speed / heading / climb-rate
 profile on a fine grid (trapezoidal rule, 100 Hz), so its velocities are the derivatives of
-its positions to well under a millimetre per second; the semicircle is a closed-form arc in
+its positions to well under a millimetre per second (the drive likewise, from a speed / heading
+profile drawn from the seed); the semicircle is a closed-form arc in
 the local tangent plane of its centre, so its ENU coordinates satisfy the lag-3 kernel
 ``(z - 1)(z^2 - 2 cos(w dt) z + 1)`` exactly.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,10 +102,18 @@ def flight_trajectory(t_gps_s: F64, start_ecef_m: F64, *, substeps_per_s: int = 
     t = np.asarray(t_gps_s, dtype=np.float64)
     if t.ndim != 1 or t.size < 1:
         raise UsageError(f"t_gps_s must be a non-empty 1-D array, got shape {t.shape}")
+    return _integrate_profile(t, start_ecef_m, flight_profile, substeps_per_s)
+
+
+def _integrate_profile(
+    t: F64, start_ecef_m: F64, profile: Callable[[F64], tuple[F64, F64, F64]], substeps_per_s: int
+) -> Trajectory:
+    """Integrate a speed / heading / climb-rate profile of the time since ``t[0]`` on the ellipsoid
+    (the equations of :func:`flight_trajectory`) and sample it at the epochs ``t``."""
     span = float(t[-1] - t[0])
     n_fine = max(int(np.ceil(span * substeps_per_s)), 1)
     t_fine = np.linspace(0.0, span, n_fine + 1)
-    speed, heading, climb = flight_profile(t_fine)
+    speed, heading, climb = profile(t_fine)
     v_e, v_n = speed * np.sin(heading), speed * np.cos(heading)
     lat0, lon0, h0 = (float(v) for v in ecef2geodetic(np.asarray(start_ecef_m, dtype=np.float64)))
     h = h0 + _cumtrapz(climb, t_fine)
@@ -121,6 +132,72 @@ def flight_trajectory(t_gps_s: F64, start_ecef_m: F64, *, substeps_per_s: int = 
     rot = ecef2enu_rotation(lat[pick], lon[pick])  # (T, 3, 3), v_enu = R v_ecef
     vel = np.einsum("tji,tj->ti", rot, enu_vel)
     return Trajectory(t, pos, vel)
+
+
+def drive_profile(
+    t_rel_s: F64, rng: np.random.Generator, *, speed_m_s: float = 10.0, turn_speed_m_s: float = 5.0,
+    acceleration_m_s2: float = 1.5,
+) -> tuple[F64, F64, F64]:
+    """Speed (m/s), heading (rad from north) and climb rate (0, m/s) of a random drive through streets.
+
+    Parameters
+    ----------
+    t_rel_s
+        Times since the start ``(N,)``, s, increasing from 0.
+    rng
+        Random generator: the legs, stops and turns are drawn from it.
+    speed_m_s
+        Mean cruising speed; each leg's speed is drawn uniformly within +-30 % of it.
+    turn_speed_m_s
+        Speed through a turn (slowed down to before it).
+    acceleration_m_s2
+        Magnitude of every speed change.
+
+    Notes
+    -----
+    From rest the vehicle accelerates to the leg's speed, cruises for 15..60 s and then, with
+    probabilities 0.45 / 0.25 / 0.30, turns 90 deg left or right (slowing to ``turn_speed_m_s``,
+    6 s through the turn), stops for 5..30 s, or goes on at a new speed. Speed and heading change
+    through the C1 ramps of :func:`flight_profile`, so the velocity is continuous.
+    """
+    t = np.asarray(t_rel_s, dtype=np.float64)
+    span = float(t[-1]) if t.size else 0.0
+    speed = np.zeros_like(t)
+    heading = np.full_like(t, rng.uniform(0.0, 2.0 * np.pi))
+    cursor, v_now = 0.0, 0.0
+
+    def change_speed(v_new: float) -> None:
+        nonlocal cursor, v_now, speed
+        duration = max(abs(v_new - v_now) / acceleration_m_s2, 1.0)
+        speed += _ramp(t, cursor, duration, v_new - v_now)
+        cursor, v_now = cursor + duration, v_new
+
+    while cursor <= span:
+        change_speed(speed_m_s * rng.uniform(0.7, 1.3))
+        cursor += rng.uniform(15.0, 60.0)
+        kind = rng.choice(3, p=[0.45, 0.25, 0.30])
+        if kind == 0:
+            change_speed(turn_speed_m_s)
+            heading += _ramp(t, cursor, 6.0, rng.choice([-1.0, 1.0]) * np.pi / 2.0)
+            cursor += 6.0
+        elif kind == 1:
+            change_speed(0.0)
+            cursor += rng.uniform(5.0, 30.0)
+    return np.maximum(speed, 0.0), np.mod(heading, 2.0 * np.pi), np.zeros_like(t)
+
+
+def drive_trajectory(t_gps_s: F64, start_ecef_m: F64, rng: np.random.Generator, *, speed_m_s: float = 10.0,
+                     substeps_per_s: int = 20) -> Trajectory:
+    """A drive through a street grid (:func:`drive_profile`) on the ellipsoid, starting at rest at
+    ``start_ecef_m`` ``(3,)``; epochs ``t_gps_s`` ``(T,)`` uniformly spaced, s.
+
+    The legs are drawn from ``rng``; the integration is that of :func:`flight_trajectory`
+    at ``substeps_per_s`` (a turn at 5 m/s moves 0.25 m per 20 Hz step).
+    """
+    t = np.asarray(t_gps_s, dtype=np.float64)
+    if t.ndim != 1 or t.size < 1:
+        raise UsageError(f"t_gps_s must be a non-empty 1-D array, got shape {t.shape}")
+    return _integrate_profile(t, start_ecef_m, lambda tr: drive_profile(tr, rng, speed_m_s=speed_m_s), substeps_per_s)
 
 
 def _cumtrapz(f: F64, x: F64) -> F64:
