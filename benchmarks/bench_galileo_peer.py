@@ -8,7 +8,7 @@ mask, broadcast Klobuchar, Saastamoinen, RTKLIB's variance model) and rnx2rtkp w
 ``../shared/peer/rnx2rtkp-spp.conf`` and ``pos1-navsys=8`` (Galileo) on plain copies in a
 temporary folder. Epochs are matched by time (rnx2rtkp writes the receiver-clock-corrected time,
 within 10 ms of the RINEX epoch). Per set: the epochs each program solves (gnss-solve: status
-``ok``; rnx2rtkp: the epochs it writes, after its chi-square and GDOP tests), the 3D distance
+``ok``, or ``untested`` where four satellites leave nothing to test and rnx2rtkp writes the fix too; rnx2rtkp: the epochs it writes, after its chi-square and GDOP tests), the 3D distance
 between the two fixes on common epochs (median, 95th percentile, max, count above 1 cm, m), and
 each program's 3D RMS against the set's reference on its own epochs (tst2: the static antenna's
 ground-truth position for every epoch; Galileo alone solves none in its 157-epoch truth window).
@@ -224,7 +224,7 @@ def run_ours(obs: Path, navs: list[Path]) -> dict[str, np.ndarray]:
     """gnss-solve ``--systems E --method wls``: GPS time (s), fix (m), status, satellites used."""
     res = process(obs, navs, load_config(None, {"systems": ["E"], "methods": "wls"}))
     sol = res.solutions["wls"]
-    return {"time_gps_s": res.epochs.time_gps_s, "x_ecef_m": sol.x_ecef_m, "ok": sol.status == "ok",
+    return {"time_gps_s": res.epochs.time_gps_s, "x_ecef_m": sol.x_ecef_m, "solved": np.isin(sol.status, ("ok", "untested")),
             "used": np.isfinite(sol.residuals_m), "sv": np.asarray(res.epochs.sv).astype(str),
             "approx_ecef_m": np.asarray(res.epochs.approx_ecef_m, dtype=np.float64)}
 
@@ -240,10 +240,10 @@ def match_epochs(t_peer: np.ndarray, t_ours: np.ndarray) -> tuple[np.ndarray, np
 def compare(peer: dict[str, np.ndarray], ours: dict[str, np.ndarray]) -> dict[str, object]:
     """Per-epoch 3D distance (m) between the fixes on the epochs both solve."""
     k, near = match_epochs(peer["time_gps_s"], ours["time_gps_s"])
-    both = near & ours["ok"][k]
+    both = near & ours["solved"][k]
     d = np.linalg.norm(ours["x_ecef_m"][k[both]] - peer["x_ecef_m"][both], axis=1)
     out: dict[str, object] = {"common": int(both.sum()), "peer_only": int((~both).sum()),
-                              "ours_only": int(ours["ok"].sum() - both.sum())}
+                              "ours_only": int(ours["solved"].sum() - both.sum())}
     if d.size:
         out.update(median_m=float(np.median(d)), p95_m=float(np.percentile(d, 95)), max_m=float(d.max()),
                    above_1cm=int((d > NEAR_M).sum()))
@@ -295,8 +295,8 @@ def run_set(s: GalileoSet, exe: str) -> dict[str, object]:
     ref = np.array(ours["approx_ecef_m"] if s.reference == "header" else s.reference, dtype=np.float64)
     row["reference"] = "header APPROX POSITION" if s.reference == "header" else "README reference"
 
-    wo = ours["ok"]
-    row.update(epochs=int(ours["time_gps_s"].size), ours_solved=int(ours["ok"].sum()), peer_written=int(peer["time_gps_s"].size),
+    wo = ours["solved"]
+    row.update(epochs=int(ours["time_gps_s"].size), ours_solved=int(ours["solved"].sum()), peer_written=int(peer["time_gps_s"].size),
                rms_ours_m=rms_3d_m(ours["x_ecef_m"][wo], ref), rms_peer_m=rms_3d_m(peer["x_ecef_m"], ref))
     raw = compare(peer, ours)
     both, k_raw, d_raw = raw.pop("_both"), raw.pop("_k"), raw.pop("_d")
@@ -321,7 +321,7 @@ def run_set(s: GalileoSet, exe: str) -> dict[str, object]:
     away = ~np.isin(np.round(peer["time_gps_s"][both_a], 1), np.round(np.unique(toes), 1))
     al["max_not_at_toe_m"] = float(d[away].max()) if away.any() else None
     row["aligned"] = al
-    row["rms_aligned_ours_m"] = rms_3d_m(aligned["x_ecef_m"][aligned["ok"]], ref)
+    row["rms_aligned_ours_m"] = rms_3d_m(aligned["x_ecef_m"][aligned["solved"]], ref)
     return row
 
 

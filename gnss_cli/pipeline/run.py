@@ -388,7 +388,7 @@ class Run:
             if reparse is not None:
                 pieces = reparse()
             yield RESTART
-        if not any(c.get(EpochStatus.OK.value, 0) for c in counts.values()):
+        if not any(c.get(EpochStatus.OK.value, 0) + c.get(EpochStatus.UNTESTED.value, 0) for c in counts.values()):
             raise NoSolutionError(f"{Path(self.obs_path).name}: no epoch could be solved ({status_summary(counts)})")
         self.warnings = tuple(warnings) + tuple(self._notes)
 

@@ -14,6 +14,7 @@ import pytest
 
 from gnss_cli.cli.exits import run_app
 from gnss_cli.cli.progress import Progress
+from gnss_cli.plots import RUN_FIGURES
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_rinex" / "static"
 FILES = [SAMPLE / "obs.rnx", SAMPLE / "nav.rnx"]
@@ -90,7 +91,7 @@ def test_report_records_the_command_before_the_summary(tmp_path, capsys) -> None
     command = "gnss-solve " + " ".join(shlex.quote(str(a)) for a in [*FILES, "--method", "ls,wls", "--report", page_path,
                                                                        "-o", tmp_path / "p.csv"])
     assert page.index(command) < page.index("<h2>Summary</h2>")
-    assert _wrote(err)[str(page_path)] == "HTML report, 8 figures"
+    assert _wrote(err)[str(page_path)] == f"HTML report, {len(RUN_FIGURES)} figures"
     # the figures stage ends its progress at 100 % (stderr is not a terminal here)
     stages = re.findall(r"^gnss-solve: \[ *[\d.]+ s\] figures +([\d.]+) %$", err, flags=re.M)
     assert stages and stages[-1] == "100.0"
