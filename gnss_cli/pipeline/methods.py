@@ -152,7 +152,8 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
         sol, models = with_geometry_dops(data, sol, config, config.kalman.model), ()
     else:
         raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
-    return tested(data, sol, wls, config), models
+    no_levels = np.full(sol.status.size, np.nan)  # built from the WLS rows: their levels are WLS's, not this method's
+    return tested(data, replace(sol, hpl_m=no_levels, vpl_m=no_levels.copy()), wls, config), models
 
 
 def tested(data: EpochData, sol: MethodSolution, wls: MethodSolution, config: ProcessingConfig) -> MethodSolution:

@@ -77,3 +77,17 @@ def test_summary_counts_equal_the_positions_file(tmp_path: Path, capsys: pytest.
         assert summary.loc[method, "availability_pct"] == pytest.approx(100 * ok.mean())
         assert summary.loc[method, "misleading_epochs"] == bad.sum()
         assert summary.loc[method, "max_3d_m"] == pytest.approx(e["err_3d_m"][ok].max(), abs=1e-3)
+
+
+def test_multi_epoch_rows_claim_no_levels_of_their_own(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The smoother is built from the WLS rows: it must not carry WLS's levels as its own, and the
+    summary leaves its misleading count empty rather than judging it against another fix's level."""
+    with pytest.raises(SystemExit) as exc:
+        run_app(app, "gnss-solve", [str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx"), "--method", "wls,smoother",
+                                    "--reference-csv", str(SAMPLE / "truth.csv"), "--out-dir", str(tmp_path), "-q"])
+    assert exc.value.code == 0, capsys.readouterr().err
+    pos = pd.read_csv(tmp_path / "positions.csv")
+    assert pos.loc[pos["method"] == "wls", "hpl_m"].notna().all()
+    assert pos.loc[pos["method"] == "smoother", ["hpl_m", "vpl_m"]].isna().all().all()
+    summary = pd.read_csv(tmp_path / "summary.csv").set_index("method")
+    assert np.isnan(summary.loc["smoother", "misleading_epochs"]) and summary.loc["wls", "misleading_epochs"] >= 0
