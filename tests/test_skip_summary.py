@@ -62,5 +62,7 @@ def test_skips_are_summarised_once_per_reason(tmp_path: Path) -> None:
 
 def test_asking_for_skips_gives_pytests_own_lines(tmp_path: Path) -> None:
     out = _run(tmp_path, "-ra")
-    assert len(re.findall(r"^SKIPPED \[1\] test_tiny.py:\d+: real RINEX data folder", out, re.M)) == 5, out
+    # pytest's own lines: one per test (pytest 8) or per skip location (pytest 7: the fixture's line, counted)
+    counts = re.findall(r"^SKIPPED \[(\d+)\] \S+: real RINEX data folder", out, re.M)
+    assert sum(int(n) for n in counts) == 5, out
     assert "skipped, by reason" not in out

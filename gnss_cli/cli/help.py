@@ -75,10 +75,13 @@ def help_record(param: Any) -> tuple[str, str]:
     """``(names, help)`` of one parameter: ``-m, --method METHOD[,METHOD...]`` and its help text
     with ``[default: wls]`` (or ``[required]``).
 
-    >>> import typer.core
-    >>> help_record(typer.core.TyperOption(param_decls=["--lag"], type_descriptor=None, metavar="L", help="Lag.",
-    ...                                    show_default="3"))
-    ('--lag L', 'Lag.  [default: 3]')
+    >>> import typer.main
+    >>> from gnss_cli.cli.solve import app
+    >>> lag = next(p for p in typer.main.get_command(app).params if p.name == "lag")
+    >>> help_record(lag)[0]
+    '--lag L'
+    >>> help_record(lag)[1].endswith("[default: stls 0, smoother 3]")
+    True
     """
     metavar = param.metavar or param.name.upper()
     if param.param_type_name == "argument":

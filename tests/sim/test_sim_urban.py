@@ -36,6 +36,8 @@ OPEN_SHA256 = {
 }
 
 
+@pytest.mark.skipif(int(np.__version__.split(".")[0]) < 2,
+                    reason="the hashes were recorded with numpy 2; numpy 1.x writes other bytes for nav.rnx and truth_ranges.csv")
 def test_open_environment_writes_the_bytes_of_before(tmp_path: Path) -> None:
     """Flight, G+E+C dual frequency, every error source, random outliers, truth ranges."""
     d = simulate(
