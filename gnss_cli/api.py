@@ -245,7 +245,7 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> "Solut
         }
         for j, col in enumerate(tdop_columns(result)):
             values[col] = s.tdops[:, j] if s.tdops is not None and s.tdops.shape[1] > j else np.full(s.n_sat.shape, np.nan)
-        if "tls" in result.solutions:
+        if any(o.gdop_paper is not None for o in result.solutions.values()):
             values["gdop_paper"] = s.gdop_paper if s.gdop_paper is not None else np.full(s.n_sat.shape, np.nan)
         values["status"] = s.status.astype(str)
         if reference_ecef_m is not None:

@@ -120,7 +120,7 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
     week, tow = gps_s2week_tow(t)
     iso = _iso(output_time_s(result, time_system))
     frames = []
-    with_paper = "tls" in result.solutions
+    with_paper = any(s.gdop_paper is not None for s in result.solutions.values())
     for method, s in result.solutions.items():
         lat, lon, h = ecef2geodetic(s.x_ecef_m)
         df = pd.DataFrame(
