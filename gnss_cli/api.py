@@ -52,7 +52,7 @@ _UNITS = {
     "clock_m": ("m", "receiver clock bias of the reference system, times c"),
     "n_sat": ("1", "satellites used"), "gdop": ("1", "geometric DOP"), "pdop": ("1", "position DOP"),
     "hdop": ("1", "horizontal DOP"), "vdop": ("1", "vertical DOP"), "tdop": ("1", "time DOP of the reference clock"),
-    "gdop_paper": ("1", "TLS GDOP of the paper's covariance"), "status": ("", "epoch status (README: Epoch status)"),
+    "gdop_paper": ("1 (tls), 1/m (stls)", "the paper's GDOP formula for the row's method (TLS; STLS on H_{l+1}(w))"), "status": ("", "epoch status (README: Epoch status)"),
     "e_err_m": ("m", "east error against the reference"), "n_err_m": ("m", "north error against the reference"),
     "u_err_m": ("m", "up error against the reference"), "err_3d_m": ("m", "3D error against the reference"),
     "n_excluded": ("1", "satellites excluded by the integrity monitoring (FDE) of the WLS fix"),
