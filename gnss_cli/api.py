@@ -52,7 +52,7 @@ _UNITS = {
     "clock_m": ("m", "receiver clock bias of the reference system, times c"),
     "n_sat": ("1", "satellites used"), "gdop": ("1", "geometric DOP"), "pdop": ("1", "position DOP"),
     "hdop": ("1", "horizontal DOP"), "vdop": ("1", "vertical DOP"), "tdop": ("1", "time DOP of the reference clock"),
-    "gdop_paper": ("1", "TLS GDOP of the paper's covariance"), "status": ("", "epoch status (README: Epoch status)"),
+    "gdop_paper": ("1 (tls), 1/m (stls)", "the paper's GDOP formula for the row's method (TLS; STLS on H_{l+1}(w))"), "status": ("", "epoch status (README: Epoch status)"),
     "e_err_m": ("m", "east error against the reference"), "n_err_m": ("m", "north error against the reference"),
     "u_err_m": ("m", "up error against the reference"), "err_3d_m": ("m", "3D error against the reference"),
     "n_excluded": ("1", "satellites excluded by the integrity monitoring (FDE) of the WLS fix"),
@@ -245,7 +245,7 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> "Solut
         }
         for j, col in enumerate(tdop_columns(result)):
             values[col] = s.tdops[:, j] if s.tdops is not None and s.tdops.shape[1] > j else np.full(s.n_sat.shape, np.nan)
-        if "tls" in result.solutions:
+        if any(o.gdop_paper is not None for o in result.solutions.values()):
             values["gdop_paper"] = s.gdop_paper if s.gdop_paper is not None else np.full(s.n_sat.shape, np.nan)
         values["status"] = s.status.astype(str)
         if reference_ecef_m is not None:

@@ -4,7 +4,7 @@ Tables
 ------
 positions : one row per epoch and method (the default CSV).
 errors    : E/N/U and 3D errors against a reference (m).
-dop       : satellites used and the five DOPs (+ ``gdop_paper`` for TLS).
+dop       : satellites used and the five DOPs (+ ``gdop_paper`` with tls or stls --lag L).
 summary   : one row per method: epochs, mean/std/RMS of E, N, U, 3D errors, the E/N/U
             error covariance, mean/median/max of every DOP.
 
@@ -120,7 +120,7 @@ def positions_table(result: RunResult, reference_ecef_m: F64 | None = None, time
     week, tow = gps_s2week_tow(t)
     iso = _iso(output_time_s(result, time_system))
     frames = []
-    with_paper = "tls" in result.solutions
+    with_paper = any(s.gdop_paper is not None for s in result.solutions.values())
     for method, s in result.solutions.items():
         lat, lon, h = ecef2geodetic(s.x_ecef_m)
         df = pd.DataFrame(
@@ -291,7 +291,7 @@ def errors_table(positions: pd.DataFrame) -> pd.DataFrame:
 
 def dop_table(positions: pd.DataFrame) -> pd.DataFrame:
     """Satellites used and the DOPs: the five DOPs, ``tdop_<letter>`` per system when there
-    are several, ``gdop_paper`` with TLS."""
+    are several, ``gdop_paper`` when a method fills it (tls, stls --lag L)."""
     cols = ["time", "gps_week", "tow_s", "method", "n_sat", *DOP_NAMES]
     cols += [c for c in positions.columns if c.startswith("tdop_")]
     if "gdop_paper" in positions:

@@ -43,6 +43,7 @@ from gnss_cli.config import ProcessingConfig, StlsConfig
 from gnss_cli.errors import GnssError, UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.range_model import linearize
+from gnss_cli.pipeline.multi_epoch_dop import with_paper_gdop
 from gnss_cli.pipeline.results import (
     EpochData,
     EpochStatus,
@@ -296,7 +297,8 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         smoothed[mine] = True
         if fit.basis is not None and fit.basis.shape[2] > 0:
             dop_windows.append((seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis), mine))
-    return finish_smoothing(data, wls, config, x_s, status, smoothed, dop_windows, method), tuple(models)
+    sol = finish_smoothing(data, wls, config, x_s, status, smoothed, dop_windows, method)
+    return with_paper_gdop(sol, segs, jobs, fits, opts.lag, opts.kernel), tuple(models)
 
 
 def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s: F64, status: NDArray[np.str_],

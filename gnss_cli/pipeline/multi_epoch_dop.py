@@ -37,7 +37,7 @@ else inf.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,11 +46,13 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior import KernelRepresentation
 from gnss_cli.behavior.multi_epoch import behavior_basis, epoch_information_root, shared_behavior_bases, target_covs
+from gnss_cli.behavior.paper_gdop import DegeneratePaperGdopError, paper_stls_gdop, paper_stls_hankel
 from gnss_cli.errors import UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["DopColumns", "MOTION_KERNELS", "DOP_WINDOW_EPOCHS", "motion_kernel", "multi_epoch_dops", "with_geometry_dops"]
+__all__ = ["DopColumns", "MOTION_KERNELS", "DOP_WINDOW_EPOCHS", "motion_kernel", "multi_epoch_dops", "with_geometry_dops",
+           "PaperGdopColumn", "paper_stls_gdops", "with_paper_gdop"]
 
 F64 = NDArray[np.float64]
 
@@ -414,3 +416,81 @@ def with_geometry_dops(data: Any, sol: Any, config: Any, motion: str,
                          motion_kernel(motion), window_epochs)
     tdops = None if sol.tdops is None else d.tdops
     return replace(sol, gdop=d.gdop, pdop=d.pdop, hdop=d.hdop, vdop=d.vdop, tdop=d.tdop, tdops=tdops)
+
+
+@dataclass(frozen=True, slots=True)
+class PaperGdopColumn:
+    """The paper's STLS GDOP of the epochs of ``stls --lag L`` rows (:mod:`gnss_cli.behavior.paper_gdop`).
+
+    Attributes
+    ----------
+    gdop_paper : ``(T,)`` the value of the window that supplied each epoch, 1/m (it is the gain of
+        the identified kernel's parameters from the window's fixes, not a geometry DOP); NaN for an
+        epoch no window supplied and for the epochs of a window where the formula is degenerate.
+    n_windows : windows evaluated.
+    degenerate : ``(messages)`` one per window where the formula does not exist (nongeneric
+        ``H_p H_p^T - s^2 I``, lag 1 with the shared kernel's fixed root), in window order.
+    """
+
+    gdop_paper: F64
+    n_windows: int
+    degenerate: tuple[str, ...]
+
+
+def paper_stls_gdops(n_epochs: int, windows: Iterable[tuple[F64, NDArray[np.intp]]], lag: int,
+                     structure: str = "shared") -> PaperGdopColumn:
+    """The paper's STLS GDOP per window, written to the epochs each window supplies.
+
+    Parameters
+    ----------
+    n_epochs : int
+        ``T``, length of the column.
+    windows : iterable of (w, epochs)
+        Each window's trajectory ``w`` ``(N, 3)`` (the fixes the kernel was identified from, ENU, m)
+        and the epoch indices ``(k,)`` whose estimate it supplied.
+    lag, structure : int, {"shared", "full"}
+        The identified kernel class (``[stls] lag`` and ``kernel``); the shared kernel keeps its
+        fixed root at ``z = 1`` (:func:`~gnss_cli.behavior.paper_gdop.paper_stls_hankel`).
+
+    Returns
+    -------
+    PaperGdopColumn
+
+    Raises
+    ------
+    UsageError
+        A window's ``w`` is not a finite ``(N, 3)`` array or too short for ``lag``; ``epochs``
+        out of range.
+    """
+    out = np.full(int(n_epochs), np.nan)
+    degenerate: list[str] = []
+    n = 0
+    for w, epochs in windows:
+        e = np.asarray(epochs, dtype=np.intp)
+        if e.size and (e.min() < 0 or e.max() >= out.size):
+            raise UsageError(f"paper_stls_gdops: window epochs must be in [0, {out.size}); received {e.min()}..{e.max()}")
+        n += 1
+        try:
+            out[e] = paper_stls_gdop(*paper_stls_hankel(w, lag, structure)).gdop
+        except DegeneratePaperGdopError as err:
+            degenerate.append(str(err))
+    return PaperGdopColumn(out, n, tuple(degenerate))
+
+
+def with_paper_gdop(sol: Any, segs: Sequence[Any], jobs: Sequence[Any], fits: Sequence[Any], lag: int,
+                    structure: str) -> Any:
+    """``sol`` (an ``stls --lag L`` :class:`~gnss_cli.pipeline.results.MethodSolution`) with
+    ``gdop_paper`` from :func:`paper_stls_gdops`.
+
+    ``segs``, ``jobs``, ``fits``: the segments (``.w`` ENU fixes, ``.epochs``), windows (``.segment``,
+    ``.a:.b`` the window, ``.lo:.hi`` the epochs it supplies, segment-local) and fits (``.w_hat``
+    None for a failed window) of :mod:`gnss_cli.pipeline.behavioral`. Each epoch gets the value of
+    the window that supplied it; NaN (an empty cell) where the epoch has no position, no window
+    supplied it or the formula is degenerate for its window. Always an array, so the column is
+    present for these rows."""
+    from dataclasses import replace
+
+    windows = [(segs[j.segment].w[j.a : j.b], segs[j.segment].epochs[j.lo : j.hi])
+               for j, f in zip(jobs, fits) if f.w_hat is not None]
+    col = paper_stls_gdops(sol.x_ecef_m.shape[0], windows, lag, structure).gdop_paper
+    return replace(sol, gdop_paper=np.where(np.all(np.isfinite(sol.x_ecef_m), axis=1), col, np.nan))

@@ -273,7 +273,8 @@ class MethodSolution:
         at the solution, position rotated to local ENU (unitless). ``tdop`` is the TDOP of
         the reference clock, the first of ``EpochData.systems`` (= ``tdops[:, 0]``); ``gdop``
         includes every clock.
-    gdop_paper : ``(T,)`` for TLS: the paper's ``(A^T A - s^2 I)^-1 A^T A (...)^-1``; else None.
+    gdop_paper : ``(T,)`` the paper's GDOP formula for the method: TLS ``(A^T A - s^2 I)^-1 A^T A (...)^-1``;
+        ``stls`` with lag >= 1 its STLS GDOP on ``H_{l+1}(w)`` (1/m, :mod:`gnss_cli.behavior.paper_gdop`); else None.
     cov_m2 : ``(T, 3 + k, 3 + k)`` the estimator covariance ``J Sigma J^T`` for the
         configured pseudorange variances (ECEF position, one clock per system), m^2.
     status : ``(T,)`` status words, values of :class:`EpochStatus`.
