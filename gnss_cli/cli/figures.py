@@ -85,7 +85,7 @@ def solve_settings(files: Sequence[Path], cfg: Any, result: Any, reference: str,
         "ionosphere": cfg.iono,
         "troposphere": cfg.tropo,
         "elevation mask": f"{cfg.elevation_mask_deg:g} deg",
-        "weights": cfg.weights.model,
+        "weights": cfg.weights.describe(),
         "reference": reference,
     }
     for method, ran in result.settings.items():

@@ -392,7 +392,7 @@ def run_settings(cfg: Any, reference: str, systems: tuple[str, ...] = ()) -> dic
     from gnss_cli import __version__
 
     return {"methods": ",".join(cfg.methods), "systems": ",".join(systems or cfg.systems), "iono": cfg.iono,
-            "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.model,
+            "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.describe(),
             "integrity": cfg.integrity, "robust": cfg.robust, "time_system": cfg.time_system,
             "reference": reference, "version": __version__}
 

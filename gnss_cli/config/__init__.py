@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gnss_cli.config.sections import (
+    CN0_MODELS,
     KALMAN_MODELS,
     KALMAN_OUTPUTS,
     MEASUREMENT_KINDS,
@@ -158,6 +159,10 @@ class ProcessingConfig:
             raise ConfigError(f"min_satellites: expected >= 4; received {self.min_satellites}")
         if self.weights.model not in ("rtklib", "elevation", "equal"):
             raise ConfigError(f"weights.model: expected 'rtklib', 'elevation' or 'equal'; received {self.weights.model!r}")
+        if self.weights.cn0_model not in CN0_MODELS:
+            raise ConfigError(f"weights.cn0_model: expected 'off' or 'sigma-epsilon'; received {self.weights.cn0_model!r}")
+        if not self.weights.cn0_c_m2hz >= 0:
+            raise ConfigError(f"weights.cn0_c_m2hz: expected >= 0 (m^2 Hz); received {self.weights.cn0_c_m2hz}")
         unsupported = [s for s in self.systems if s not in SYSTEM_LETTERS]
         if unsupported or len(set(self.systems)) != len(self.systems):
             raise ConfigError(
@@ -391,7 +396,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
         wbad = set(w) - {f.name for f in fields(WeightConfig)}
         if wbad:
             raise ConfigError(f"{source}: unknown [weights] key(s) {sorted(wbad)}")
-        cfg = replace(cfg, weights=replace(cfg.weights, **{k: (v if k == "model" else float(v)) for k, v in w.items()}))
+        cfg = replace(cfg, weights=replace(cfg.weights, **{k: (v if k in ("model", "cn0_model") else float(v)) for k, v in w.items()}))
         if "signals" in data:
             table = dict(data["signals"])
             second = table.pop("second", {})

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from gnss_cli.errors import ConfigError
 
 __all__ = [
-    "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "STLS_KERNELS", "SMOOTHER_MOTIONS",
+    "WeightConfig", "CN0_MODELS", "StlsConfig", "SmootherConfig", "KalmanConfig", "STLS_KERNELS", "SMOOTHER_MOTIONS",
     "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS",
 ]
 
@@ -29,8 +29,19 @@ class WeightConfig:
     iono_off_sigma_m: float = 5.0
     tropo_off_sigma_m: float = 3.0
     iono_free_factor: float = 3.0
+    cn0_model: str = "sigma-epsilon"
+    cn0_c_m2hz: float = 1.61e4
+    cn0_ref_dbhz: float = 40.0
+
+    def describe(self) -> str:
+        """The model in words for the outputs: ``rtklib``, ``rtklib + sigma-epsilon C/N0 (ref 45 dB-Hz)``."""
+        if self.cn0_model == "off":
+            return self.model
+        return f"{self.model} + {self.cn0_model} C/N0 (ref {self.cn0_ref_dbhz:g} dB-Hz)"
 
 
+CN0_MODELS = ("off", "sigma-epsilon")
+"""C/N0 terms of the pseudorange variance (``[weights] cn0_model``)."""
 STLS_KERNELS = ("shared", "full")
 """Structures of the identified kernel of ``stls`` with ``lag >= 1``: ``r(z) I_3`` or a full ``3 x 3(L+1)`` kernel."""
 SMOOTHER_MOTIONS = ("quadrature", "cv", "ca", "static")

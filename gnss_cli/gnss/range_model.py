@@ -39,7 +39,7 @@ them, as RTKLIB.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -247,15 +247,36 @@ def sagnac_range(sat_ecef_m: F64, rx_ecef_m: F64) -> tuple[F64, F64]:
 # Weights: the pseudorange variance model (RTKLIB varerr)
 
 
+def cn0_variance_m2(cn0_dbhz: F64, c_m2hz: float, ref_dbhz: float) -> F64:
+    """The SIGMA-epsilon term of a pseudorange variance above a strong signal's, m^2.
+
+    ``c 10^(-C/N0 / 10) - c 10^(-ref / 10)``, clipped at 0: SIGMA-epsilon's code variance
+    ``c 10^(-C/N0/10)`` (Hartinger and Brunner 1999; ``c`` in m^2 Hz, 1.61e4 for the L1 C/A code)
+    less its value at ``ref_dbhz``, so that a signal at least as strong as ``ref_dbhz`` keeps the
+    variance of the elevation model and a weak one (a reflection, an attenuated line of sight)
+    gets the rest (with the defaults, 1.61e4 m^2 Hz and 40 dB-Hz: 35 dB-Hz +3.5 m^2, 25 dB-Hz
+    +49 m^2, 20 dB-Hz +159 m^2). A missing C/N0 (NaN: the file has no S code for the signal) adds nothing.
+    """
+    extra = c_m2hz * (10.0 ** (-np.asarray(cn0_dbhz, dtype=np.float64) / 10.0) - 10.0 ** (-ref_dbhz / 10.0))
+    return np.where(np.isfinite(extra), np.maximum(extra, 0.0), 0.0)
+
+
 def pseudorange_variance_m2(
-    config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0
+    config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float = 1.0,
+    cn0_dbhz: F64 | None = None,
 ) -> F64:
     """Pseudorange variances (m^2) of the configured weight model (see ``gnss_cli/configs/default.toml``).
 
     ``ura_m`` is the broadcast orbit-and-clock sigma (:func:`~gnss_cli.gnss.broadcast.ephemeris_sigma_m`);
-    ``efact`` scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1).
+    ``efact`` scales the code-noise term per satellite (RTKLIB: 1.5 for GLONASS, else 1);
+    ``cn0_dbhz`` the signals' C/N0 (dB-Hz), which adds :func:`cn0_variance_m2` with
+    ``[weights] cn0_model = "sigma-epsilon"``.
     """
     w = config.weights
+    if w.cn0_model == "sigma-epsilon" and cn0_dbhz is not None:
+        plain = replace(config, weights=replace(w, cn0_model="off"))
+        return pseudorange_variance_m2(plain, el_rad, ura_m, iono_m, efact) + cn0_variance_m2(
+            cn0_dbhz, w.cn0_c_m2hz, w.cn0_ref_dbhz)
     sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))
     if w.model == "equal":
         return np.full_like(el_rad, w.a_m**2)
@@ -288,6 +309,7 @@ class EpochArrays(Protocol):
     systems: tuple[str, ...]
     system_index: NDArray[np.int64] | None
     iono_scale: F64 | None
+    snr_dbhz: F64 | None
 
 
 @dataclass
@@ -437,7 +459,9 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
     sysidx = data.system_index if data.system_index is not None else np.zeros(n, dtype=np.int64)
     efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
-    var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si]), 1.0)
+    cn0 = data.snr_dbhz  # C/N0 of each pseudorange's signal, dB-Hz (None: the file has no S code)
+    var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si],
+                                                     None if cn0 is None else cn0[tr, si]), 1.0)
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
     sv_col = None
     if width is not None:  # the used observations only

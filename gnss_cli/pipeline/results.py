@@ -311,7 +311,8 @@ class MethodSolution:
     the pseudorange residuals at the method's fix with the WLS sigmas (the other snapshot methods);
     not computed (NaN, or None) with ``integrity = "off"``."""
     hpl_m: F64 | None = None
-    """``(T,)`` horizontal protection level, m (classic slope-based RAIM; ls/wls)."""
+    """``(T,)`` horizontal protection level, m (solution separation over single-satellite and
+    constellation faults, :mod:`gnss_cli.pipeline.integrity`; ls/wls; NaN on multi-epoch rows)."""
     vpl_m: F64 | None = None
     """``(T,)`` vertical protection level, m."""
     robust_weights: F64 | None = None

@@ -173,7 +173,7 @@ def clean(tmp_path_factory):
     out = tmp_path_factory.mktemp("clean")
     truth = _simulate(out, sigma_m=0.01, duration_s=600.0, seed=5)
     cfg = load_config(None, {"methods": ",".join(ALL), "iono": "none", "tropo": "none"})
-    cfg = replace(cfg, weights=replace(cfg.weights, model="equal", a_m=0.01))
+    cfg = replace(cfg, weights=replace(cfg.weights, model="equal", a_m=0.01, cn0_model="off"))
     return load_epochs(out / "obs.rnx", [out / "nav.rnx"], cfg), cfg, truth
 
 

@@ -1,0 +1,129 @@
+"""How the default of ``[weights] cn0_model`` (and its reference C/N0) was chosen: on training data only.
+
+    python benchmarks/choose_cn0_weights.py [--quick]
+
+Training data: simulated urban drives with seeds 101-103 (``bench_urban.py`` reports seeds 1-10),
+both receiver profiles, 300 s at 1 Hz; the shared urban sets tst2 (against its truth) and
+smartloc-berlin (availability only: no reference); and ESBC, a clean station, which must not get
+worse. For each candidate -- ``off``, and ``sigma-epsilon`` with ``cn0_ref_dbhz`` 40, 45, 50 --
+``wls`` with the default integrity (``fde``) and every other option at its default. Per case:
+availability, misleading epochs, 3D RMS of the ``ok`` epochs. The score of a candidate is the mean
+over the cases with a reference of its RMS over the ``off`` RMS; the chosen default is the lowest
+score among the candidates whose misleading epochs (summed) are no more than ``off``'s and whose
+ESBC RMS is within 2 % of ``off``'s. Prints a table and writes
+``benchmarks/results/choose_cn0_weights.json``. About 6 minutes on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from gnss_cli.config import load_config
+from gnss_cli.gnss.time import gps_s2week_tow
+from gnss_cli.pipeline import process
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_urban import RINEX, TST_TOW, TST_TRUTH, method_row  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "choose_cn0_weights.json"
+CANDIDATES: dict[str, dict[str, object]] = {
+    "off": {"weights.cn0_model": "off"},
+    "sigma-epsilon 40": {"weights.cn0_model": "sigma-epsilon", "weights.cn0_ref_dbhz": 40.0},
+    "sigma-epsilon 45": {"weights.cn0_model": "sigma-epsilon", "weights.cn0_ref_dbhz": 45.0},
+    "sigma-epsilon 50": {"weights.cn0_model": "sigma-epsilon", "weights.cn0_ref_dbhz": 50.0},
+}
+ESBC_REF = np.array([3582104.922, 532590.196, 5232755.366])  # ../shared/rinex/README.md (PPP, ARP)
+
+
+def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool) -> list[tuple]:
+    cases = []
+    for receiver in ("single", "dual"):
+        for seed in seeds:
+            folder = work / f"{receiver}-{seed}"
+            subprocess.run([sys.executable, "-m", "gnss_cli.cli.simulate", "--environment", "urban", "--receiver",
+                            receiver, "--trajectory", "drive", "--duration", str(duration_s), "--interval", "1",
+                            "--seed", str(seed), "--out-dir", str(folder), "-q"], check=True)
+            truth = pd.read_csv(folder / "truth.csv")
+            t_truth = truth["gps_week"].to_numpy() * 604800.0 + truth["tow_s"].to_numpy()
+            xyz = truth[["x_m", "y_m", "z_m"]].to_numpy()
+
+            def ref_at(t: np.ndarray, t_truth: np.ndarray = t_truth, xyz: np.ndarray = xyz) -> np.ndarray:
+                return xyz[np.clip(np.searchsorted(t_truth, t), 0, t_truth.size - 1)]
+
+            cases.append((f"sim-{receiver}-{seed}", folder / "obs.rnx", [folder / "nav.rnx"], None, ref_at,
+                          lambda t: np.ones(t.size, bool)))
+    tst = RINEX / "tst2-2020155-urban-static"
+    if tst.is_dir():
+        def tst_keep(t: np.ndarray) -> np.ndarray:
+            tow = gps_s2week_tow(t)[1]
+            return (tow >= TST_TOW[0] - 0.01) & (tow <= TST_TOW[1] + 0.01)
+
+        cases.append(("tst2", tst / "2020_06_03_TST_03.obs.gz", sorted(tst.glob("hksc155d.20?")), None,
+                      lambda t: np.broadcast_to(TST_TRUTH, (t.size, 3)), tst_keep))
+    esbc = RINEX / "esbc-2020177"
+    if esbc.is_dir() and not quick:
+        cases.append(("esbc", esbc / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz",
+                      [esbc / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"], None,
+                      lambda t: np.broadcast_to(ESBC_REF, (t.size, 3)), lambda t: np.ones(t.size, bool)))
+    ber = RINEX / "smartloc-berlin-2016158-urban-kinematic"
+    if ber.is_dir() and not quick:
+        cases.append(("smartloc-berlin", ber / "Berlin_Potsdamer_Platz.obs.gz",
+                      [ber / "BRDC00WRD_U_20161580000_01D_MN.rnx.gz"], "G", lambda t: None,
+                      lambda t: np.ones(t.size, bool)))
+    return cases
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2")
+    args = parser.parse_args()
+    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    t0 = time.perf_counter()
+    results: dict[str, dict[str, object]] = {c: {} for c in CANDIDATES}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, obs, navs, systems, ref_at, keep_at in training_cases(Path(tmp), seeds, duration, args.quick):
+            for cand, over in CANDIDATES.items():
+                cfg = load_config(None, {"methods": "wls", **({"systems": systems} if systems else {}), **over})
+                res = process(obs, navs, cfg)
+                t = res.epochs.time_gps_s
+                keep = keep_at(t)
+                results[cand][name] = method_row(res.solutions["wls"], ref_at(t[keep]), keep)
+            print(f"choose_cn0_weights: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    names = list(results["off"])
+    lines = ["| candidate | " + " | ".join(names) + " | score | misleading |", "|---|" + "---|" * (len(names) + 2)]
+    scores: dict[str, float] = {}
+    misleading: dict[str, int] = {}
+    for cand, rows in results.items():
+        ratios = [rows[n]["rms_3d_m"] / results["off"][n]["rms_3d_m"] for n in names
+                  if rows[n].get("rms_3d_m") and results["off"][n].get("rms_3d_m")]
+        scores[cand] = float(np.mean(ratios))
+        misleading[cand] = int(sum(rows[n].get("misleading", 0) for n in names))
+        cells = [f"{100 * rows[n]['availability']:.0f} % / " + (f"{rows[n]['rms_3d_m']:.2f} m" if rows[n].get("rms_3d_m")
+                 else "–") for n in names]
+        lines.append(f"| {cand} | " + " | ".join(cells) + f" | {scores[cand]:.3f} | {misleading[cand]} |")
+    esbc = results["off"].get("esbc", {}).get("rms_3d_m")
+    allowed = [c for c in CANDIDATES if misleading[c] <= misleading["off"]
+               and (esbc is None or results[c]["esbc"]["rms_3d_m"] <= 1.02 * esbc)]
+    chosen = min(allowed, key=lambda c: scores[c])
+    print("\n".join(lines))
+    print(f"chosen: {chosen} (score {scores[chosen]:.3f}; off 1.000)")
+    if not args.quick:
+        OUT.write_text(json.dumps({"title": "Choosing the C/N0 weights on training data",
+                                   "command": "python benchmarks/choose_cn0_weights.py", "seeds": seeds,
+                                   "duration_s": duration, "candidates": CANDIDATES, "scores": scores,
+                                   "misleading": misleading, "chosen": chosen, "cases": results,
+                                   "seconds": time.perf_counter() - t0}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
