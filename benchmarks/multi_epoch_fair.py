@@ -16,7 +16,8 @@ factors and gates:
   and phase it is given. The JSON and the table record what each method reported it ran
   (``estimator, model, lag, window, measurements`` of the run's settings).
 
-**Settings are chosen before anything is reported.** On the training seeds (1-3) of simulated
+**Settings are chosen before anything is reported.** On the training seeds (1-3; drives 1001-1003,
+:data:`SEED_OFFSET`) of simulated
 flights and drives with 1 m code noise, a small grid per method and measurement set is run and
 the best 3D RMS (pooled over the training seeds of both trajectories) picked: ``kf cv``
 ``accel_psd_m2_s3``, ``kf ca`` ``jerk_psd_m2_s5``, the smoother's quadrature lag, the stls
@@ -26,16 +27,19 @@ Doppler set's choices.
 
 Cases:
 
+Every method of a case and measurement set is compared on the same epochs: those where all of
+them have a position (the rows say how many each solved).
+
 * ``flight`` / ``drive``: ``gnss-simulate --trajectory flight|drive`` (path and start time drawn
-  from the seed), GPS, 1 Hz, ``--errors noise --noise-sigma 1``, solved with ``iono none, tropo
+  from the seed), GPS, 1 Hz, 300 s, ``--errors noise --noise-sigma 1``, solved with ``iono none, tropo
   none``; errors against ``truth.csv``, pooled over the evaluation seeds: 3D RMS, horizontal RMS,
   95th percentile of the 3D error.
 * ``flight exact``: the same with ``--errors none`` (evaluation seed 101): the largest 3D error
   of each method.
 * ``yamatogawa``: the u-blox walk against its RTK trajectory (``rtk_ref_rover.pos``), default
   processing: horizontal RMS, and the vertical RMS after removing the mean vertical error common
-  to all methods (one number over every row of the case: the RTK base fixes the absolute height
-  only to a few metres).
+  to all methods (one number per measurement set, over every method's compared epochs: the RTK
+  base fixes the absolute height only to a few metres).
 * ``tst2``: the Hong Kong urban static antenna solved as a kinematic receiver, default
   processing, errors against its static reference over the truth window (GPS seconds of week
   270149-270305).
@@ -79,6 +83,9 @@ OUT = REPO / "benchmarks" / "results" / "multi_epoch_fair.json"
 SETS = {"pr": "pseudorange", "pr+doppler": "pseudorange,doppler", "pr+doppler+phase": "pseudorange,doppler,phase"}
 TST2_TRUTH = [-2418077.2710, 5386069.6872, 2405174.1252]
 TRAIN_SEEDS, EVAL_SEEDS = (1, 2, 3), tuple(range(101, 111))
+SEED_OFFSET = {"flight": 0, "drive": 1000}
+"""The drives use seeds 1001-1003 and 1101-1110: a seed fixes the noise and the start time
+whatever the trajectory, so flight and drive of one seed would share them."""
 
 GRID: dict[str, tuple[str, tuple[Any, ...]]] = {
     "kf cv": ("kalman.accel_psd_m2_s3", (0.01, 0.1, 1.0, 10.0, 100.0)),
@@ -146,7 +153,7 @@ def stats(enu: np.ndarray, v_bias_m: float = 0.0) -> dict[str, float]:
     ok = np.isfinite(enu).all(axis=1)
     e = enu[ok]
     d3 = np.linalg.norm(e, axis=1)
-    return {"epochs": int(ok.sum()), "rms_3d_m": float(np.sqrt(np.mean(d3**2))),
+    return {"rms_3d_m": float(np.sqrt(np.mean(d3**2))),
             "rms_h_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
             "rms_v_debiased_m": float(np.sqrt(np.mean((e[:, 2] - v_bias_m) ** 2))),
             "p95_3d_m": float(np.percentile(d3, 95)), "max_3d_m": float(d3.max())}
@@ -154,6 +161,29 @@ def stats(enu: np.ndarray, v_bias_m: float = 0.0) -> dict[str, float]:
 
 def pooled(runs: list[dict[str, dict[str, Any]]], name: str) -> np.ndarray:
     return np.concatenate([r[name]["enu_m"] for r in runs])
+
+
+def evaluate(runs: list[dict[str, dict[str, Any]]], window: tuple[float, float] | None = None,
+             common_bias: bool = False) -> dict[str, Any]:
+    """Every method's statistics over the same epochs: those (of each run, within ``window`` of GPS
+    seconds of week) where every method of the run has a position; ``solved`` counts each method's
+    own. ``common_bias``: the vertical RMS after removing the mean vertical error of all methods."""
+    names = list(runs[0])
+    keep = []
+    for r in runs:
+        k = np.ones(r["wls"]["tow_s"].size, bool)
+        if window is not None:
+            k &= (r["wls"]["tow_s"] >= window[0]) & (r["wls"]["tow_s"] <= window[1])
+        keep.append(k)
+    solved = {n: int(sum((np.isfinite(r[n]["enu_m"]).all(axis=1) & k).sum() for r, k in zip(runs, keep))) for n in names}
+    common = [k & np.all([np.isfinite(r[n]["enu_m"]).all(axis=1) for n in names], axis=0) for r, k in zip(runs, keep)]
+    enu = {n: np.concatenate([r[n]["enu_m"][c] for r, c in zip(runs, common)]) for n in names}
+    bias = float(np.mean(np.concatenate([e[:, 2] for e in enu.values()]))) if common_bias else 0.0
+    rows: dict[str, Any] = {n: {**stats(enu[n], bias), "solved": solved[n], "compared": int(enu[n].shape[0]),
+                                "ran": runs[0][n]["ran"]} for n in names}
+    if common_bias:
+        rows["vertical_bias_removed_m"] = bias
+    return rows
 
 
 def variants_for(chosen: dict[str, Any], names: tuple[str, ...]) -> dict[str, dict[str, Any]]:
@@ -169,7 +199,7 @@ def variants_for(chosen: dict[str, Any], names: tuple[str, ...]) -> dict[str, di
 def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dict[str, Any]]:
     """Per measurement set (pr, pr+doppler): each tuned variant's candidate with the best pooled
     3D RMS over the training seeds of the flight and the drive, and every candidate's RMS."""
-    files = [simulate(tmp / f"train-{kind}-{seed}", kind, seed, duration_s, "noise")
+    files = [simulate(tmp / f"train-{kind}-{seed}", kind, seed + SEED_OFFSET[kind], duration_s, "noise")
              for kind in ("flight", "drive") for seed in seeds]
     chosen: dict[str, dict[str, Any]] = {}
     for label in ("pr", "pr+doppler"):
@@ -194,7 +224,7 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
     return chosen
 
 
-def summarise(case: str, label: str, rows: dict[str, dict[str, Any]], key: str) -> dict[str, Any]:
+def summarise(case: str, label: str, rows: dict[str, Any], key: str) -> dict[str, Any]:
     peers = {n: rows[n][key] for n in PEERS if n in rows}
     best_s = min((n for n in peers if n.startswith("smoother")), key=peers.__getitem__)
     best_k = min((n for n in peers if n.startswith("kf")), key=peers.__getitem__)
@@ -219,42 +249,38 @@ def main() -> None:
         chosen = train(tmp, train_seeds, duration_s)
         t_trained = time.perf_counter()
         for kind in ("flight", "drive"):
-            files = [simulate(tmp / f"eval-{kind}-{seed}", kind, seed, duration_s, "noise") for seed in eval_seeds]
+            files = [simulate(tmp / f"eval-{kind}-{seed}", kind, seed + SEED_OFFSET[kind], duration_s, "noise")
+                     for seed in eval_seeds]
             cases[kind] = {}
             for label in ("pr", "pr+doppler"):
                 common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
                 runs = [solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv",
                                        variants_for(chosen[label]["choice"], names), common) for d in files]
-                cases[kind][label] = {n: {**stats(pooled(runs, n)), "ran": runs[0][n]["ran"]} for n in ["wls", *names]}
+                cases[kind][label] = evaluate(runs)
         d = simulate(tmp / "exact", "flight", eval_seeds[0], duration_s, "none")
         cases["flight exact"] = {}
         for label in ("pr", "pr+doppler"):
             common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
             run = solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv", variants_for(chosen[label]["choice"], names), common)
-            cases["flight exact"][label] = {n: {**stats(run[n]["enu_m"]), "ran": run[n]["ran"]} for n in ["wls", *names]}
+            cases["flight exact"][label] = evaluate([run])
         y, s = args.rinex / "yamatogawa-2010006-kinematic", args.rinex / "tst2-2020155-urban-static"
         if not args.quick and y.is_dir():
             runs = {label: solve_variants(y / "yamatogawa_rover.obs", [y / "brdc0060.10n"], y / "rtk_ref_rover.pos",
                                           variants_for(chosen[label]["choice"], names), {"measurements": SETS[label]})
                     for label in SETS}
-            bias = float(np.nanmean(np.concatenate([r[n]["enu_m"][:, 2] for r in runs.values() for n in r])))
-            cases["yamatogawa"] = {label: {n: {**stats(r[n]["enu_m"], bias), "ran": r[n]["ran"]} for n in r}
-                                   for label, r in runs.items()}
-            cases["yamatogawa"]["vertical_bias_removed_m"] = bias
+            cases["yamatogawa"] = {label: evaluate([r], common_bias=True) for label, r in runs.items()}
         if not args.quick and s.is_dir():
             cases["tst2"] = {}
             for label in SETS:
                 r = solve_variants(s / "2020_06_03_TST_03.obs.gz", sorted(s.glob("hksc155d.20?")), TST2_TRUTH,
                                    variants_for(chosen[label]["choice"], (*names, "smoother static")), {"measurements": SETS[label]})
-                window = (r["wls"]["tow_s"] >= 270149) & (r["wls"]["tow_s"] <= 270305)
-                cases["tst2"][label] = {n: {**stats(v["enu_m"][window]), "ran": v["ran"]} for n, v in r.items()}
+                cases["tst2"][label] = evaluate([r], window=(270149.0, 270305.0))
     seconds = time.perf_counter() - t_start
     summary = []
     for case, sets in cases.items():
         key = {"flight exact": "max_3d_m", "yamatogawa": "rms_h_m"}.get(case, "rms_3d_m")
         for label, rows in sets.items():
-            if isinstance(rows, dict):
-                summary.append(summarise(case, label, rows, key))
+            summary.append(summarise(case, label, rows, key))
     data = table(cases, summary, chosen, args.quick, seconds, time.perf_counter() - t_trained, train_seeds, eval_seeds, duration_s)
     print_tables(data)
     out = Path(tempfile.gettempdir()) / "multi_epoch_fair_quick.json" if args.quick else OUT
@@ -279,10 +305,12 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
             if not isinstance(methods, dict):
                 continue
             for name, m in methods.items():
+                if not isinstance(m, dict):
+                    continue
                 ran = m["ran"]
                 what = "; ".join(p for p in (ran["model"], f"lag {ran['lag']}" if ran["lag"] else "", ran["window"],
                                              ran["measurements"]) if p)
-                detail.append([case, label, name, what, m["epochs"], _r(m["rms_3d_m"]), _r(m["rms_h_m"]),
+                detail.append([case, label, name, what, m["solved"], m["compared"], _r(m["rms_3d_m"]), _r(m["rms_h_m"]),
                                _r(m["rms_v_debiased_m"]) if case == "yamatogawa" else None, _r(m["p95_3d_m"]), _r(m["max_3d_m"])])
     choices = {label: c["choice"] for label, c in chosen.items()}
     return {
@@ -291,14 +319,18 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
         "table": {"columns": ["case", "measurements", "metric (m)", "wls", "best kf", "kf", "best smoother", "smoother",
                               "stls lag 3", "stls / best peer"], "rows": rows},
         "more_tables": [{"title": "Every method and measurement set",
-                         "columns": ["case", "measurements", "method", "what ran (model; lag; window; measurements)", "epochs",
+                         "columns": ["case", "measurements", "method", "what ran (model; lag; window; measurements)", "solved",
+                                     "compared",
                                      "3D RMS", "H RMS", "V RMS - common bias", "p95 3D", "max 3D"], "rows": detail}],
         "notes": (f"Settings chosen on training seeds {list(train_seeds)} (flight and drive, {duration_s:.0f} s, GPS, 1 Hz, "
                   f"1 m code noise; best pooled 3D RMS) and then fixed: {json.dumps(choices)}. "
-                  f"Evaluation seeds {eval_seeds[0]}-{eval_seeds[-1]}, errors pooled over them. flight exact: no errors, "
+                  f"Evaluation seeds {eval_seeds[0]}-{eval_seeds[-1]} (drives: + 1000), errors pooled over them. "
+                  "Every method of a case and set is compared on the same epochs (all methods solved; "
+                  "'solved' counts each method's own). flight exact: no errors, "
                   "seed " f"{eval_seeds[0]}, largest 3D error. yamatogawa: against the RTK trajectory, horizontal RMS; "
-                  f"vertical RMS after removing the mean vertical error of all rows "
-                  f"({cases.get('yamatogawa', {}).get('vertical_bias_removed_m', float('nan')):.2f} m). tst2: the static "
+                  "vertical RMS after removing the mean vertical error of all its methods (per set: "
+                  + ", ".join(f"{v['vertical_bias_removed_m']:.2f}" for v in cases.get("yamatogawa", {}).values())
+                  + " m). tst2: the static "
                   "antenna solved as a moving receiver, truth window; smoother static is listed for reference and is no "
                   "peer. stls lag 3 smooths the WLS fixes (pseudoranges) whatever set it is given: see what ran. "
                   f"Whole run {seconds / 60:.1f} min ({eval_seconds / 60:.1f} min after training), one process, nice 10, "
