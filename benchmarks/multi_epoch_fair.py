@@ -52,7 +52,7 @@ Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
 skipped). The full run took 9.2 min (training 1.8 min) in one process with ``nice -n 10`` on the
-shared 2-core machine (``--quick``: about 1.3 min).
+shared 2-core machine (``--quick``: 1.3-1.7 min).
 """
 
 from __future__ import annotations
