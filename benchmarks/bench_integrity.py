@@ -140,7 +140,7 @@ def main() -> None:
     results: dict[str, object] = {"simulated": []}
     print("simulated, random outliers 50-500 m in 5 % of epochs (errors: all; default settings)")
     print(f"{'traj':8} {'sys':4} {'seed':>4} {'faulty':>6} {'excl %':>7} {'clean lose %':>12} {'rms clean':>9} {'rms faulty':>10} {'ratio':>6}")
-    for traj in ("static", "flight"):
+    for traj in ("static", "standard-flight"):
         for systems in ("G", "G,E"):
             for seed in seeds:
                 r = simulated(traj, seed, duration, systems)

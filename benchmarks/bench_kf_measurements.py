@@ -62,7 +62,7 @@ def sets(tmp: Path, rinex: Path) -> dict[str, tuple[Path, list[Path], object]]:
             return np.tile(TST2_TRUTH, (t.size, 1)), (tow >= 270149) & (tow <= 270305)
         out["tst2"] = (s / "2020_06_03_TST_03.obs.gz", sorted(s.glob("hksc155d.20?")), tst2)
     d = tmp / "flight"
-    write_scenario(run_scenario(replace(ScenarioConfig(), trajectory="flight", duration_s=600.0, interval_s=1.0, seed=3)), d)
+    write_scenario(run_scenario(replace(ScenarioConfig(), trajectory="standard-flight", duration_s=600.0, interval_s=1.0, seed=3)), d)
     out["flight"] = (d / "obs.rnx", [d / "nav.rnx"],
                      lambda t: (reference_from_csv(d / "truth.csv", t), np.ones(t.size, bool)))
     return out

@@ -117,7 +117,7 @@ def main() -> None:
     args = ap.parse_args()
     out: dict[str, object] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        flight = simulate(Path(tmp) / "flight", "flight", 600)
+        flight = simulate(Path(tmp) / "flight", "standard-flight", 600)
         rows = tradeoff(flight)
         out["tradeoff_flight_600s"] = rows
         print("variant  window  3D RMS (m)  ratio to LS  mean GDOP  time (s)")

@@ -65,7 +65,7 @@ def stats(x: np.ndarray, ref: np.ndarray) -> dict[str, float]:
 
 def simulate(out: Path, errors: str, seed: int, duration_s: float = 600.0) -> Path:
     base = ScenarioConfig()
-    cfg = replace(base, trajectory="flight", duration_s=duration_s, interval_s=1.0, seed=seed,
+    cfg = replace(base, trajectory="standard-flight", duration_s=duration_s, interval_s=1.0, seed=seed,
                   errors=base.errors.with_sources(parse_error_list(errors)))
     write_scenario(run_scenario(cfg), out)
     return out

@@ -57,7 +57,7 @@ RUNS: tuple[tuple[str, tuple[str, ...], dict[str, str]], ...] = (
 
 def simulate(out: Path, seed: int, duration_s: int) -> None:
     """Write the flight's obs.rnx, nav.rnx and truth.csv into ``out``."""
-    cmd = [sys.executable, "-m", "gnss_cli.cli.simulate", "--trajectory", "flight", "--duration", str(duration_s),
+    cmd = [sys.executable, "-m", "gnss_cli.cli.simulate", "--trajectory", "standard-flight", "--duration", str(duration_s),
            "--interval", "1", "--systems", "G", "--seed", str(seed), "--errors", "noise", "--noise-sigma", "1",
            "--out-dir", str(out), "--quiet"]
     subprocess.run(cmd, check=True, capture_output=True, cwd=REPO)

@@ -1,18 +1,24 @@
 """The "Benchmark tables" page: one Markdown table per JSON file in ``benchmarks/results/``.
 
 A result file that has ``"title"``, ``"command"`` and ``"table": {"columns": [...], "rows":
-[[...], ...]}`` (and optionally ``"notes"``, a string) becomes a section: the title, the
-command that measured it, the table. ``bench_full_run.json`` and ``bench_memory.json`` were
+[[...], ...]}`` (and optionally ``"notes"``, a string, and ``"more_tables"``, a list of tables
+with a ``"title"`` each) becomes a section: the title, the command that measured it, the table(s). ``bench_full_run.json`` and ``bench_memory.json`` were
 written before that shape; :data:`ADAPTERS` turns their numbers into the same fields. A file of
 neither shape is listed by name at the end, so nothing is dropped silently.
 
 Usage: ``python benchmarks/results_page.py [RESULTS_DIR] > measured.md``; the MkDocs hook
 (``tools/mkdocs_hooks.py``) runs it at every build into the page ``benchmark-tables.md``.
+
+A hand-written page may carry a generated section too: the lines between
+``<!-- results: NAME.json -->`` and ``<!-- /results -->`` are that file's section
+(:func:`fill_sections`); ``python benchmarks/results_page.py --fill docs/results.md`` rewrites
+them, and a test checks that the committed page equals its refill.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -66,20 +72,46 @@ def _cell(value: object) -> str:
     return str(value).replace("|", "\\|").replace("\n", " ")
 
 
-def section(data: dict[str, Any], source: str) -> str:
-    """One result as Markdown: its title, command, table and notes."""
-    columns, rows = data["table"]["columns"], data["table"]["rows"]
-    lines = [f"## {data['title']}", "", "```sh", data["command"], "```", "",
-             "| " + " | ".join(_cell(c) for c in columns) + " |", "|" + "---|" * len(columns)]
+def _table_lines(table: dict[str, Any], source: str) -> list[str]:
+    columns, rows = table["columns"], table["rows"]
+    lines = ["| " + " | ".join(_cell(c) for c in columns) + " |", "|" + "---|" * len(columns)]
     for row in rows:
         if len(row) != len(columns):
             raise ValueError(f"{source}: a row has {len(row)} cells for {len(columns)} columns: {row!r}")
         lines.append("| " + " | ".join(_cell(v) for v in row) + " |")
-    lines.append("")
+    return [*lines, ""]
+
+
+def section(data: dict[str, Any], source: str, level: int = 2) -> str:
+    """One result as Markdown: its title (a heading of ``level``), command, table(s) and notes."""
+    lines = [f"{'#' * level} {data['title']}", "", "```sh", data["command"], "```", "",
+             *_table_lines(data["table"], source)]
     if data.get("notes"):
         lines += [str(data["notes"]), ""]
+    for more in data.get("more_tables", []):
+        lines += [f"{'#' * (level + 1)} {more['title']}", "", *_table_lines(more, source)]
     lines += [f"*From `benchmarks/results/{source}`.*", ""]
     return "\n".join(lines)
+
+
+_FILL = re.compile(r"(<!-- results: (?P<name>[\w.-]+\.json) -->\n)(?P<body>.*?)(<!-- /results -->)", re.S)
+
+
+def fill_sections(markdown: str, results: Path = RESULTS) -> str:
+    """``markdown`` with the lines between each ``<!-- results: NAME.json -->`` and the next
+    ``<!-- /results -->`` replaced by that file's section (headings one level down: ``###``).
+
+    Raises
+    ------
+    FileNotFoundError
+        When a named result file is missing.
+    """
+    def one(match: re.Match[str]) -> str:
+        name = match.group("name")
+        data = json.loads((results / name).read_text(encoding="utf-8"))
+        return match.group(1) + "\n" + section(data, name, level=3) + "\n" + match.group(4)
+
+    return _FILL.sub(one, markdown)
 
 
 def page(results: Path = RESULTS) -> str:
@@ -108,4 +140,8 @@ def page(results: Path = RESULTS) -> str:
 
 
 if __name__ == "__main__":
-    print(page(Path(sys.argv[1]) if len(sys.argv) > 1 else RESULTS))
+    if len(sys.argv) == 3 and sys.argv[1] == "--fill":
+        target = Path(sys.argv[2])
+        target.write_text(fill_sections(target.read_text(encoding="utf-8")), encoding="utf-8")
+    else:
+        print(page(Path(sys.argv[1]) if len(sys.argv) > 1 else RESULTS))

@@ -63,7 +63,7 @@ def _values_are_configuration() -> Iterator[None]:
 @app.command(cls=PanelCommand, epilog=EXAMPLES)
 def simulate(
     out_dir: Annotated[Path, typer.Option("--out-dir", metavar="DIR", rich_help_panel="Output", help="Folder for obs.rnx, nav.rnx, truth.csv.")],
-    trajectory: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "trajectory"), help="static | flight | drive | semicircle | csv:FILE")] = None,
+    trajectory: Annotated[Optional[str], typer.Option(metavar="KIND", rich_help_panel="Scenario", show_default=_default("simulate", "trajectory"), help="static | flight | standard-flight | drive | semicircle | csv:FILE (flight and drive: path and start time drawn from --seed)")] = None,
     start: Annotated[Optional[str], typer.Option(metavar="TIME", rich_help_panel="Scenario", show_default=_default("simulate", "start"), help="Start, ISO 8601 GPS time (2024-03-01T00:00:00).")] = None,
     duration: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "duration_s"), help="Duration, s.")] = None,
     interval: Annotated[Optional[float], typer.Option(metavar="S", rich_help_panel="Scenario", show_default=_default("simulate", "interval_s"), help="Epoch interval, s.")] = None,

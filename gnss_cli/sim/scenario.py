@@ -55,8 +55,11 @@ class ScenarioConfig:
 
     Attributes
     ----------
-    trajectory : ``static``, ``flight``, ``drive``, ``semicircle`` or ``csv:FILE``.
-    start : ISO 8601 start (GPS time).
+    trajectory : ``static``, ``flight``, ``standard-flight``, ``drive``, ``semicircle`` or ``csv:FILE``.
+    start : ISO 8601 start (GPS time); ``flight`` and ``drive`` start later, at a time drawn from
+        the seed (:func:`start_offset_s`).
+    start_window_s : ``flight`` and ``drive`` start within this many seconds after ``start``
+        (whole intervals drawn uniformly from the seed); 0 starts them at ``start``.
     duration_s, interval_s : run length and epoch spacing, s.
     systems : system letters (``G``, ``E``, ``C``, ``J``).
     seed : seed of the run's random generator.
@@ -80,6 +83,7 @@ class ScenarioConfig:
 
     trajectory: str = "static"
     start: str = "2024-03-01T00:00:00"
+    start_window_s: float = 86400.0
     duration_s: float = 3600.0
     interval_s: float = 1.0
     systems: tuple[str, ...] = ("G",)
@@ -222,8 +226,29 @@ def parse_systems(text: str) -> tuple[str, ...]:
     return letters
 
 
+SEEDED_TRAJECTORIES = ("flight", "drive")
+"""Trajectory kinds whose path and start time are drawn from the seed."""
+
+
+def trajectory_streams(seed: int) -> list[np.random.Generator]:
+    """The children of the run's generator: the path's manoeuvres (or the drive's legs), the street
+    canyon, the start time. Drawn from their own streams, runs that differ only in their error
+    sources share them; spawning leaves the parent's stream (the errors) as it was."""
+    return np.random.default_rng(seed).spawn(3)
+
+
+def start_offset_s(config: ScenarioConfig) -> float:
+    """Seconds after ``config.start`` at which the run begins: for :data:`SEEDED_TRAJECTORIES` a whole
+    number of intervals drawn uniformly in ``[0, start_window_s)`` from the seed's start-time stream
+    (so two seeds see other satellite geometry), else 0."""
+    if config.trajectory not in SEEDED_TRAJECTORIES or not config.start_window_s > 0.0 or not config.interval_s > 0.0:
+        return 0.0
+    n = max(int(np.floor(config.start_window_s / config.interval_s)), 1)
+    return config.interval_s * float(trajectory_streams(config.seed)[2].integers(0, n))
+
+
 def epochs_gps_s(config: ScenarioConfig) -> F64:
-    """Epoch labels of the run, GPS seconds ``(T,)``.
+    """Epoch labels of the run, GPS seconds ``(T,)``, from ``start`` plus :func:`start_offset_s`.
 
     Raises
     ------
@@ -236,13 +261,15 @@ def epochs_gps_s(config: ScenarioConfig) -> F64:
         raise UsageError(f"--start: not an ISO 8601 time: {config.start!r}") from exc
     if not config.interval_s > 0.0 or not config.duration_s >= 0.0:
         raise UsageError(f"interval must be > 0 and duration >= 0, got {config.interval_s} and {config.duration_s}")
+    if not config.start_window_s >= 0.0:
+        raise UsageError(f"start_window_s must be >= 0, got {config.start_window_s}")
     n = int(np.floor(config.duration_s / config.interval_s + 1e-9)) + 1
-    return t0 + config.interval_s * np.arange(n)
+    return t0 + start_offset_s(config) + config.interval_s * np.arange(n)
 
 
 def build_trajectory(config: ScenarioConfig, t_gps_s: F64, rng: np.random.Generator | None = None) -> Trajectory:
-    """The receiver trajectory named by ``config.trajectory`` (``rng`` draws the drive's legs;
-    default: a generator seeded with ``config.seed``).
+    """The receiver trajectory named by ``config.trajectory`` (``rng`` draws the flight's manoeuvres
+    or the drive's legs; default: the seed's trajectory stream, :func:`trajectory_streams`).
 
     Raises
     ------
@@ -253,16 +280,18 @@ def build_trajectory(config: ScenarioConfig, t_gps_s: F64, rng: np.random.Genera
     kind = config.trajectory
     if kind == "static":
         return static_trajectory(t_gps_s, site)
+    own = rng if rng is not None or kind not in SEEDED_TRAJECTORIES else trajectory_streams(config.seed)[0]
     if kind == "flight":
+        return flight_trajectory(t_gps_s, site, own)
+    if kind == "standard-flight":
         return flight_trajectory(t_gps_s, site)
     if kind == "drive":
-        drive_rng = rng if rng is not None else np.random.default_rng(config.seed)
-        return drive_trajectory(t_gps_s, site, drive_rng, speed_m_s=config.urban.drive_speed_m_s)
+        return drive_trajectory(t_gps_s, site, own, speed_m_s=config.urban.drive_speed_m_s)
     if kind == "semicircle":
         return semicircle_trajectory(t_gps_s, site, speed_m_s=config.semicircle_speed_m_s)
     if kind.startswith("csv:"):
         return csv_trajectory(Path(kind[4:]), t_gps_s)
-    raise UsageError(f"--trajectory: expected static, flight, drive, semicircle or csv:FILE, got {kind!r}")
+    raise UsageError(f"--trajectory: expected static, flight, standard-flight, drive, semicircle or csv:FILE, got {kind!r}")
 
 
 def run_scenario(config: ScenarioConfig) -> Scenario:
@@ -280,9 +309,11 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
         raise UsageError("RINEX 2.11 does not define BeiDou or QZSS observations: use --rinex-version 3")
     with_receiver_profile(config)
     rng = np.random.default_rng(config.seed)
-    # the drive and the canyon draw from their own streams (children of the seed), so runs that
-    # differ only in their error sources share them; open sky without a drive spawns none
-    own = rng.spawn(2) if config.environment == "urban" or config.trajectory == "drive" else None
+    # the path, the canyon and the start time draw from their own streams (the children of
+    # :func:`trajectory_streams`), so runs that differ only in their error sources share them;
+    # open sky on a fixed path spawns none (its outlier stream is the parent's first child)
+    seeded = config.environment == "urban" or config.trajectory in SEEDED_TRAJECTORIES
+    own = rng.spawn(3) if seeded else None
     t = epochs_gps_s(config)
     trajectory = build_trajectory(config, t, own[0] if own else None)
     week_start = float(np.floor(t[0] / SECONDS_PER_WEEK) * SECONDS_PER_WEEK)

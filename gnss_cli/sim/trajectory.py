@@ -1,9 +1,10 @@
-"""Receiver trajectories: static, a simulated flight, a drive through streets, a constant-speed semicircle,
-or a CSV file.
+"""Receiver trajectories: static, a simulated flight (drawn from the seed, or the standard one), a drive
+through streets, a constant-speed semicircle, or a CSV file.
 
 A :class:`Trajectory` holds ECEF positions and velocities at the epochs (GPS seconds).
 The flight is integrated in geodetic coordinates from a smooth speed / heading / climb-rate
-profile on a fine grid (trapezoidal rule, 100 Hz), so its velocities are the derivatives of
+profile on a fine grid (trapezoidal rule, 100 Hz; manoeuvres drawn from the seed, or the fixed
+profile of the standard flight), so its velocities are the derivatives of
 its positions to well under a millimetre per second (the drive likewise, from a speed / heading
 profile drawn from the seed); the semicircle is a closed-form arc in
 the local tangent plane of its centre, so its ENU coordinates satisfy the lag-3 kernel
@@ -61,8 +62,9 @@ def _ramp(t_s: F64, start_s: float, duration_s: float, delta: float) -> F64:
     return delta * _smoothstep((t_s - start_s) / duration_s)
 
 
-def flight_profile(t_rel_s: F64) -> tuple[F64, F64, F64]:
-    """Ground speed (m/s), heading (rad from north) and climb rate (m/s) of the standard flight.
+def standard_flight_profile(t_rel_s: F64) -> tuple[F64, F64, F64]:
+    """Ground speed (m/s), heading (rad from north) and climb rate (m/s) of the standard flight
+    (``--trajectory standard-flight``: the same path for every seed).
 
     Notes
     -----
@@ -81,8 +83,113 @@ def flight_profile(t_rel_s: F64) -> tuple[F64, F64, F64]:
     return speed, heading, climb
 
 
-def flight_trajectory(t_gps_s: F64, start_ecef_m: F64, *, substeps_per_s: int = 100) -> Trajectory:
-    """The standard simulated flight (:func:`flight_profile`) starting at ``start_ecef_m``.
+@dataclass(frozen=True)
+class FlightLimits:
+    """Physical bounds of the seed-drawn flight (:func:`flight_profile`); every draw respects them.
+
+    Attributes
+    ----------
+    max_speed_m_s : ground speed, m/s (airborne speeds are drawn in ``min_air_speed_m_s`` ..).
+    min_air_speed_m_s : lowest speed once airborne, m/s.
+    max_along_m_s2 : along-track acceleration (take-off roll and speed changes), m/s^2.
+    max_lateral_m_s2 : centripetal acceleration in a turn (0.5 g), m/s^2.
+    max_climb_m_s : climb or sink rate, m/s.
+    max_vertical_m_s2 : vertical acceleration (changes of the climb rate), m/s^2.
+    min_height_agl_m, max_height_agl_m : heights above the take-off point between which the
+        level-offs are drawn, m.
+    """
+
+    max_speed_m_s: float = 230.0
+    min_air_speed_m_s: float = 70.0
+    max_along_m_s2: float = 2.5
+    max_lateral_m_s2: float = 4.9
+    max_climb_m_s: float = 12.0
+    max_vertical_m_s2: float = 1.5
+    min_height_agl_m: float = 300.0
+    max_height_agl_m: float = 4000.0
+
+
+FLIGHT_LIMITS = FlightLimits()
+
+
+def flight_profile(
+    t_rel_s: F64, rng: np.random.Generator, *, limits: FlightLimits = FLIGHT_LIMITS
+) -> tuple[F64, F64, F64]:
+    """Ground speed (m/s), heading (rad from north) and climb rate (m/s) of a manoeuvring flight
+    drawn from ``rng``.
+
+    Parameters
+    ----------
+    t_rel_s
+        Times since the start ``(N,)``, s, increasing from 0.
+    rng
+        Random generator: the heading, take-off, every manoeuvre and its time are drawn from it.
+    limits
+        The physical bounds every draw respects.
+
+    Notes
+    -----
+    From rest on the ground the aircraft rolls (1.5..2.5 m/s^2 peak) to a rotation speed of
+    70..90 m/s, climbs at 5..12 m/s to a first level of 600..2500 m above the take-off point,
+    and then, after straight legs of 10..60 s, manoeuvres: with probabilities 0.4 / 0.3 / 0.3 a
+    turn of 30..180 deg left or right (turn rate up to 3 deg/s, centripetal acceleration under
+    ``max_lateral_m_s2``), a speed change to 90..230 m/s, or a climb or descent at 4..12 m/s to a
+    new level. Each change is a C1 ramp (:func:`_smoothstep`) of speed, heading or climb rate:
+    velocity and acceleration are continuous (jerk is not), the peak of a ramp of ``delta``
+    over ``D`` seconds being ``1.5 delta / D``; its duration is chosen so that peak stays in the bounds.
+    """
+    lim = limits
+    t = np.asarray(t_rel_s, dtype=np.float64)
+    span = float(t[-1]) if t.size else 0.0
+    speed = np.zeros_like(t)
+    heading = np.full_like(t, rng.uniform(0.0, 2.0 * np.pi))
+    climb = np.zeros_like(t)
+    state = {"cursor": 0.0, "v": 0.0, "h": 0.0}
+
+    def change_speed(v_new: float, accel_m_s2: float) -> None:
+        duration = max(1.5 * abs(v_new - state["v"]) / accel_m_s2, 1.0)
+        speed[:] += _ramp(t, state["cursor"], duration, v_new - state["v"])
+        state["cursor"] += duration
+        state["v"] = v_new
+
+    def change_level(dh_m: float, rate_m_s: float) -> None:
+        # ramp the climb rate to +-rate, hold, ramp back to 0: each ramp climbs rate * D / 2
+        ramp_s = max(1.5 * rate_m_s / lim.max_vertical_m_s2, 1.0)
+        rate = float(np.sign(dh_m)) * rate_m_s
+        hold_s = max(abs(dh_m) / rate_m_s - ramp_s, 0.0)
+        c0 = state["cursor"]
+        climb[:] += _ramp(t, c0, ramp_s, rate) - _ramp(t, c0 + ramp_s + hold_s, ramp_s, rate)
+        state["cursor"] = c0 + 2.0 * ramp_s + hold_s
+        state["h"] += rate * (ramp_s + hold_s)
+
+    # take-off roll on the ground, then the first climb
+    change_speed(rng.uniform(70.0, 90.0), rng.uniform(1.5, lim.max_along_m_s2))
+    change_level(rng.uniform(600.0, 2500.0), rng.uniform(5.0, lim.max_climb_m_s))
+    while state["cursor"] <= span:
+        state["cursor"] += rng.uniform(10.0, 60.0)
+        kind = rng.choice(3, p=[0.4, 0.3, 0.3])
+        if kind == 0:
+            turn = rng.choice([-1.0, 1.0]) * np.deg2rad(rng.uniform(30.0, 180.0))
+            # peak turn rate 1.5 |turn| / D <= min(3 deg/s, a_lat / v)
+            max_rate = min(np.deg2rad(3.0), lim.max_lateral_m_s2 / max(state["v"], 1.0)) * rng.uniform(0.5, 1.0)
+            duration = 1.5 * abs(turn) / max_rate
+            heading[:] += _ramp(t, state["cursor"], duration, turn)
+            state["cursor"] += duration
+        elif kind == 1:
+            change_speed(rng.uniform(lim.min_air_speed_m_s + 20.0, lim.max_speed_m_s),
+                         rng.uniform(0.5, lim.max_along_m_s2))
+        else:
+            target = rng.uniform(lim.min_height_agl_m, lim.max_height_agl_m)
+            if abs(target - state["h"]) > 50.0:
+                change_level(target - state["h"], rng.uniform(4.0, lim.max_climb_m_s))
+    return speed, np.mod(heading, 2.0 * np.pi), climb
+
+
+def flight_trajectory(
+    t_gps_s: F64, start_ecef_m: F64, rng: np.random.Generator | None = None, *, substeps_per_s: int = 100
+) -> Trajectory:
+    """A simulated flight starting at ``start_ecef_m``: drawn from ``rng`` (:func:`flight_profile`),
+    or the standard flight (:func:`standard_flight_profile`) when ``rng`` is None.
 
     Parameters
     ----------
@@ -90,6 +197,8 @@ def flight_trajectory(t_gps_s: F64, start_ecef_m: F64, *, substeps_per_s: int = 
         Epochs ``(T,)``, uniformly spaced, s since the GPS epoch.
     start_ecef_m
         Take-off point ``(3,)``, ECEF m.
+    rng
+        Random generator of the manoeuvres; None: the standard flight.
     substeps_per_s
         Integration rate of the geodetic equations, Hz.
 
@@ -102,7 +211,10 @@ def flight_trajectory(t_gps_s: F64, start_ecef_m: F64, *, substeps_per_s: int = 
     t = np.asarray(t_gps_s, dtype=np.float64)
     if t.ndim != 1 or t.size < 1:
         raise UsageError(f"t_gps_s must be a non-empty 1-D array, got shape {t.shape}")
-    return _integrate_profile(t, start_ecef_m, flight_profile, substeps_per_s)
+    if rng is None:
+        return _integrate_profile(t, start_ecef_m, standard_flight_profile, substeps_per_s)
+    # the profile is drawn once on the integration grid, so the draws do not depend on the epochs
+    return _integrate_profile(t, start_ecef_m, lambda tr: flight_profile(tr, rng), substeps_per_s)
 
 
 def _integrate_profile(
@@ -158,7 +270,7 @@ def drive_profile(
     From rest the vehicle accelerates to the leg's speed, cruises for 15..60 s and then, with
     probabilities 0.45 / 0.25 / 0.30, turns 90 deg left or right (slowing to ``turn_speed_m_s``,
     6 s through the turn), stops for 5..30 s, or goes on at a new speed. Speed and heading change
-    through the C1 ramps of :func:`flight_profile`, so the velocity is continuous.
+    through the C1 ramps of :func:`flight_profile`, so velocity and acceleration are continuous.
     """
     t = np.asarray(t_rel_s, dtype=np.float64)
     span = float(t[-1]) if t.size else 0.0

@@ -35,7 +35,7 @@ CHUNK = 50
 def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """10 min of a simulated flight at 1 Hz, GPS + Galileo, with Doppler."""
     out = tmp_path_factory.mktemp("flight")
-    write_scenario(run_scenario(replace(ScenarioConfig(), trajectory="flight", duration_s=600.0, systems=("G", "E"),
+    write_scenario(run_scenario(replace(ScenarioConfig(), trajectory="standard-flight", duration_s=600.0, systems=("G", "E"),
                                         seed=3)), out)
     return out
 

@@ -50,3 +50,21 @@ def test_the_committed_older_files_are_adapted(name: str) -> None:
     data = results_page.ADAPTERS[name](json.loads(path.read_text(encoding="utf-8")))
     assert results_page.has_table(data)
     assert all(len(row) == len(data["table"]["columns"]) for row in data["table"]["rows"]) and data["table"]["rows"]
+
+
+def test_more_tables_and_filled_sections(tmp_path: Path) -> None:
+    _write(tmp_path, "fair.json", {"title": "Fair", "command": "python benchmarks/fair.py",
+                                   "table": {"columns": ["a"], "rows": [[1.0]]},
+                                   "more_tables": [{"title": "Rows", "columns": ["b", "c"], "rows": [["x", 2]]}]})
+    assert "### Rows\n\n| b | c |\n|---|---|\n| x | 2 |\n" in results_page.page(tmp_path)
+    text = "# Page\n\n<!-- results: fair.json -->\nold table\n<!-- /results -->\n\nafter\n"
+    filled = results_page.fill_sections(text, tmp_path)
+    assert "old table" not in filled and "### Fair\n" in filled and "#### Rows\n" in filled
+    assert filled.endswith("<!-- /results -->\n\nafter\n") and results_page.fill_sections(filled, tmp_path) == filled
+
+
+def test_the_results_page_sections_are_those_of_the_json() -> None:
+    """docs/results.md's generated sections are what the committed JSON gives (rerun
+    ``python benchmarks/results_page.py --fill docs/results.md`` after a benchmark)."""
+    text = (REPO / "docs" / "results.md").read_text(encoding="utf-8")
+    assert results_page.fill_sections(text) == text

@@ -137,7 +137,7 @@ def test_gps_alone_in_the_urban_canyon_is_mostly_unprotected(rinex_dir):
     assert hl.any() and (limited.hpl_m[hl] > 556.0).all() and (limited.hpl_m[limited.status == "ok"] <= 556.0).all()
 
 
-@pytest.mark.parametrize("trajectory", ["static", "flight"])
+@pytest.mark.parametrize("trajectory", ["static", "standard-flight"])
 def test_random_simulated_outliers_are_found(tmp_path, trajectory):
     base = config_from_mapping({"simulate": {"trajectory": trajectory, "duration_s": 600.0, "seed": 2,
                                              "systems": "G,E", "errors": "all"}}, ScenarioConfig())

@@ -34,12 +34,12 @@ def _simulate(out: Path, trajectory: str, errors: str, seed: int = 11, duration_
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "noise")
+    return _simulate(tmp_path_factory.mktemp("flight"), "standard-flight", "noise")
 
 
 @pytest.fixture(scope="module")
 def flight_clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _simulate(tmp_path_factory.mktemp("clean"), "flight", "none")
+    return _simulate(tmp_path_factory.mktemp("clean"), "standard-flight", "none")
 
 
 def _errors(d: Path, **overrides: object) -> tuple[dict[str, np.ndarray], dict[str, object], np.ndarray]:

@@ -45,7 +45,7 @@ def static_set(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-unt
 
 @pytest.fixture(scope="module")
 def flight_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _simulate(tmp_path_factory.mktemp("flight"), "flight")
+    return _simulate(tmp_path_factory.mktemp("flight"), "standard-flight")
 
 
 def _smoothing(cfg: ProcessingConfig, **options: object) -> ProcessingConfig:

@@ -33,7 +33,7 @@ def flight_exact(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     return simulate(
         tmp_path_factory.mktemp("flight"),
-        trajectory="flight",
+        trajectory="standard-flight",
         systems=("G", "E"),
         duration_s=600.0,
         interval_s=1.0,

@@ -224,7 +224,7 @@ def test_cli_writes_files_and_csv_trajectory(tmp_path: Path, capsys: pytest.Capt
     """A csv: trajectory (the truth of a flight run fed back) reproduces that run's truth."""
     first = tmp_path / "first"
     with pytest.raises(SystemExit) as exc:
-        run_app(app, "gnss-simulate", ["--out-dir", str(first), "--trajectory", "flight", "--duration", "60", "--errors", "none"])
+        run_app(app, "gnss-simulate", ["--out-dir", str(first), "--trajectory", "standard-flight", "--duration", "60", "--errors", "none"])
     assert exc.value.code == 0
     assert {p.name for p in first.iterdir()} == {"obs.rnx", "nav.rnx", "truth.csv"}
     assert "wrote" in capsys.readouterr().err

@@ -41,7 +41,7 @@ OPEN_SHA256 = {
 def test_open_environment_writes_the_bytes_of_before(tmp_path: Path) -> None:
     """Flight, G+E+C dual frequency, every error source, random outliers, truth ranges."""
     d = simulate(
-        tmp_path, environment="open", trajectory="flight", systems=("G", "E", "C"), duration_s=60.0, interval_s=2.0,
+        tmp_path, environment="open", trajectory="standard-flight", systems=("G", "E", "C"), duration_s=60.0, interval_s=2.0,
         errors="all", seed=9, layout=ObsLayout(dual_frequency=True), truth_ranges=True,
         error_settings={"outlier_rate": 0.1},
     )
