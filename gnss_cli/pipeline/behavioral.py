@@ -89,7 +89,9 @@ class WindowJob:
 
 @dataclass(slots=True)
 class Fit:
-    """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU)."""
+    """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU); for the
+    measurement-domain alternation (:mod:`gnss_cli.pipeline.identified`) its iterations, whether it
+    converged and the domain of the result (``position``: the STLS of the fixes)."""
 
     w_hat: F64 | None
     kernel: KernelRecord | None
@@ -97,6 +99,9 @@ class Fit:
     status: StlsStatus | None
     message: str
     basis: F64 | None
+    iterations: int | None = None
+    converged: bool | None = None
+    domain: str = "position"
 
 
 def _failed(message: str) -> Fit:
@@ -204,6 +209,8 @@ def smooth(
     step: int | None = None,
     gap_factor: float = 1.5,
     method: str = "stls",
+    measurements: frozenset[str] | None = None,
+    factors: tuple[float, ...] | None = None,
 ) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """The identified Hankel STLS of the per-epoch WLS fixes (``config.stls``, ``lag >= 1``).
 
@@ -225,6 +232,12 @@ def smooth(
         and at unsolved epochs.
     method : str
         Method key written into the result.
+    measurements : set of str, optional
+        None: the position-domain STLS of the fixes. Else the measurement kinds (``pseudorange``
+        and any of ``doppler``, ``phase``) of the measurement-domain alternation that starts from
+        it (:func:`gnss_cli.pipeline.identified.alternate_windows`; shared kernels).
+    factors : tuple of float, optional
+        With ``measurements``: the variance factors of the kinds (a whole file's), else estimated on ``data``.
 
     Returns
     -------
@@ -259,7 +272,12 @@ def smooth(
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
-    return smooth_windows(data, wls, config, segs, jobs, status, method)
+    fits = fit_all(segs, jobs, opts)
+    if measurements is not None:
+        from gnss_cli.pipeline.identified import alternate_windows  # imports this module
+
+        fits, _, _ = alternate_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
+    return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 
 
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
@@ -288,6 +306,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             end_time_gps_s=float(data.time_gps_s[seg.epochs[job.b - 1]]), n_epochs=int(job.b - job.a),
             model="identified", structure=opts.kernel, kernel=fit.kernel, misfit=fit.misfit,
             status=window_status_word(fit.status), message=fit.message, method=method,
+            iterations=fit.iterations, converged=fit.converged,
         ))
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:

@@ -1,0 +1,443 @@
+"""The ``stls --lag L`` windows in the measurement domain: kernel and trajectory by alternation.
+
+The paper's joint problem (DESIGN.md section 6), per sliding window of ``[stls] window`` epochs
+(the windows of :mod:`gnss_cli.pipeline.behavioral`; spans are not chosen from the data):
+unknowns the trajectory ``w^``, the receiver clocks (one per epoch and system, and a drift per
+epoch with Doppler) and the shared kernel ``r(z) I_3`` with its root at ``z = 1``; data the
+pseudoranges and, as ``--measurements`` gives them, the range rates and the time-differenced
+carrier phase -- the rows, weights, variance factors and residual gate of ``smoother`` and
+``kf`` (:mod:`gnss_cli.pipeline.measurements`, :mod:`gnss_cli.pipeline.phase_rows`); cost the
+weighted measurement misfit ``J(w^)`` with every epoch's clocks eliminated, subject to
+``R H_{l+1}(w^) = 0``.
+
+Start: today's position-domain result (the STLS projection of the WLS fixes and its kernel).
+Each iteration, for every window at once:
+
+1. linearize the rows at the window's trajectory and evaluate ``J`` there (the misfit of the
+   iterate); stop when it no longer decreases (relative decrease below :data:`RTOL`);
+2. (a) identify a kernel by weighted Hankel STLS (:func:`~gnss_cli.behavior.batch.identify_windows`)
+   on the current trajectory's free per-epoch corrections -- the position each epoch's own
+   clock-reduced pseudorange normals give, with their inverse as covariance, and with Doppler the
+   velocity each epoch's range rates give as three more channels (the velocity of a behavior of
+   ``r(z) I_3`` is in the same behavior);
+3. (b) with the kernel fixed, solve for the window's trajectory in its behavior from all the
+   rows (:func:`~gnss_cli.behavior.behavior_solve.solve_in_behavior`; velocities from the modes
+   ``s_i = log(z_i) / dt``, :func:`~gnss_cli.behavior.behavior_solve.shared_modes`), once with
+   the identified kernel and once with the current one; the lower linearized misfit wins.
+
+An iterate whose misfit (step 1, at its own linearization) exceeds its predecessor's is not
+taken: the window keeps the predecessor and stops. So the misfit is non-increasing by
+construction; every window's record carries its iterations, whether it converged and the misfit
+of its returned kernel and trajectory. Step 2 needs the safeguard: STLS identifies from the
+corrections' quadratic model, which the range rates and phase pairs do not enter.
+
+The residual gate (as ``smoother``'s, :func:`~gnss_cli.pipeline.measurements.gate_rows`) is set at
+the starting trajectory and fixed while alternating (a cost that changes under the iterates could
+not be monotone); after convergence it is evaluated again and, if it changed, the alternation
+continues under the new gate (at most :data:`GATE_PASSES` gates; the misfit history restarts).
+
+A window whose normals are singular, whose kernel has no velocity where Doppler is used, or that
+does not converge in :data:`MAX_ALTERNATIONS` iterations keeps its position-domain result; its
+record says so. Full kernels are not alternated (their windows keep the position-domain result).
+
+Why alternation and not variable projection over ``r``: step (b) is the exact minimizer for a
+fixed kernel, step (a) reuses the batched STLS, and the misfit check makes the iteration safe.
+Measured (pseudoranges alone): the joint problem with block-diagonal clock-reduced normals *is*
+the weighted STLS of the per-epoch fixes, so the alternation ends after 1-2 iterations; the
+identified kernels change little. With Doppler the range rates fix the velocities, which the
+position-domain fixes never saw.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import norm
+
+from gnss_cli.behavior import StlsStatus
+from gnss_cli.behavior.batch import identify_windows
+from gnss_cli.behavior.behavior_solve import behavior_misfit, shared_modes, solve_in_behavior
+from gnss_cli.behavior.multi_epoch import shared_behavior_bases
+from gnss_cli.behavior.records import shared_kernel_records
+from gnss_cli.behavior.window_solve import EpochNormals, reduce_epochs
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
+from gnss_cli.pipeline.kalman import nominal_trajectory
+from gnss_cli.pipeline.measurements import (
+    KINDS,
+    factors_from_totals,
+    free_misfit_totals,
+    gate_rows,
+    measurement_rows,
+    standardized,
+)
+from gnss_cli.pipeline.phase_rows import phase_pair_rows
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
+
+__all__ = ["alternate_windows", "WindowRun", "window_rows", "RTOL", "MAX_ALTERNATIONS", "GATE_PASSES"]
+
+F64 = NDArray[np.float64]
+
+#: Relative decrease of the measurement misfit below which the alternation stops.
+RTOL = 1e-6
+#: Iterations (accepted steps) after which a window that has not converged falls back.
+MAX_ALTERNATIONS = 30
+#: Residual gates evaluated per window (the first at the starting trajectory).
+GATE_PASSES = 3
+_RISE_RTOL = 1e-10  # a misfit rise below this (relative) is rounding
+
+
+@dataclass(slots=True)
+class WindowRun:
+    """The alternation of ``B`` windows of ``N`` epochs (arrays with a leading window axis).
+
+    Attributes
+    ----------
+    jobs : indices of the windows (into the job list).
+    epochs : ``(B, N)`` epoch indices.
+    origin : ``(B, 3)`` ECEF origin of the segment (m); ``rot`` ``(B, 3, 3)`` its ENU rotation.
+    dt_s : ``(B,)`` sampling interval.
+    r : ``(B, l+1)`` kernel coefficients; ``c`` ``(B, l, 3)`` window coefficients.
+    x : ``(B, N, 3)`` positions relative to ``origin`` (ECEF, m); ``v`` velocities (m/s).
+    misfit : ``(B,)`` measurement misfit of the current iterate; ``history`` per window.
+    iterations, done, converged, failed : per window; ``message`` why a window stopped.
+    mult : ``(3, B, N, n)`` gate (and robust) multipliers of pseudoranges, range rates, pairs.
+    gates : residual gates evaluated; ``gate_final``: the last gate left the rows unchanged.
+    """
+
+    jobs: NDArray[np.intp]
+    epochs: NDArray[np.intp]
+    origin: F64
+    rot: F64
+    dt_s: F64
+    r: F64
+    c: F64
+    x: F64
+    v: F64
+    misfit: F64
+    history: list[list[float]]
+    iterations: NDArray[np.int64]
+    done: NDArray[np.bool_]
+    converged: NDArray[np.bool_]
+    failed: NDArray[np.bool_]
+    message: list[str]
+    mult: F64
+    gated: NDArray[np.bool_]
+    gates: NDArray[np.int64]
+    gate_final: NDArray[np.bool_]
+
+
+def _colors(spans: list[tuple[int, int]]) -> list[int]:
+    """A colour per window (epoch ranges ``(first, last + 1)``) such that windows of a colour do not overlap."""
+    ends: list[int] = []
+    out = []
+    for a, b in spans:
+        for c, e in enumerate(ends):
+            if e <= a:
+                ends[c] = b
+                out.append(c)
+                break
+        else:
+            ends.append(b)
+            out.append(len(ends) - 1)
+    return out
+
+
+def window_rows(data: EpochData, config: ProcessingConfig, kinds: frozenset[str], base: F64,
+                runs: list[WindowRun], colors: list[list[int]]) -> list[dict[str, F64]]:
+    """The rows of every window linearized at its own trajectory (``runs[i].x``), per run:
+    pseudoranges ``P w y C``, range rates ``H wd yd``, phase pairs ``P6 pw py`` (zero weight
+    for the pair that ends at a window's first epoch). ``colors[i][k]``: colour of window ``k``
+    of run ``i`` (:func:`_colors`); ``base`` ``(T, 3)``: the nominal of the other epochs."""
+    doppler, phase = "doppler" in kinds, "phase" in kinds
+    n_color = 1 + max((max(c) for c in colors if c), default=0)
+    out: list[dict[str, F64]] = [{} for _ in runs]
+    for color in range(n_color):
+        nominal = base.copy()
+        for run, col in zip(runs, colors):
+            sel = np.flatnonzero(np.asarray(col) == color)
+            if sel.size:
+                nominal[run.epochs[sel]] = run.origin[sel, None, :] + run.x[sel]
+        rows = measurement_rows(data, nominal, config, doppler)
+        phr = phase_pair_rows(data, rows, config) if phase else None
+        for run, col, dst in zip(runs, colors, out):
+            sel = np.flatnonzero(np.asarray(col) == color)
+            if not sel.size:
+                continue
+            ep = run.epochs[sel]
+            got = {k: rows[k][ep] for k in ("P", "w", "y", "C") + (("H", "wd", "yd") if doppler else ())}
+            if phr is not None:
+                got.update(P6=phr["P6"][ep], pw=phr["w"][ep].copy(), py=phr["y"][ep], pC=phr["C"][ep])
+                got["pw"][:, 0] = 0.0
+            for k, val in got.items():
+                if k not in dst:
+                    dst[k] = np.zeros((run.epochs.shape[0], *val.shape[1:]))
+                dst[k][sel] = val
+    return out
+
+
+def _normals(rows: dict[str, F64], mult: F64, factors: tuple[float, ...]) -> tuple[EpochNormals, EpochNormals | None,
+                                                                                   EpochNormals | None]:
+    """Clock-reduced normals of every window epoch (flattened ``B N``), gate and factors applied."""
+    def flat(a: F64) -> F64:
+        return a.reshape(-1, *a.shape[2:])
+    pr = reduce_epochs(flat(rows["P"]), flat(rows["w"] * mult[0] / factors[0]), flat(rows["y"]), flat(rows["C"]))
+    rr = reduce_epochs(flat(rows["H"]), flat(rows["wd"] * mult[1] / factors[1]), flat(rows["yd"])) if "H" in rows else None
+    ph = reduce_epochs(flat(rows["P6"]), flat(rows["pw"] * mult[2] / factors[2]), flat(rows["py"]),
+                       flat(rows["pC"])) if "P6" in rows else None
+    return pr, rr, ph
+
+
+def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
+    """Gate multipliers ``(3, B, N, n)`` at the current iterate (standardized residuals, clocks re-estimated)."""
+    n_b, n_t = run.epochs.shape
+    gate = float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
+    flat = lambda a: a.reshape(-1, *a.shape[2:])  # noqa: E731
+    zero = np.zeros((n_b * n_t, 3))
+    u_pr = standardized(flat(rows["P"]), flat(rows["w"]) / factors[0], flat(rows["y"]), flat(rows["C"]), zero)
+    none = np.zeros_like(u_pr)
+    u_rr = standardized(flat(rows["H"]), flat(rows["wd"]) / factors[1], flat(rows["yd"]), None,
+                        flat(np.nan_to_num(run.v))) if "H" in rows else none
+    u_ph = standardized(flat(rows["P6"]), flat(rows["pw"]) / factors[2], flat(rows["py"]), flat(rows["pC"]),
+                        np.zeros((n_b * n_t, 6)), flat(run.mult[2])) if "P6" in rows else none
+    used = (flat(rows["w"]) > 0, flat(rows["wd"]) > 0 if "H" in rows else none > 0,
+            flat(rows["pw"]) > 0 if "P6" in rows else none > 0)
+    before = run.gated.reshape(3, n_b * n_t, -1)
+    mult, gated = gate_rows((u_pr, u_rr, u_ph), used, gate, config, before)
+    return mult.reshape(3, n_b, n_t, -1), gated.reshape(3, n_b, n_t, -1)
+
+
+def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: int, tol: float,
+              max_iter: int) -> F64:
+    """Step (a): kernels identified on the free per-epoch corrections of the current iterate (NaN: none)."""
+    n_b, n_t = run.epochs.shape
+    M = pr.M.reshape(n_b, n_t, 3, 3)
+    scale = np.einsum("btii->b", M) / (3 * n_t)
+    reg = M + 1e-8 * scale[:, None, None, None] * np.eye(3)  # an epoch with < 4 satellites: huge variance, not singular
+    cov = np.linalg.inv(reg)
+    z = np.einsum("btij,btj->bti", cov, pr.r.reshape(n_b, n_t, 3))
+    w = np.einsum("bij,btj->bti", run.rot, run.x + z)
+    sig = np.einsum("bij,btjk,blk->btil", run.rot, cov, run.rot)
+    if rr is not None:
+        Md = rr.M.reshape(n_b, n_t, 3, 3)
+        sd = np.einsum("btii->b", Md) / (3 * n_t)
+        cov_v = np.linalg.inv(Md + 1e-8 * sd[:, None, None, None] * np.eye(3))
+        vel = np.einsum("btij,btj->bti", cov_v, rr.r.reshape(n_b, n_t, 3))
+        w = np.concatenate([w, np.einsum("bij,btj->bti", run.rot, vel)], axis=2)
+        sig6 = np.zeros((n_b, n_t, 6, 6))
+        sig6[..., :3, :3] = sig
+        sig6[..., 3:, 3:] = np.einsum("bij,btjk,blk->btil", run.rot, cov_v, run.rot)
+        sig = sig6
+    sig = 0.5 * (sig + np.swapaxes(sig, -1, -2))
+    good = np.all(np.isfinite(w), axis=(1, 2)) & np.all(np.isfinite(sig), axis=(1, 2, 3))
+    out = np.full((n_b, lag + 1), np.nan)
+    if good.any():
+        fits = identify_windows(w[good], lag, sig[good], fixed_roots=(1.0,), tol=tol, max_iter=max_iter)
+        out[good] = np.where((fits.status >= 0)[:, None], fits.r, np.nan)
+    return out
+
+
+def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None]
+           ) -> tuple[F64, F64, F64, F64, NDArray[np.bool_]]:
+    """Step (b) for kernels ``r``: coefficients, positions, velocities, linearized misfit and where it worked."""
+    n_b, n_t = run.epochs.shape
+    pr, rr, ph = normals
+    valid = np.all(np.isfinite(r), axis=1)
+    y, yv, ok, has_v = shared_modes(np.where(valid[:, None], r, run.r), n_t, run.dt_s, rr is not None)
+    ok &= valid & (has_v if rr is not None else True)
+    c, mis, solved = solve_in_behavior(y, yv if rr is not None else None, run.x, pr, rr, ph)
+    ok &= solved
+    x = np.einsum("btj,bja->bta", y, c)
+    v = np.einsum("btj,bja->bta", np.nan_to_num(yv), c)
+    return c, x, np.where(has_v[:, None, None], v, np.nan), np.where(ok, mis, np.inf), ok
+
+
+def _start(jobs: NDArray[np.intp], segs: list[Segment], all_jobs: list[WindowJob], fits: list[Fit],
+           data: EpochData, n_sv: int) -> WindowRun:
+    """The alternation's start: the position-domain projections and kernels of windows ``jobs``."""
+    js = [all_jobs[k] for k in jobs]
+    epochs = np.stack([segs[j.segment].epochs[j.a : j.b] for j in js])
+    origin = np.stack([segs[j.segment].origin for j in js])
+    rot = np.stack([segs[j.segment].rot for j in js])
+    r = np.stack([np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64) for k in jobs])  # type: ignore[union-attr]
+    w_hat = np.stack([fits[k].w_hat for k in jobs])  # type: ignore[misc]
+    x = np.einsum("bji,btj->bti", rot, w_hat)  # ENU -> ECEF directions, relative to the origin
+    dt = np.median(np.diff(data.time_gps_s[epochs], axis=1), axis=1)
+    n_b, n_t = epochs.shape
+    lag = r.shape[1] - 1
+    return WindowRun(jobs, epochs, origin, rot, dt, r, np.zeros((n_b, lag, 3)), x, np.full((n_b, n_t, 3), np.nan),
+                     np.full(n_b, np.inf), [[] for _ in range(n_b)], np.zeros(n_b, np.int64), np.zeros(n_b, bool),
+                     np.zeros(n_b, bool), np.zeros(n_b, bool), [""] * n_b, np.ones((3, n_b, n_t, n_sv)),
+                     np.zeros((3, n_b, n_t, n_sv), bool), np.zeros(n_b, np.int64), np.zeros(n_b, bool))
+
+
+def _project_start(run: WindowRun, velocity: bool) -> None:
+    """The start in the behavior of its kernel: ``x`` projected on the basis, velocities from the modes."""
+    y, yv, ok, has_v = shared_modes(run.r, run.epochs.shape[1], run.dt_s, velocity)
+    run.c = np.einsum("btj,bta->bja", y, run.x)
+    run.x = np.where(ok[:, None, None], np.einsum("btj,bja->bta", y, run.c), run.x)
+    run.v = np.where(has_v[:, None, None], np.einsum("btj,bja->bta", np.nan_to_num(yv), run.c), np.nan)
+    bad = ~ok
+    run.failed |= bad
+    run.done |= bad
+    for b in np.flatnonzero(bad):
+        run.message[b] = "the position-domain kernel has dependent free responses"
+
+
+def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], config: ProcessingConfig,
+             kinds: frozenset[str], previous: dict[str, F64]) -> None:
+    """One alternation step of the windows not done (in place); ``previous``: the last accepted state."""
+    n_b, n_t = run.epochs.shape
+    doppler = "doppler" in kinds
+    normals = _normals(rows, run.mult, factors)
+    m_now = behavior_misfit(run.v if doppler else None, *normals, shape=(n_b, n_t))
+    act = ~run.done
+    first = act & ~np.isfinite(run.misfit)
+    if doppler:  # the kernel must give velocities
+        nov = act & ~np.all(np.isfinite(run.v), axis=(1, 2))
+        run.failed |= nov
+        run.done |= nov
+        for b in np.flatnonzero(nov):
+            run.message[b] = "the kernel has a root on the negative real axis: no velocity for the range rates"
+        act &= ~nov
+    rose = act & ~first & (m_now > run.misfit * (1 + _RISE_RTOL) + 1e-12)
+    if rose.any():  # a rise: back to the last accepted iterate, which stops
+        for name in ("r", "c", "x", "v"):
+            getattr(run, name)[rose] = previous[name][rose]
+    small = act & ~first & ~rose & (run.misfit - m_now <= RTOL * np.abs(run.misfit))
+    keep = act & ~rose
+    run.misfit = np.where(keep, m_now, run.misfit)
+    for b in np.flatnonzero(keep):
+        run.history[b].append(float(m_now[b]))
+    stop = rose | small
+    run.done |= stop
+    run.converged |= stop
+    for b in np.flatnonzero(stop):
+        run.message[b] = ("converged: relative misfit decrease below tol" if small[b] else
+                          "converged: no further decrease of the misfit")
+    act &= ~stop
+    over = act & (run.iterations >= MAX_ALTERNATIONS)
+    run.failed |= over
+    run.done |= over
+    for b in np.flatnonzero(over):
+        run.message[b] = f"no convergence in {MAX_ALTERNATIONS} alternations"
+    act &= ~over
+    if not act.any():
+        return
+    for name in ("r", "c", "x", "v"):
+        previous[name] = getattr(run, name).copy()
+    opts = config.stls
+    r_new = _identify(run, normals[0], normals[1], opts.lag, opts.tolerance, opts.max_iterations)
+    c0, x0, v0, m0, ok0 = _solve(run.r, run, normals)
+    c1, x1, v1, m1, ok1 = _solve(r_new, run, normals)
+    sing = act & ~ok0 & ~ok1
+    run.failed |= sing
+    run.done |= sing
+    for b in np.flatnonzero(sing):
+        run.message[b] = "the measurement-domain normals are singular in the behavior"
+    act &= ~sing
+    take_new = ok1 & (m1 < m0)
+    for name, a0, a1 in (("c", c0, c1), ("x", x0, x1), ("v", v0, v1)):
+        val = np.where(take_new[:, None, None], a1, a0)
+        getattr(run, name)[act] = val[act]
+    run.r[act] = np.where(take_new[:, None], r_new, run.r)[act]
+    run.iterations[act] += 1
+
+
+def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
+                      jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
+                      factors: tuple[float, ...] | None = None) -> tuple[list[Fit], list[WindowRun], tuple[float, ...]]:
+    """Every shared-kernel window of ``fits`` solved in the measurement domain (module docstring).
+
+    Parameters
+    ----------
+    data, wls, config : the prepared epochs, their WLS solution, the configuration.
+    segs, jobs, fits : the segments, windows and position-domain fits of
+        :func:`gnss_cli.pipeline.behavioral.fit_all`.
+    kinds : the measurement kinds (``pseudorange`` and any of ``doppler``, ``phase``).
+    factors : variance factors (pseudoranges, range rates, pairs); default: estimated on ``data``
+        at the WLS fixes (:func:`~gnss_cli.pipeline.measurements.free_misfit_totals`).
+
+    Returns
+    -------
+    fits : one per window: the alternation's result, or the position-domain fit with the reason
+        it was kept in its message.
+    runs : the alternation state of each group of equal-length windows.
+    factors : the variance factors used.
+    """
+    if wls.excluded is not None:
+        data = replace(data, usable=data.usable & ~wls.excluded)
+    if factors is None:
+        factors = factors_from_totals(free_misfit_totals(data, wls, config, kinds))
+    factors = (*factors, 1.0, 1.0, 1.0)[:3]
+    out = list(fits)
+    groups: dict[int, list[int]] = {}
+    for k, (job, fit) in enumerate(zip(jobs, fits)):
+        if fit.w_hat is None or fit.kernel is None or fit.kernel.shared_coefficients is None:
+            continue
+        groups.setdefault(job.b - job.a, []).append(k)
+    if not groups:
+        return out, [], factors
+    n_sv = data.sv.size
+    runs = [_start(np.asarray(g, dtype=np.intp), segs, jobs, fits, data, n_sv) for g in groups.values()]
+    for run in runs:
+        _project_start(run, "doppler" in kinds)
+    spans = sorted((int(run.epochs[b, 0]), int(run.epochs[b, -1]) + 1, i, b) for i, run in enumerate(runs)
+                   for b in range(run.epochs.shape[0]))
+    colors: list[list[int]] = [[0] * run.epochs.shape[0] for run in runs]
+    for (a, e, i, b), c in zip(spans, _colors([(a, e) for a, e, _, _ in spans])):
+        colors[i][b] = c
+    fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
+    base = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))
+    previous: list[dict[str, F64]] = [{} for _ in runs]
+    for _ in range(GATE_PASSES * (MAX_ALTERNATIONS + 2)):
+        rows = window_rows(data, config, kinds, base, runs, colors)
+        for run, rw, prev in zip(runs, rows, previous):
+            new = run.gates == 0
+            if new.any():  # the first gate, at the start
+                mult, gated = _gate(run, rw, factors, config)
+                run.mult[:, new], run.gated[:, new] = mult[:, new], gated[:, new]
+                run.gates[new] = 1
+            _iterate(run, rw, factors, config, kinds, prev)
+            regate = run.done & run.converged & ~run.failed & ~run.gate_final
+            if regate.any():  # after convergence: the gate at the result; a new gate continues the alternation
+                mult, gated = _gate(run, rw, factors, config)
+                changed = regate & np.any(gated != run.gated, axis=(0, 2, 3))
+                run.gate_final |= regate & (~changed | (run.gates >= GATE_PASSES))
+                changed &= run.gates < GATE_PASSES
+                if changed.any():
+                    run.mult[:, changed], run.gated[:, changed] = mult[:, changed], gated[:, changed]
+                    run.gates[changed] += 1
+                    run.done[changed] = run.converged[changed] = False
+                    run.misfit[changed] = np.inf
+                    for b in np.flatnonzero(changed):
+                        run.history[b] = []
+        if all(run.done.all() for run in runs):
+            break
+    for run in runs:
+        _finish(run, out, kinds)
+    return out, runs, factors
+
+
+def _finish(run: WindowRun, out: list[Fit], kinds: frozenset[str]) -> None:
+    """The fits of the windows of ``run`` (in place into ``out``)."""
+    n_b, n_t = run.epochs.shape
+    used = "+".join(k for k in KINDS if k in kinds)
+    good = np.flatnonzero(run.converged & ~run.failed)
+    recs = dict(zip(good.tolist(), shared_kernel_records(run.r[good], 3) if good.size else []))
+    bases = dict(zip(good.tolist(), shared_behavior_bases(run.r[good], n_t, 3) if good.size else []))
+    for b, k in enumerate(run.jobs):
+        if b not in recs or bases[b] is None:
+            old = out[k]
+            why = run.message[b] or "the alternation did not finish"
+            out[k] = replace(old, message=f"{old.message}; measurement domain ({used}) not used: {why}; "
+                                          "position-domain result kept", iterations=int(run.iterations[b]),
+                             converged=False, domain="position")
+            continue
+        w_hat = np.einsum("ij,btj->bti", run.rot[b], run.x[b][None])[0]
+        out[k] = Fit(w_hat, recs[b], float(run.misfit[b]), StlsStatus.CONVERGED,
+                     f"measurement domain ({used}), alternation: {run.message[b]} after {run.iterations[b]} "
+                     f"iterations under the last of {int(run.gates[b])} residual gates", bases[b],
+                     iterations=int(run.iterations[b]), converged=True, domain="measurement")
