@@ -198,8 +198,14 @@ def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], conf
     zero = np.zeros((n_b * n_t, 3))
     u_pr = standardized(flat(rows["P"]), flat(rows["w"]) / factors[0], flat(rows["y"]), flat(rows["C"]), zero)
     none = np.zeros_like(u_pr)
-    u_rr = standardized(flat(rows["H"]), flat(rows["wd"]) / factors[1], flat(rows["yd"]), None,
-                        flat(np.nan_to_num(run.v))) if "H" in rows else none
+    u_rr = none
+    if "H" in rows:
+        v = flat(run.v)
+        if not np.isfinite(v).all():  # a kernel without velocities: each epoch's own range-rate solution there
+            rr = reduce_epochs(flat(rows["H"]), flat(rows["wd"]) / factors[1], flat(rows["yd"]))
+            reg = 1e-9 * np.maximum(np.einsum("tii->t", rr.M), 1e-30)[:, None, None] * np.eye(3)
+            v = np.where(np.isfinite(v), v, np.linalg.solve(rr.M + reg, rr.r[..., None])[..., 0])
+        u_rr = standardized(flat(rows["H"]), flat(rows["wd"]) / factors[1], flat(rows["yd"]), None, v)
     u_ph = standardized(flat(rows["P6"]), flat(rows["pw"]) / factors[2], flat(rows["py"]), flat(rows["pC"]),
                         np.zeros((n_b * n_t, 6)), flat(run.mult[2])) if "P6" in rows else none
     used = (flat(rows["w"]) > 0, flat(rows["wd"]) > 0 if "H" in rows else none > 0,
@@ -207,6 +213,12 @@ def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], conf
     before = run.gated.reshape(3, n_b * n_t, -1)
     mult, gated = gate_rows((u_pr, u_rr, u_ph), used, gate, config, before)
     return mult.reshape(3, n_b, n_t, -1), gated.reshape(3, n_b, n_t, -1)
+
+
+def _take(nrm: EpochNormals, sel: NDArray[np.intp], n_t: int) -> EpochNormals:
+    """The normals of the windows ``sel`` (flattened window-major, ``n_t`` epochs each)."""
+    idx = (sel[:, None] * n_t + np.arange(n_t)).ravel()
+    return EpochNormals(nrm.M[idx], nrm.r[idx], nrm.s[idx], nrm.n_rows[idx], nrm.n_free[idx])
 
 
 def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: int, tol: float,
@@ -242,7 +254,7 @@ def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: in
 def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None]
            ) -> tuple[F64, F64, F64, F64, NDArray[np.bool_]]:
     """Step (b) for kernels ``r``: coefficients, positions, velocities, linearized misfit and where it worked."""
-    n_b, n_t = run.epochs.shape
+    n_t = run.epochs.shape[1]
     pr, rr, ph = normals
     valid = np.all(np.isfinite(r), axis=1)
     y, yv, ok, has_v = shared_modes(np.where(valid[:, None], r, run.r), n_t, run.dt_s, rr is not None)
@@ -252,6 +264,17 @@ def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | N
     x = np.einsum("btj,bja->bta", y, c)
     v = np.einsum("btj,bja->bta", np.nan_to_num(yv), c)
     return c, x, np.where(has_v[:, None, None], v, np.nan), np.where(ok, mis, np.inf), ok
+
+
+def _spread(res: tuple[F64, ...], sel: NDArray[np.intp], n_b: int) -> tuple[F64, ...]:
+    """Results of the windows ``sel`` as arrays over all ``n_b`` windows (NaN / inf / False elsewhere)."""
+    out = []
+    for a in res:
+        fill = False if a.dtype == bool else (np.inf if a.ndim == 1 else np.nan)
+        full = np.full((n_b, *a.shape[1:]), fill, dtype=a.dtype)
+        full[sel] = a
+        out.append(full)
+    return tuple(out)
 
 
 def _start(jobs: NDArray[np.intp], segs: list[Segment], all_jobs: list[WindowJob], fits: list[Fit],
@@ -292,16 +315,13 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     n_b, n_t = run.epochs.shape
     doppler = "doppler" in kinds
     normals = _normals(rows, run.mult, factors)
-    m_now = behavior_misfit(run.v if doppler else None, *normals, shape=(n_b, n_t))
+    m_now = behavior_misfit(np.nan_to_num(run.v) if doppler else None, *normals, shape=(n_b, n_t))
     act = ~run.done
+    # a start kernel without a velocity (a root on the negative real axis) cannot be evaluated with
+    # range rates: its window goes straight to a step, with the identified kernel only
+    nov = act & ~np.all(np.isfinite(run.v), axis=(1, 2)) if doppler else np.zeros(n_b, dtype=bool)
+    act &= ~nov
     first = act & ~np.isfinite(run.misfit)
-    if doppler:  # the kernel must give velocities
-        nov = act & ~np.all(np.isfinite(run.v), axis=(1, 2))
-        run.failed |= nov
-        run.done |= nov
-        for b in np.flatnonzero(nov):
-            run.message[b] = "the kernel has a root on the negative real axis: no velocity for the range rates"
-        act &= ~nov
     rose = act & ~first & (m_now > run.misfit * (1 + _RISE_RTOL) + 1e-12)
     if rose.any():  # a rise: back to the last accepted iterate, which stops
         for name in ("r", "c", "x", "v"):
@@ -324,19 +344,27 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     for b in np.flatnonzero(over):
         run.message[b] = f"no convergence in {MAX_ALTERNATIONS} alternations"
     act &= ~over
+    act |= nov & (run.iterations < MAX_ALTERNATIONS)
     if not act.any():
         return
     for name in ("r", "c", "x", "v"):
         previous[name] = getattr(run, name).copy()
     opts = config.stls
-    r_new = _identify(run, normals[0], normals[1], opts.lag, opts.tolerance, opts.max_iterations)
-    c0, x0, v0, m0, ok0 = _solve(run.r, run, normals)
-    c1, x1, v1, m1, ok1 = _solve(r_new, run, normals)
+    r_new = np.full_like(run.r, np.nan)  # only the windows still alternating are identified
+    sel = np.flatnonzero(act)
+    sub = replace(run, epochs=run.epochs[sel], rot=run.rot[sel], x=run.x[sel])
+    r_new[sel] = _identify(sub, *(None if n is None else _take(n, sel, n_t) for n in normals[:2]), opts.lag,
+                           opts.tolerance, opts.max_iterations)
+    part = replace(sub, r=run.r[sel], dt_s=run.dt_s[sel])
+    taken = tuple(None if n is None else _take(n, sel, n_t) for n in normals)
+    solved = [_solve(kernels[sel], part, taken) for kernels in (run.r, r_new)]  # (b) for the current and new kernels
+    (c0, x0, v0, m0, ok0), (c1, x1, v1, m1, ok1) = (_spread(res, sel, n_b) for res in solved)
     sing = act & ~ok0 & ~ok1
     run.failed |= sing
     run.done |= sing
     for b in np.flatnonzero(sing):
-        run.message[b] = "the measurement-domain normals are singular in the behavior"
+        run.message[b] = ("no kernel with a velocity for the range rates (a root on the negative real axis)"
+                          if nov[b] else "the measurement-domain normals are singular in the behavior")
     act &= ~sing
     take_new = ok1 & (m1 < m0)
     for name, a0, a1 in (("c", c0, c1), ("x", x0, x1), ("v", v0, v1)):
