@@ -276,7 +276,16 @@ def smooth(
     if measurements is not None:
         from gnss_cli.pipeline.identified import alternate_windows  # imports this module
 
-        fits, _, _ = alternate_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
+        fits, runs, _ = alternate_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
+        gated = np.zeros(data.usable.shape, dtype=bool)  # pseudoranges the gate of an epoch's owning window excluded
+        for run in runs:
+            for b, k in enumerate(run.jobs):
+                job = jobs[k]
+                if fits[k].domain == "measurement":
+                    gated[run.epochs[b, job.lo - job.a : job.hi - job.a]] |= run.gated[0, b, job.lo - job.a : job.hi - job.a]
+        kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
+        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits)
+        return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models
     return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 
 
