@@ -64,6 +64,7 @@ from gnss_cli.behavior.records import shared_kernel_records
 from gnss_cli.behavior.window_solve import EpochNormals, reduce_epochs
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
+from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.kalman import nominal_trajectory
 from gnss_cli.pipeline.measurements import (
     KINDS,
@@ -156,17 +157,24 @@ def window_rows(data: EpochData, config: ProcessingConfig, kinds: frozenset[str]
     out: list[dict[str, F64]] = [{} for _ in runs]
     for color in range(n_color):
         nominal = base.copy()
+        members = []
         for run, col in zip(runs, colors):
-            sel = np.flatnonzero(np.asarray(col) == color)
+            sel = np.flatnonzero((np.asarray(col) == color) & ~run.done)  # windows done need no rows
+            members.append(sel)
             if sel.size:
                 nominal[run.epochs[sel]] = run.origin[sel, None, :] + run.x[sel]
-        rows = measurement_rows(data, nominal, config, doppler)
-        phr = phase_pair_rows(data, rows, config) if phase else None
-        for run, col, dst in zip(runs, colors, out):
-            sel = np.flatnonzero(np.asarray(col) == color)
+        union = np.unique(np.concatenate([run.epochs[sel].ravel() for run, sel in zip(runs, members)]))
+        if not union.size:
+            continue
+        # the epochs of this colour's windows only (a window's pairs are consecutive epochs of it; the
+        # pair ending at its first epoch is not used, whatever precedes it in the union)
+        sub = take_epochs(data, union)
+        rows = measurement_rows(sub, nominal[union], config, doppler)
+        phr = phase_pair_rows(sub, rows, config) if phase else None
+        for run, sel, dst in zip(runs, members, out):
             if not sel.size:
                 continue
-            ep = run.epochs[sel]
+            ep = np.searchsorted(union, run.epochs[sel])
             got = {k: rows[k][ep] for k in ("P", "w", "y", "C") + (("H", "wd", "yd") if doppler else ())}
             if phr is not None:
                 got.update(P6=phr["P6"][ep], pw=phr["w"][ep].copy(), py=phr["y"][ep], pC=phr["C"][ep])
@@ -175,6 +183,17 @@ def window_rows(data: EpochData, config: ProcessingConfig, kinds: frozenset[str]
                 if k not in dst:
                     dst[k] = np.zeros((run.epochs.shape[0], *val.shape[1:]))
                 dst[k][sel] = val
+    for run, dst in zip(runs, out):  # every key present even when no window of a run needed rows
+        n_b, n_t = run.epochs.shape
+        n, k = data.sv.size, len(data.systems)
+        shapes = {"P": (n, 3), "w": (n,), "y": (n,), "C": (n, k)}
+        if doppler:
+            shapes.update(H=(n, 3), wd=(n,), yd=(n,))
+        if phase:
+            shapes.update(P6=(n, 6), pw=(n,), py=(n,), pC=(n, k))
+        for key, shp in shapes.items():
+            if key not in dst:
+                dst[key] = np.zeros((n_b, n_t, *shp))
     return out
 
 
