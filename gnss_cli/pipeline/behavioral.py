@@ -18,6 +18,13 @@ instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up
 Python overhead of many tiny array operations. Full kernels and longer windows go one at a
 time through the banded O(T) STLS.
 
+That position-domain result is the start of the method ``stls --lag L`` runs: with
+``measurements`` (:func:`smooth`; :func:`gnss_cli.pipeline.methods.solve_multi_epoch` passes the
+kinds of ``--measurements``), every shared-kernel window is then solved in the measurement domain
+by alternating between the kernel and the trajectory (:mod:`gnss_cli.pipeline.identified`); a
+window where that fails keeps the result above and its record says so. Full kernels stay in the
+position domain.
+
 The receiver clocks (one per system, as in the snapshot solution) are re-estimated per
 epoch at the smoothed position (one weighted clock-only least-squares solve on
 :func:`gnss_cli.gnss.range_model.linearize`; a system without satellites keeps its
