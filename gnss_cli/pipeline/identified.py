@@ -126,6 +126,8 @@ class WindowRun:
     iterations, done, converged, failed : per window; ``message`` why a window stopped.
     mult : ``(3, B, N, n)`` gate (and robust) multipliers of pseudoranges, range rates, pairs.
     gates : residual gates evaluated; ``gate_final``: the last gate left the rows unchanged.
+    r_identified : ``(B, l+1)`` the kernels of step (a) under the current gate (NaN: none);
+        ``stale`` where they are to be identified again (module docstring).
     """
 
     jobs: NDArray[np.intp]
@@ -148,6 +150,8 @@ class WindowRun:
     gated: NDArray[np.bool_]
     gates: NDArray[np.int64]
     gate_final: NDArray[np.bool_]
+    r_identified: F64
+    stale: NDArray[np.bool_]
 
 
 def _colors(spans: list[tuple[int, int]]) -> list[int]:
@@ -332,7 +336,8 @@ def _start(jobs: NDArray[np.intp], segs: list[Segment], all_jobs: list[WindowJob
     return WindowRun(jobs, epochs, origin, rot, dt, r, np.zeros((n_b, lag, 3)), x, np.full((n_b, n_t, 3), np.nan),
                      np.full(n_b, np.inf), [[] for _ in range(n_b)], np.zeros(n_b, np.int64), np.zeros(n_b, bool),
                      np.zeros(n_b, bool), np.zeros(n_b, bool), [""] * n_b, np.ones((3, n_b, n_t, n_sv)),
-                     np.zeros((3, n_b, n_t, n_sv), bool), np.zeros(n_b, np.int64), np.zeros(n_b, bool))
+                     np.zeros((3, n_b, n_t, n_sv), bool), np.zeros(n_b, np.int64), np.zeros(n_b, bool),
+                     np.full_like(r, np.nan), np.ones(n_b, bool))
 
 
 def _project_start(run: WindowRun, velocity: bool) -> None:
@@ -389,11 +394,17 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     for name in ("r", "c", "x", "v"):
         previous[name] = getattr(run, name).copy()
     opts = config.stls
-    r_new = np.full_like(run.r, np.nan)  # only the windows still alternating are identified
+    # (a) on the free per-epoch corrections x + M^-1 r: the free fixes, which do not depend on the
+    # iterate (to the linearization), so identified once per gate
+    fresh = np.flatnonzero(act & run.stale)
+    if fresh.size:
+        sub = replace(run, epochs=run.epochs[fresh], rot=run.rot[fresh], x=run.x[fresh])
+        run.r_identified[fresh] = _identify(sub, *(None if n is None else _take(n, fresh, n_t) for n in normals[:2]),
+                                            opts.lag, opts.tolerance, opts.max_iterations)
+        run.stale[fresh] = False
+    r_new = np.where(act[:, None], run.r_identified, np.nan)
     sel = np.flatnonzero(act)
     sub = replace(run, epochs=run.epochs[sel], rot=run.rot[sel], x=run.x[sel])
-    r_new[sel] = _identify(sub, *(None if n is None else _take(n, sel, n_t) for n in normals[:2]), opts.lag,
-                           opts.tolerance, opts.max_iterations)
     part = replace(sub, r=run.r[sel], dt_s=run.dt_s[sel])
     taken = tuple(None if n is None else _take(n, sel, n_t) for n in normals)
     solved = [_solve(kernels[sel], part, taken) for kernels in (run.r, r_new)]  # (b) for the current and new kernels
@@ -478,6 +489,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
                     run.mult[:, changed], run.gated[:, changed] = mult[:, changed], gated[:, changed]
                     run.gates[changed] += 1
                     run.done[changed] = run.converged[changed] = False
+                    run.stale[changed] = True
                     run.misfit[changed] = np.inf
                     for b in np.flatnonzero(changed):
                         run.history[b] = []
