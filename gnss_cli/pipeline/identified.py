@@ -19,7 +19,8 @@ Each iteration, for every window at once:
    on the current trajectory's free per-epoch corrections -- the position each epoch's own
    clock-reduced pseudorange normals give, with their inverse as covariance, and with Doppler the
    velocity each epoch's range rates give as three more channels (the velocity of a behavior of
-   ``r(z) I_3`` is in the same behavior);
+   ``r(z) I_3`` is in the same behavior). These free fixes ``x + M^-1 r`` do not depend on the
+   iterate (to the linearization), so the kernel is identified once per residual gate;
 3. (b) with the kernel fixed, solve for the window's trajectory in its behavior from all the
    rows (:func:`~gnss_cli.behavior.behavior_solve.solve_in_behavior`; velocities from the modes
    ``s_i = log(z_i) / dt``, :func:`~gnss_cli.behavior.behavior_solve.shared_modes`), once with
@@ -44,7 +45,13 @@ Why alternation and not variable projection over ``r``: step (b) is the exact mi
 fixed kernel and is linear, step (a) reuses the batched STLS of the position-domain method (all
 windows at once), and the misfit check makes the iteration safe whatever (a) returns; variable
 projection would need the derivative of the measurement-domain solution with respect to ``r``
-(through the modes' velocities) for every window -- not written, so not compared.
+(through the modes' velocities) for every window -- not written, so not compared. What this
+alternation can and cannot do: its kernels are the position-domain one and the STLS kernel of
+the free fixes (with the range rates' velocities), re-identified when the gate changes; the
+measurement misfit chooses between them and the trajectory is the exact measurement-domain
+solution in the chosen behavior. A kernel that minimizes the measurement misfit itself (where
+the range rates and phase pairs act on ``r`` directly) would need that descent over ``r``. Most
+iterations in the records are those of the residual gates (one to three per window).
 
 Measured (``stls --lag 3``, windows of 15 epochs; 3D / horizontal RMS, m; runtime of the stls
 step alone). Pseudoranges alone, the joint problem with block-diagonal clock-reduced normals *is*
