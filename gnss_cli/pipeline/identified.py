@@ -301,13 +301,33 @@ def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: in
     return out
 
 
-def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None]
-           ) -> tuple[F64, F64, F64, F64, NDArray[np.bool_]]:
+_Modes = dict[tuple[bytes, float, int, bool], tuple[F64, F64, bool, bool]]
+
+
+def _modes(r: F64, n_t: int, dt_s: F64, velocity: bool, cache: _Modes) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
+    """:func:`~gnss_cli.behavior.behavior_solve.shared_modes`, each kernel computed once per run
+    (a window's kernels recur from one alternation to the next, and scipy's logm of a companion matrix with close roots cost up to 70 ms)."""
+    keys = [(row.tobytes(), float(d), n_t, velocity) for row, d in zip(r, dt_s)]
+    miss = [i for i, k in enumerate(keys) if k not in cache]
+    if miss:
+        y, yv, ok, hv = shared_modes(r[miss], n_t, dt_s[miss], velocity)
+        for j, i in enumerate(miss):
+            cache[keys[i]] = (y[j], yv[j], bool(ok[j]), bool(hv[j]))
+    got = [cache[k] for k in keys]
+    lag = r.shape[1] - 1
+    if not got:
+        return np.zeros((0, n_t, lag)), np.zeros((0, n_t, lag)), np.zeros(0, bool), np.zeros(0, bool)
+    return (np.stack([g[0] for g in got]), np.stack([g[1] for g in got]), np.array([g[2] for g in got]),
+            np.array([g[3] for g in got]))
+
+
+def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None],
+           cache: _Modes) -> tuple[F64, F64, F64, F64, NDArray[np.bool_]]:
     """Step (b) for kernels ``r``: coefficients, positions, velocities, linearized misfit and where it worked."""
     n_t = run.epochs.shape[1]
     pr, rr, ph = normals
     valid = np.all(np.isfinite(r), axis=1)
-    y, yv, ok, has_v = shared_modes(np.where(valid[:, None], r, run.r), n_t, run.dt_s, rr is not None)
+    y, yv, ok, has_v = _modes(np.where(valid[:, None], r, run.r), n_t, run.dt_s, rr is not None, cache)
     ok &= valid & (has_v if rr is not None else True)
     c, mis, solved = solve_in_behavior(y, yv if rr is not None else None, run.x, pr, rr, ph)
     ok &= solved
@@ -361,7 +381,7 @@ def _project_start(run: WindowRun, velocity: bool) -> None:
 
 
 def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], config: ProcessingConfig,
-             kinds: frozenset[str], previous: dict[str, F64]) -> None:
+             kinds: frozenset[str], previous: dict[str, F64], cache: _Modes) -> None:
     """One alternation step of the windows not done (in place); ``previous``: the last accepted state."""
     n_b, n_t = run.epochs.shape
     doppler = "doppler" in kinds
@@ -414,7 +434,7 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     sub = replace(run, epochs=run.epochs[sel], rot=run.rot[sel], x=run.x[sel])
     part = replace(sub, r=run.r[sel], dt_s=run.dt_s[sel])
     taken = tuple(None if n is None else _take(n, sel, n_t) for n in normals)
-    solved = [_solve(kernels[sel], part, taken) for kernels in (run.r, r_new)]  # (b) for the current and new kernels
+    solved = [_solve(kernels[sel], part, taken, cache) for kernels in (run.r, r_new)]  # (b) for the current and new kernels
     (c0, x0, v0, m0, ok0), (c1, x1, v1, m1, ok1) = (_spread(res, sel, n_b) for res in solved)
     sing = act & ~ok0 & ~ok1
     run.failed |= sing
@@ -477,6 +497,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
     fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
     base = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))
     previous: list[dict[str, F64]] = [{} for _ in runs]
+    cache: _Modes = {}
     for _ in range(GATE_PASSES * (MAX_ALTERNATIONS + 2)):
         rows = window_rows(data, config, kinds, base, runs, colors)
         for run, rw, prev in zip(runs, rows, previous):
@@ -485,7 +506,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
                 mult, gated = _gate(run, rw, factors, config)
                 run.mult[:, new], run.gated[:, new] = mult[:, new], gated[:, new]
                 run.gates[new] = 1
-            _iterate(run, rw, factors, config, kinds, prev)
+            _iterate(run, rw, factors, config, kinds, prev, cache)
             regate = run.done & run.converged & ~run.failed & ~run.gate_final
             if regate.any():  # after convergence: the gate at the result; a new gate continues the alternation
                 mult, gated = _gate(run, rw, factors, config)
