@@ -75,7 +75,8 @@ def _log_companion(a: F64) -> tuple[F64, NDArray[np.bool_]]:
     return out, np.all(np.isfinite(out), axis=(1, 2))
 
 
-def shared_modes(r: F64, n_t: int, dt_s: F64, velocity: bool = True) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
+def shared_modes(r: F64, n_t: int, dt_s: F64,
+                 velocity: bool = True) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
     """Orthonormal free-response bases of shared kernels and their time derivatives.
 
     Parameters

@@ -289,7 +289,8 @@ def smooth(
             for b, k in enumerate(run.jobs):
                 job = jobs[k]
                 if fits[k].domain == "measurement":
-                    gated[run.epochs[b, job.lo - job.a : job.hi - job.a]] |= run.gated[0, b, job.lo - job.a : job.hi - job.a]
+                    own = slice(job.lo - job.a, job.hi - job.a)
+                    gated[run.epochs[b, own]] |= run.gated[0, b, own]
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
         sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits)
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models

@@ -240,7 +240,8 @@ def _normals(rows: dict[str, F64], mult: F64, factors: tuple[float, ...]) -> tup
     return pr, rr, ph
 
 
-def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
+def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...],
+          config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
     """Gate multipliers ``(3, B, N, n)`` at the current iterate (standardized residuals, clocks re-estimated)."""
     n_b, n_t = run.epochs.shape
     gate = float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
@@ -304,9 +305,11 @@ def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: in
 _Modes = dict[tuple[bytes, float, int, bool], tuple[F64, F64, bool, bool]]
 
 
-def _modes(r: F64, n_t: int, dt_s: F64, velocity: bool, cache: _Modes) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
+def _modes(r: F64, n_t: int, dt_s: F64, velocity: bool,
+           cache: _Modes) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
     """:func:`~gnss_cli.behavior.behavior_solve.shared_modes`, each kernel computed once per run
-    (a window's kernels recur from one alternation to the next, and scipy's logm of a companion matrix with close roots cost up to 70 ms)."""
+    (a window's kernels recur from one alternation to the next, and scipy's logm of a companion
+    matrix with close roots cost up to 70 ms)."""
     keys = [(row.tobytes(), float(d), n_t, velocity) for row, d in zip(r, dt_s)]
     miss = [i for i, k in enumerate(keys) if k not in cache]
     if miss:
