@@ -20,7 +20,6 @@ sign from epoch to epoch) has no real ``log A``: no sampled continuous motion, n
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from gnss_cli.behavior.window_solve import EpochNormals
@@ -44,34 +43,55 @@ def _companion(r: F64) -> F64:
     return a
 
 
+def _sqrtm(a: F64, iterations: int = 60) -> tuple[F64, NDArray[np.bool_]]:
+    """Principal square roots of ``a (B, l, l)`` (Denman--Beavers iteration) and where it converged."""
+    y, z = a.copy(), np.broadcast_to(np.eye(a.shape[-1]), a.shape).copy()
+    done = np.zeros(a.shape[0], dtype=bool)
+    with np.errstate(all="ignore"):
+        for _ in range(iterations):
+            y_new = 0.5 * (y + np.linalg.inv(z))
+            z = 0.5 * (z + np.linalg.inv(y))
+            done = np.all(np.abs(y_new - y) <= 1e-15 * np.maximum(1.0, np.abs(y_new).max(axis=(1, 2)))[:, None, None],
+                          axis=(1, 2))
+            y = y_new
+            if done.all():
+                break
+    return y, done & np.all(np.isfinite(y), axis=(1, 2))
+
+
 def _log_companion(a: F64) -> tuple[F64, NDArray[np.bool_]]:
-    """Real matrix logarithms of ``a (B, l, l)`` and where one exists."""
+    """Real matrix logarithms of ``a (B, l, l)`` and where one exists.
+
+    Inverse scaling and squaring, batched: square roots (:func:`_sqrtm`) until every eigenvalue
+    is within :data:`_SERIES_RADIUS` of 1, then the series of ``log(I + X)``, times ``2^k``.
+    Close roots (two near ``z = 1`` and a far third are the rule for identified kernels) need no
+    special care, unlike ``V log(L) V^-1``. No real logarithm where a root is on ``(-inf, 0]``.
+    """
     n_b, lag, _ = a.shape
-    ev = np.linalg.eigvals(a)
-    near = np.all(np.abs(ev - 1.0) < _SERIES_RADIUS, axis=1)
+    finite = np.all(np.isfinite(a), axis=(1, 2))
+    ev = np.linalg.eigvals(np.where(finite[:, None, None], a, np.eye(lag)))
+    real = finite & np.all((np.abs(ev.imag) > 1e-12) | (ev.real > 0.0), axis=1)  # no root on (-inf, 0]
     out = np.full_like(a, np.nan)
-    x = a[near] - np.eye(lag)
+    m = np.where(real[:, None, None], a, np.eye(lag))
+    scale = np.zeros(n_b)
+    for _ in range(40):
+        far = real & ~np.all(np.abs(ev - 1.0) < _SERIES_RADIUS, axis=1)
+        if not far.any():
+            break
+        root, ok = _sqrtm(m[far])
+        idx = np.flatnonzero(far)
+        real[idx[~ok]] = False
+        m[idx[ok]] = root[ok]
+        scale[idx[ok]] += 1
+        ev[idx] = np.linalg.eigvals(np.where(ok[:, None, None], root, np.eye(lag)))
+    near = real & np.all(np.abs(ev - 1.0) < _SERIES_RADIUS, axis=1)
+    x = m[near] - np.eye(lag)
     term = np.broadcast_to(np.eye(lag), x.shape).copy()
     acc = np.zeros_like(x)
     for k in range(1, _SERIES_TERMS + 1):
         term = term @ x
         acc += (-1.0) ** (k + 1) / k * term
-    out[near] = acc
-    far = np.flatnonzero(~near & np.all(np.isfinite(a), axis=(1, 2)))
-    off_axis = np.all((np.abs(ev[far].imag) > 1e-12) | (ev[far].real > 0.0), axis=1)  # no root on (-inf, 0]
-    far = far[off_axis]
-    if far.size:  # distinct roots: log A = V log(L) V^-1, batched; close roots: scipy's logm
-        lam, vec = np.linalg.eig(a[far])
-        gap = np.abs(lam[:, :, None] - lam[:, None, :]) + np.eye(lag)
-        distinct = gap.min(axis=(1, 2)) > 1e-4 * np.abs(lam).max(axis=1)
-        with np.errstate(all="ignore"):
-            lg = np.einsum("bij,bj,bjk->bik", vec, np.log(lam.astype(np.complex128)), np.linalg.inv(vec))
-        real = distinct & (np.abs(lg.imag).max(axis=(1, 2)) <= 1e-9 * np.maximum(1.0, np.abs(lg).max(axis=(1, 2))))
-        out[far[real]] = lg[real].real
-        for b in far[~real]:
-            lgm = scipy.linalg.logm(a[b])
-            if np.all(np.isfinite(lgm)) and np.abs(np.imag(lgm)).max() <= 1e-9 * max(1.0, np.abs(lgm).max()):
-                out[b] = np.real(lgm)
+    out[near] = acc * (2.0 ** scale[near])[:, None, None]
     return out, np.all(np.isfinite(out), axis=(1, 2))
 
 

@@ -70,9 +70,9 @@ the horizontal error with Doppler is larger than without. Identifying on positio
 step (a) gave 1.36 m on the flight, with the velocity channels 1.33 m. Windows whose kernels
 all have a root on the negative real axis keep the position-domain result (flight 8 of 85 with
 Doppler, drive 29 of 85; a 1 h flight 145 of 514). Runtime of the stls step on a simulated 1 h
-1 Hz flight (GPS): pseudoranges 2.6 s against 0.7 s in the position domain (3.7x), with Doppler
-13 s (about 20x: the identification of step (a) on six channels, repeated in every alternation
-and residual gate, dominates).
+1 Hz flight (GPS, a shared 2-core machine): pseudoranges 1.8 s against 0.7 s in the position
+domain (2.6x), with Doppler 5.3 s against 0.6 s (about 9x: the identification of step (a) on six
+channels, once per residual gate, and the matrix logarithms of the modes dominate).
 """
 
 from __future__ import annotations
@@ -308,8 +308,7 @@ _Modes = dict[tuple[bytes, float, int, bool], tuple[F64, F64, bool, bool]]
 def _modes(r: F64, n_t: int, dt_s: F64, velocity: bool,
            cache: _Modes) -> tuple[F64, F64, NDArray[np.bool_], NDArray[np.bool_]]:
     """:func:`~gnss_cli.behavior.behavior_solve.shared_modes`, each kernel computed once per run
-    (a window's kernels recur from one alternation to the next, and scipy's logm of a companion
-    matrix with close roots cost up to 70 ms)."""
+    (a window's kernels recur from one alternation to the next)."""
     keys = [(row.tobytes(), float(d), n_t, velocity) for row, d in zip(r, dt_s)]
     miss = [i for i, k in enumerate(keys) if k not in cache]
     if miss:
