@@ -18,6 +18,13 @@ instead of 1.42 m over 10 minutes, 1.34 m either way over an hour. Windows of up
 Python overhead of many tiny array operations. Full kernels and longer windows go one at a
 time through the banded O(T) STLS.
 
+That position-domain result is the start of the method ``stls --lag L`` runs: with
+``measurements`` (:func:`smooth`; :func:`gnss_cli.pipeline.methods.solve_multi_epoch` passes the
+kinds of ``--measurements``), every shared-kernel window is then solved in the measurement domain
+by alternating between the kernel and the trajectory (:mod:`gnss_cli.pipeline.identified`); a
+window where that fails keeps the result above and its record says so. Full kernels stay in the
+position domain.
+
 The receiver clocks (one per system, as in the snapshot solution) are re-estimated per
 epoch at the smoothed position (one weighted clock-only least-squares solve on
 :func:`gnss_cli.gnss.range_model.linearize`; a system without satellites keeps its
@@ -90,7 +97,9 @@ class WindowJob:
 
 @dataclass(slots=True)
 class Fit:
-    """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU)."""
+    """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU); for the
+    measurement-domain alternation (:mod:`gnss_cli.pipeline.identified`) its iterations, whether it
+    converged and the domain of the result (``position``: the STLS of the fixes)."""
 
     w_hat: F64 | None
     kernel: KernelRecord | None
@@ -98,6 +107,9 @@ class Fit:
     status: StlsStatus | None
     message: str
     basis: F64 | None
+    iterations: int | None = None
+    converged: bool | None = None
+    domain: str = "position"
 
 
 def _failed(message: str) -> Fit:
@@ -205,6 +217,8 @@ def smooth(
     step: int | None = None,
     gap_factor: float = 1.5,
     method: str = "stls",
+    measurements: frozenset[str] | None = None,
+    factors: tuple[float, ...] | None = None,
 ) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """The identified Hankel STLS of the per-epoch WLS fixes (``config.stls``, ``lag >= 1``).
 
@@ -226,6 +240,12 @@ def smooth(
         and at unsolved epochs.
     method : str
         Method key written into the result.
+    measurements : set of str, optional
+        None: the position-domain STLS of the fixes. Else the measurement kinds (``pseudorange``
+        and any of ``doppler``, ``phase``) of the measurement-domain alternation that starts from
+        it (:func:`gnss_cli.pipeline.identified.alternate_windows`; shared kernels).
+    factors : tuple of float, optional
+        With ``measurements``: the variance factors of the kinds (a whole file's), else estimated on ``data``.
 
     Returns
     -------
@@ -260,7 +280,22 @@ def smooth(
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
-    return smooth_windows(data, wls, config, segs, jobs, status, method)
+    fits = fit_all(segs, jobs, opts)
+    if measurements is not None:
+        from gnss_cli.pipeline.identified import alternate_windows  # imports this module
+
+        fits, runs, _ = alternate_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
+        gated = np.zeros(data.usable.shape, dtype=bool)  # pseudoranges the gate of an epoch's owning window excluded
+        for run in runs:
+            for b, k in enumerate(run.jobs):
+                job = jobs[k]
+                if fits[k].domain == "measurement":
+                    own = slice(job.lo - job.a, job.hi - job.a)
+                    gated[run.epochs[b, own]] |= run.gated[0, b, own]
+        kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
+        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits)
+        return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models
+    return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 
 
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
@@ -289,6 +324,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             end_time_gps_s=float(data.time_gps_s[seg.epochs[job.b - 1]]), n_epochs=int(job.b - job.a),
             model="identified", structure=opts.kernel, kernel=fit.kernel, misfit=fit.misfit,
             status=window_status_word(fit.status), message=fit.message, method=method,
+            iterations=fit.iterations, converged=fit.converged,
         ))
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:

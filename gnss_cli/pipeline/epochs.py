@@ -183,7 +183,7 @@ def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: 
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
     codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
-    if config.uses("phase") and any(m in ("smoother", "kf") for m in config.multi_epoch_methods):  # phase_rows of smoother and kf
+    if config.uses("phase") and config.multi_epoch_methods:  # phase_rows of smoother, kf and stls --lag L
         phases = [phase_code(c) for c in codes_for(systems, priority)]
         codes += [c for c in phases + [lli_name(c) for c in phases] if c not in codes]
     if config.iono == "iono-free":

@@ -7,9 +7,10 @@ and the closing stderr lines, so that a number can always be traced to the estim
 method    estimator
 ========  ==============================================================================
 ls ...    the single-epoch family (``ls wls tls dls mtls wtls``, and ``stls`` with lag 0)
-stls      with ``[stls] lag >= 1``: the paper's identified Hankel STLS -- a kernel identified
-          from the WLS fixes by weighted Hankel STLS in sliding windows, the fixes projected
-          onto its behavior
+stls      with ``[stls] lag >= 1``: the paper's identified Hankel STLS in the measurement
+          domain -- per sliding window, a shared kernel and the trajectory in its behavior by
+          alternation (:mod:`gnss_cli.pipeline.identified`), from the pseudoranges and the
+          Doppler and phase the measurements give; started from the STLS of the WLS fixes
 smoother  a batch least-squares smoother of whole segments in the measurement domain with
           a fixed motion model (``[smoother] motion``)
 kf        an extended Kalman filter with a Rauch-Tung-Striebel smoother (``[kalman]``)
@@ -86,8 +87,12 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             s = config.stls
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
             window = f"{s.window} epochs" if s.window else "whole segments"
-            out[m] = MethodSettings(m, "identified Hankel STLS", f"{kernel} identified per window", str(s.lag), window,
-                                    "pseudorange (WLS fixes)", tested)
+            if s.kernel == "shared":
+                out[m] = MethodSettings(m, "identified Hankel STLS (measurement domain, alternation)",
+                                        f"{kernel} identified per window", str(s.lag), window, kinds, tested)
+            else:  # the alternation is for shared kernels: the full kernel stays with the fixes
+                out[m] = MethodSettings(m, "identified Hankel STLS (position domain)", f"{kernel} identified per window",
+                                        str(s.lag), window, "pseudorange (WLS fixes)", tested)
         elif m == "smoother":
             motion = config.smoother.motion
             lag = str(config.smoother.lag) if motion == "quadrature" else ""
@@ -136,7 +141,9 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     if method == "stls":
         from gnss_cli.pipeline.behavioral import smooth
 
-        sol, models = smooth(data, wls, config)
+        kinds = resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None)
+        sol, models = smooth(data, wls, config, measurements=frozenset(kinds) if config.stls.kernel == "shared" else None,
+                             factors=factors)
     elif method == "smoother":
         from gnss_cli.pipeline.smoother import smooth_segments  # scipy: imported when it runs
 

@@ -167,6 +167,10 @@ class WindowModel:
     message: str
     method: str = "stls"
     """The method whose rows the window supplies (``stls``, ``smoother``)."""
+    iterations: int | None = None
+    """Alternations of the measurement-domain ``stls`` window (None: not alternated)."""
+    converged: bool | None = None
+    """Whether that alternation converged (False: the position-domain result was kept)."""
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""
@@ -180,6 +184,8 @@ class WindowModel:
         else:
             out.update(self.kernel.to_dict())
             out.update({"misfit": self.misfit, "status": self.status, "message": self.message})
+        if self.iterations is not None:
+            out.update({"iterations": self.iterations, "converged": self.converged})
         return out
 
 

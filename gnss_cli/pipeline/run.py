@@ -431,10 +431,11 @@ class Run:
     def _variance_factors(self, setup: EpochSetup, systems: list[str], sv: np.ndarray, used: tuple[str, ...],
                           n_epochs: int) -> tuple[float, ...] | None:
         """The whole file's variance factors of the measurement kinds (a pass of WLS over the
-        parts), so that every piece of ``smoother`` and ``kf`` weighs as the whole file would; None
+        parts), so that every piece of ``smoother``, ``kf`` and ``stls --lag L`` weighs as the whole file would; None
         when no method needs them."""
         config = self.config
-        if not {"smoother", "kf"} & set(config.multi_epoch_methods):
+        stls_measurements = "stls" in config.multi_epoch_methods and config.stls.kernel == "shared"
+        if not ({"smoother", "kf"} & set(config.multi_epoch_methods) or stls_measurements):
             return None
         from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 

@@ -73,7 +73,8 @@ def test_what_ran_is_written_down(tmp_path: Path, capsys) -> None:  # type: igno
     summary = pd.read_csv(out / "summary.csv").set_index("method")
     assert list(summary.columns[:8]) == ["command", "settings", "estimator", "model", "lag", "window", "measurements",
                                          "integrity"]
-    assert summary.loc["stls", "estimator"] == "identified Hankel STLS" and summary.loc["stls", "window"] == "15 epochs"
+    assert summary.loc["stls", "estimator"] == "identified Hankel STLS (measurement domain, alternation)"
+    assert summary.loc["stls", "window"] == "15 epochs" and summary.loc["stls", "measurements"] == "pseudorange"
     assert summary.loc["smoother", "estimator"] == "fixed-model batch smoother"
     assert summary.loc["kf", "measurements"] == "pseudorange" and summary.loc["smoother", "measurements"] == "pseudorange"
     assert summary.loc["wls", "estimator"].startswith("weighted least squares")

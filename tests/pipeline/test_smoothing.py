@@ -188,7 +188,7 @@ def test_flight_stls_lag3_identify_beats_ls(flight_dir: Path, tmp_path: Path) ->
     assert np.all(rows["stls"]["gdop"].to_numpy() <= rows["ls"]["gdop"].to_numpy() * (1 + 1e-6) + 1e-3)
     models = json.loads(model_out.read_text())
     assert models["methods"]["stls"]["lag"] == "3" and len(models["windows"]) > 10
-    assert models["methods"]["stls"]["estimator"] == "identified Hankel STLS"
+    assert models["methods"]["stls"]["estimator"] == "identified Hankel STLS (measurement domain, alternation)"
     w0 = models["windows"][0]
     assert w0["method"] == "stls" and w0["model"] == "identified"
     assert {"kernel_R", "order", "poles", "misfit", "status"} <= set(w0)
