@@ -18,21 +18,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from gnss_cli.config import load_config
-from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_urban import RINEX, TST_TOW, TST_TRUTH, method_row  # noqa: E402
+from bench_urban import RINEX, method_row, real_cases, simulated_cases  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "choose_cn0_weights.json"
@@ -46,40 +43,13 @@ ESBC_REF = np.array([3582104.922, 532590.196, 5232755.366])  # ../shared/rinex/R
 
 
 def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool) -> list[tuple]:
-    cases = []
-    for receiver in ("single", "dual"):
-        for seed in seeds:
-            folder = work / f"{receiver}-{seed}"
-            subprocess.run([sys.executable, "-m", "gnss_cli.cli.simulate", "--environment", "urban", "--receiver",
-                            receiver, "--trajectory", "drive", "--duration", str(duration_s), "--interval", "1",
-                            "--seed", str(seed), "--out-dir", str(folder), "-q"], check=True)
-            truth = pd.read_csv(folder / "truth.csv")
-            t_truth = truth["gps_week"].to_numpy() * 604800.0 + truth["tow_s"].to_numpy()
-            xyz = truth[["x_m", "y_m", "z_m"]].to_numpy()
-
-            def ref_at(t: np.ndarray, t_truth: np.ndarray = t_truth, xyz: np.ndarray = xyz) -> np.ndarray:
-                return xyz[np.clip(np.searchsorted(t_truth, t), 0, t_truth.size - 1)]
-
-            cases.append((f"sim-{receiver}-{seed}", folder / "obs.rnx", [folder / "nav.rnx"], None, ref_at,
-                          lambda t: np.ones(t.size, bool)))
-    tst = RINEX / "tst2-2020155-urban-static"
-    if tst.is_dir():
-        def tst_keep(t: np.ndarray) -> np.ndarray:
-            tow = gps_s2week_tow(t)[1]
-            return (tow >= TST_TOW[0] - 0.01) & (tow <= TST_TOW[1] + 0.01)
-
-        cases.append(("tst2", tst / "2020_06_03_TST_03.obs.gz", sorted(tst.glob("hksc155d.20?")), None,
-                      lambda t: np.broadcast_to(TST_TRUTH, (t.size, 3)), tst_keep))
+    """bench_urban's drives (other seeds) and real sets, and ESBC: (name, obs, navs, systems, ref_at, keep_at)."""
+    cases = [c[:6] for c in simulated_cases(seeds, duration_s, work) + real_cases(quick)]
     esbc = RINEX / "esbc-2020177"
     if esbc.is_dir() and not quick:
         cases.append(("esbc", esbc / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz",
                       [esbc / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"], None,
                       lambda t: np.broadcast_to(ESBC_REF, (t.size, 3)), lambda t: np.ones(t.size, bool)))
-    ber = RINEX / "smartloc-berlin-2016158-urban-kinematic"
-    if ber.is_dir() and not quick:
-        cases.append(("smartloc-berlin", ber / "Berlin_Potsdamer_Platz.obs.gz",
-                      [ber / "BRDC00WRD_U_20161580000_01D_MN.rnx.gz"], "G", lambda t: None,
-                      lambda t: np.ones(t.size, bool)))
     return cases
 
 
@@ -101,6 +71,7 @@ def main() -> None:
             print(f"choose_cn0_weights: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     names = list(results["off"])
     lines = ["| candidate | " + " | ".join(names) + " | score | misleading |", "|---|" + "---|" * (len(names) + 2)]
+    table_rows: list[list[object]] = []
     scores: dict[str, float] = {}
     misleading: dict[str, int] = {}
     for cand, rows in results.items():
@@ -111,6 +82,7 @@ def main() -> None:
         cells = [f"{100 * rows[n]['availability']:.0f} % / " + (f"{rows[n]['rms_3d_m']:.2f} m" if rows[n].get("rms_3d_m")
                  else "–") for n in names]
         lines.append(f"| {cand} | " + " | ".join(cells) + f" | {scores[cand]:.3f} | {misleading[cand]} |")
+        table_rows.append([cand, *cells, round(scores[cand], 3), misleading[cand]])
     esbc = results["off"].get("esbc", {}).get("rms_3d_m")
     allowed = [c for c in CANDIDATES if misleading[c] <= misleading["off"]
                and (esbc is None or results[c]["esbc"]["rms_3d_m"] <= 1.02 * esbc)]
@@ -119,7 +91,13 @@ def main() -> None:
     print(f"chosen: {chosen} (score {scores[chosen]:.3f}; off 1.000)")
     if not args.quick:
         OUT.write_text(json.dumps({"title": "Choosing the C/N0 weights on training data",
-                                   "command": "python benchmarks/choose_cn0_weights.py", "seeds": seeds,
+                                   "command": "python benchmarks/choose_cn0_weights.py",
+                                   "table": {"columns": ["candidate", *[f"{n}: ok / RMS" for n in names],
+                                                         "score (RMS / off's, mean)", "misleading epochs"],
+                                             "rows": table_rows},
+                                   "notes": f"WLS, default integrity; chosen: {chosen}. Training data only: "
+                                            "bench_urban.py reports other seeds.",
+                                   "seeds": seeds,
                                    "duration_s": duration, "candidates": CANDIDATES, "scores": scores,
                                    "misleading": misleading, "chosen": chosen, "cases": results,
                                    "seconds": time.perf_counter() - t0}, indent=1) + "\n")

@@ -47,14 +47,9 @@ def behavior_basis(kernel: KernelRepresentation, n_t: int) -> F64:
     q, lag = kernel.q, kernel.lag
     if kernel.is_shared() and kernel.blocks[-1, 0, 0] != 0.0:
         # r(z) I_q: the scalar free responses times I_q span the same space
-        r = kernel.blocks[:, 0, 0] / kernel.blocks[-1, 0, 0]
-        scalar = np.zeros((max(n_t, lag), lag))
-        scalar[:lag] = np.eye(lag)
-        for t in range(lag, n_t):
-            scalar[t] = -(r[:lag] @ scalar[t - lag : t])
-        u, s, _ = np.linalg.svd(scalar[:n_t], full_matrices=False)
-        rank = int(np.sum(s > s[0] * 1e-10)) if s.size and s[0] > 0 else 0
-        return np.einsum("tj,ab->tajb", u[:, :rank], np.eye(q)).reshape(n_t, q, rank * q)
+        basis = shared_behavior_bases(kernel.blocks[:, 0, 0][None, :], n_t, q)[0]
+        assert basis is not None  # r_lag != 0
+        return basis
     a = kernel.transition()  # (q, q*lag): w(t+lag) = a [w(t); ...; w(t+lag-1)]
     k = q * lag
     traj = np.zeros((max(n_t, lag), q, k))
@@ -81,12 +76,27 @@ def shared_behavior_bases(r: F64, n_t: int, q: int) -> list[F64 | None]:
     scalar[:, :lag] = np.eye(lag)
     for t in range(lag, n_t):
         scalar[:, t] = -np.einsum("bk,bkj->bj", monic[:, :lag], scalar[:, t - lag : t])
+    # The responses from the window's end as well, run backwards where r_0 allows: a root far
+    # outside the unit circle (|z| = 14 in a 15-epoch window grows 1e16-fold) swamps every forward
+    # response, and the slow modes would fall below the rank threshold; backwards it decays. Each
+    # column scaled to unit size, the union spans the behavior with its small modes intact.
+    back = np.zeros((n_b, max(n_t, lag), lag))
+    first = monic[:, 0]
+    reversible = np.abs(first) > 1e-10
+    back[:, max(n_t, lag) - lag:] = np.eye(lag)
+    for t in range(n_t - lag - 1, -1, -1):
+        back[:, t] = -np.einsum("bk,bkj->bj", monic[:, 1:], back[:, t + 1 : t + 1 + lag]) / np.where(
+            reversible, first, 1.0)[:, None]
+    back = np.where(reversible[:, None, None], back, 0.0)
+    both = np.concatenate([scalar[:, :n_t], back[:, :n_t]], axis=2)
+    size = np.max(np.abs(both), axis=1, keepdims=True)
+    both = np.where(size > 0, both / np.where(size > 0, size, 1.0), 0.0)
     out: list[F64 | None] = [None] * n_b
-    good = np.flatnonzero(regular & np.all(np.isfinite(scalar), axis=(1, 2)))
+    good = np.flatnonzero(regular & np.all(np.isfinite(both), axis=(1, 2)))
     if good.size == 0:
         return out
-    u, sv, _ = np.linalg.svd(scalar[good, :n_t], full_matrices=False)
-    rank = np.sum(sv > sv[:, :1] * 1e-10, axis=1)
+    u, sv, _ = np.linalg.svd(both[good], full_matrices=False)
+    rank = np.minimum(np.sum(sv > sv[:, :1] * 1e-10, axis=1), lag)  # the two sets span one space
     eye = np.eye(q)
     for i, k in enumerate(good):
         out[k] = np.einsum("tj,ac->tajc", u[i, :, : rank[i]], eye).reshape(n_t, q, rank[i] * q)

@@ -39,8 +39,9 @@ Examples:
   One hour of a static GPS + Galileo receiver, an epoch every 30 s:
     gnss-simulate --systems G,E --duration 3600 --interval 30 --out-dir static
 
-  The first five minutes of a flight (take-off roll, climb) at 1 Hz:
-    gnss-simulate --trajectory flight --duration 300 --interval 1 \\
+  The first five minutes of the standard flight (take-off roll, climb) at 1 Hz
+  (--trajectory flight draws its path and start from --seed):
+    gnss-simulate --trajectory standard-flight --duration 300 --interval 1 \\
         --out-dir flight
 """
 """The epilog of ``gnss-simulate --help`` (``tests/cli/test_help.py`` runs every example)."""

@@ -25,7 +25,7 @@ def test_a_table_file_becomes_a_section(tmp_path: Path) -> None:
                                        "table": {"columns": ["method", "s"], "rows": [["wls", 1.5], ["a|b", None]]},
                                        "notes": "On two cores."})
     page = results_page.page(tmp_path)
-    assert "## Speed\n\n```sh\npython benchmarks/bench_x.py --n 3\n```\n" in page
+    assert "## Speed\n\nMeasured with `python benchmarks/bench_x.py --n 3`.\n" in page
     assert "| method | s |\n|---|---|\n| wls | 1.5 |\n| a\\|b |  |\n" in page
     assert "On two cores." in page and "`benchmarks/results/bench_x.json`" in page
 
