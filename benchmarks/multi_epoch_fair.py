@@ -11,10 +11,9 @@ factors and gates:
 * ``smoother`` with each ``smoother.motion``: ``quadrature``, ``cv``, ``ca`` (and ``static`` on
   tst2 only, as a row for reference: it knows the antenna does not move, so it is not a peer of
   a kinematic solution);
-* ``stls`` with ``lag = 3`` (the identified Hankel STLS), whatever it resolves to: today it
-  smooths the WLS fixes (its settings say ``pseudorange (WLS fixes)``) and ignores the Doppler
-  and phase it is given. The JSON and the table record what each method reported it ran
-  (``estimator, model, lag, window, measurements`` of the run's settings).
+* ``stls`` with ``lag = 3`` (the identified Hankel STLS in the measurement domain, by
+  alternation, with the measurements of the set). The JSON and the table record what each
+  method reported it ran (``estimator, model, lag, window, measurements`` of the run's settings).
 
 **Settings are chosen before anything is reported.** On the training seeds (1-3; drives 1001-1003,
 :data:`SEED_OFFSET`) of simulated
@@ -333,7 +332,7 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
                   + ", ".join(f"{v['vertical_bias_removed_m']:.2f}" for v in cases.get("yamatogawa", {}).values())
                   + " m). tst2: the static "
                   "antenna solved as a moving receiver, truth window; smoother static is listed for reference and is no "
-                  "peer. stls lag 3 smooths the WLS fixes (pseudoranges) whatever set it is given: see what ran. "
+                  "peer. Each method uses the set it is given (its settings say so: see what ran). "
                   f"Whole run {seconds / 60:.1f} min ({eval_seconds / 60:.1f} min after training), one process, nice 10, "
                   "on the shared 2-core machine."),
         "settings_chosen": chosen,
