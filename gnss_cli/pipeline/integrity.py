@@ -42,6 +42,22 @@ constellation, hypotheses whose subset cannot solve) and split ``1/4, 1/4, 1/2``
   ``VPL = PL_U``, ``HPL = hypot(PL_E, PL_N)`` (each horizontal axis bounded at half the
   horizontal risk, combined conservatively); infinite when ``P_nm >= integrity_risk``.
 
+Several faulty satellites (``max_simultaneous_faults = j_max``, default 1: the above): with
+satellite faults independent, each of probability ``p`` (``prior_fault_satellite``), the epoch
+also gets every subset of 2 (and 3) of its ``n`` used satellites as a hypothesis, of prior
+``p^j`` for ``j`` satellites (the classic single hypotheses keep ``p``), and the unmonitored
+probability becomes the binomial tail ``P(more than j_max faulty) = sum_{j > j_max} C(n, j) p^j
+(1-p)^(n-j)`` (:func:`unmonitored_probability`; ``j_max = 1`` gives the two-or-more term above).
+As in ARAIM only the subsets whose prior matters are monitored: an epoch monitors order ``j + 1``
+only while ``P(more than j)`` exceeds a tenth of ``integrity_risk`` (:func:`_monitored_order`),
+and no pairs when even ``j_max`` leaves more than the risk (its levels are infinite; the single
+hypotheses still test). A subset that empties a system fixes its clock, as the constellation
+hypotheses do. Subsets are combinations of each epoch's used satellites: the epochs are grouped
+by their count of used satellites and monitored order and solved in blocks of at most
+``_SUBSET_BUDGET`` epoch-hypotheses (memory bounded; ~800 pairs for 40 satellites). A pair or
+triple whose separation exceeds its threshold is a detection like any other: the epoch is
+``integrity_fail`` (the separation test decides no exclusion; the chi-square test does).
+
 A fault the test misses leaves the fault-free subset within ``K_md sigma_k`` of the truth and
 the full fix within ``T_k`` of that subset: the error stays within the level except with the
 allocated probability. The chi-square test decides the exclusions; an epoch whose separation
