@@ -120,6 +120,7 @@ def _misleading(sol, truth):
 def test_default_is_the_single_fault_levels(static):
     """max_simultaneous_faults = 1 (and 2 at a prior that needs no pairs): the same levels and fixes."""
     cfg, data, _ = static
+    cfg = replace(cfg, max_simultaneous_faults=1, prior_fault_satellite=1e-3)
     one = solve_method(data, "wls", cfg)
     two = solve_method(data, "wls", replace(cfg, max_simultaneous_faults=2))  # p = 1e-3, <= 12 satellites
     np.testing.assert_array_equal(one.x_ecef_m, two.x_ecef_m)
@@ -129,9 +130,11 @@ def test_default_is_the_single_fault_levels(static):
 
 def test_two_simultaneous_biases_are_bounded_or_detected_with_pairs(static):
     """The same ramp (0 to 40 m over 300 s) on two satellites seen throughout: of all such pairs,
-    the one the single-fault levels (defaults) bound worst leaves misleading ``ok`` epochs (measured:
-    33); with pairs monitored (prior 1e-2) none: each epoch is bounded or detected."""
+    the one the single-fault levels (prior 1e-3, the former defaults) bound worst leaves misleading
+    ``ok`` epochs (measured: 33); with pairs monitored (prior 1e-2) none: each epoch is bounded or
+    detected."""
     cfg, data, truth = static
+    cfg = replace(cfg, max_simultaneous_faults=1, prior_fault_satellite=1e-3)
     T = data.time_gps_s.size
     full = np.flatnonzero(data.usable.sum(axis=0) == T)
     ramp = np.linspace(0.0, 40.0, T)
@@ -154,6 +157,7 @@ def test_two_simultaneous_biases_are_bounded_or_detected_with_pairs(static):
 def test_separation_levels_with_pairs_cover_the_single_levels(static):
     """Pairs add hypotheses: at the same prior the levels can only grow (and the budget shrink)."""
     cfg, data, _ = static
+    cfg = replace(cfg, max_simultaneous_faults=1)
     sol = solve_method(data, "wls", replace(cfg, integrity="off"))
     from gnss_cli.gnss.range_model import linearize
     rows = np.arange(0, 300, 10)
