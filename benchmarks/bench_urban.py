@@ -1,7 +1,7 @@
 """Integrity in street canyons: every method with integrity off and at its default, on simulated
 urban drives (both receiver profiles, fixed seeds), on tst2 and on smartloc-berlin, beside rnx2rtkp.
 
-    python benchmarks/bench_urban.py [--quick] [--seeds N] [--duration S]
+    python benchmarks/bench_urban.py [--quick] [--seeds N] [--duration S] [--out PATH]
 
 Cases:
 
@@ -333,6 +333,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="2 drives of 120 s and tst2 only")
     parser.add_argument("--seeds", type=int, default=10, help="simulated drives per receiver profile (seeds 1..N)")
     parser.add_argument("--duration", type=float, default=300.0, help="length of each drive, s")
+    parser.add_argument("--out", type=Path, default=OUT, help="JSON to write (default benchmarks/results/urban.json)")
     args = parser.parse_args()
     n_seeds, duration = (1, 120.0) if args.quick else (args.seeds, args.duration)
     t0 = time.perf_counter()
@@ -348,7 +349,7 @@ def main() -> None:
     for p, agg in summary.items():
         print(f"simulated {p}-profile drives, pooled: {json.dumps(agg, indent=None)}")
     if not args.quick:
-        OUT.write_text(json.dumps({
+        args.out.write_text(json.dumps({
             "title": "Integrity in street canyons",
             "command": "python benchmarks/bench_urban.py",
             "table": summary_table(entries, summary),
@@ -360,7 +361,7 @@ def main() -> None:
             "seeds": n_seeds, "duration_s": duration, "methods": METHODS, "settings": SETTINGS,
             "pooled": summary, "cases": entries, "seconds": time.perf_counter() - t0,
         }, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
-        print(f"wrote {OUT}", file=sys.stderr)
+        print(f"wrote {args.out}", file=sys.stderr)
 
 
 if __name__ == "__main__":

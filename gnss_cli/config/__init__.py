@@ -101,10 +101,12 @@ class ProcessingConfig:
     """An ``ok`` epoch whose VPL exceeds this (m) gets ``vpl_limit``; inf: no limit (see default.toml)."""
     integrity_risk: float = 1e-3
     """Probability per epoch that the error exceeds a protection level (solution separation)."""
-    prior_fault_satellite: float = 1e-3
+    prior_fault_satellite: float = 1e-2
     """Prior probability per epoch that one satellite's pseudorange is faulty."""
     prior_fault_constellation: float = 1e-4
     """Prior probability per epoch that a whole constellation is faulty."""
+    max_simultaneous_faults: int = 3
+    """Largest number of simultaneously faulty satellites the protection levels monitor (see default.toml)."""
     max_exclusions: int = 4
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
@@ -225,6 +227,8 @@ class ProcessingConfig:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
         if self.max_exclusions < 0:
             raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
+        if not 1 <= self.max_simultaneous_faults <= 3:
+            raise ConfigError(f"max_simultaneous_faults: expected 1, 2 or 3; received {self.max_simultaneous_faults}")
         if self.fde_min_dof < 2:
             raise ConfigError(f"fde_min_dof: expected >= 2 (one degree of freedom must remain to test the rest); "
                               f"received {self.fde_min_dof}")
@@ -354,7 +358,7 @@ _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
            "phase_sigma_m", "phase_slip_m")
-_INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "robust_max_iterations",
+_INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "max_simultaneous_faults", "robust_max_iterations",
          "chunk_epochs", "stream_above_epochs", "processes")
 
 

@@ -42,6 +42,22 @@ constellation, hypotheses whose subset cannot solve) and split ``1/4, 1/4, 1/2``
   ``VPL = PL_U``, ``HPL = hypot(PL_E, PL_N)`` (each horizontal axis bounded at half the
   horizontal risk, combined conservatively); infinite when ``P_nm >= integrity_risk``.
 
+Several faulty satellites (``max_simultaneous_faults = j_max``, default 1: the above): with
+satellite faults independent, each of probability ``p`` (``prior_fault_satellite``), the epoch
+also gets every subset of 2 (and 3) of its ``n`` used satellites as a hypothesis, of prior
+``p^j`` for ``j`` satellites (the classic single hypotheses keep ``p``), and the unmonitored
+probability becomes the binomial tail ``P(more than j_max faulty) = sum_{j > j_max} C(n, j) p^j
+(1-p)^(n-j)`` (:func:`unmonitored_probability`; ``j_max = 1`` gives the two-or-more term above).
+As in ARAIM only the subsets whose prior matters are monitored: an epoch monitors order ``j + 1``
+only while ``P(more than j)`` exceeds a tenth of ``integrity_risk`` (:func:`_monitored_order`),
+and no pairs when even ``j_max`` leaves more than the risk (its levels are infinite; the single
+hypotheses still test). A subset that empties a system fixes its clock, as the constellation
+hypotheses do. Subsets are combinations of each epoch's used satellites: the epochs are grouped
+by their count of used satellites and monitored order and solved in blocks of at most
+``_SUBSET_BUDGET`` epoch-hypotheses (memory bounded; ~800 pairs for 40 satellites). A pair or
+triple whose separation exceeds its threshold is a detection like any other: the epoch is
+``integrity_fail`` (the separation test decides no exclusion; the chi-square test does).
+
 A fault the test misses leaves the fault-free subset within ``K_md sigma_k`` of the truth and
 the full fix within ``T_k`` of that subset: the error stays within the level except with the
 allocated probability. The chi-square test decides the exclusions; an epoch whose separation
@@ -84,10 +100,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from functools import lru_cache
+from itertools import combinations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import chdtri, ndtri
+from scipy.special import bdtrc, chdtri, ndtri
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.range_model import ISB_CONSTRAINT_VAR_M2, linearize, width_groups
@@ -95,7 +112,7 @@ from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus,
 
 __all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold",
            "FixCheck", "check_fixes", "monitor_fixes", "Separation", "separate_subsets", "separation_levels",
-           "final_status"]
+           "final_status", "unmonitored_probability"]
 
 F64 = NDArray[np.float64]
 Solver = Callable[[EpochData, F64, F64], MethodSolution]
@@ -266,6 +283,41 @@ def _q_inverse(p: F64) -> F64:
     return -ndtri(p)
 
 
+def unmonitored_probability(n: NDArray[np.int64], p: float, order: NDArray[np.int64] | int) -> F64:
+    """Probability that more than ``order`` of ``n`` satellites are faulty at once, each
+    independently with probability ``p``: the binomial tail ``sum_{j > order} C(n, j) p^j (1-p)^(n-j)``
+    (:func:`scipy.special.bdtrc`; 0 when ``order >= n``).
+
+    >>> float(unmonitored_probability(np.array([2]), 0.1, 1)[0])  # both of two: 0.1^2
+    0.01...
+    """
+    n = np.asarray(n, dtype=np.int64)
+    order = np.broadcast_to(np.asarray(order, dtype=np.int64), n.shape)
+    out = bdtrc(np.minimum(order, np.maximum(n - 1, 0)), n, p)
+    return np.where(order >= n, 0.0, np.nan_to_num(out))
+
+
+_SUBSET_BUDGET = 12_000
+"""Epochs x hypotheses per stacked separation (:func:`separate_subsets` keeps ~15 ``(m, m)``
+arrays per pair: ~100 MB with seven unknowns)."""
+_MONITOR_SHARE = 0.1
+"""Faults of ``j + 1`` satellites are monitored (``max_simultaneous_faults`` permitting) while
+the probability of more than ``j`` exceeds this share of ``integrity_risk``."""
+
+
+def _monitored_order(n: NDArray[np.int64], config: ProcessingConfig) -> NDArray[np.int64]:
+    """Per epoch with ``n`` used satellites, the largest number of simultaneously faulty
+    satellites its hypotheses cover (module docstring, "Several faulty satellites")."""
+    p, risk = config.prior_fault_satellite, config.integrity_risk
+    order = np.ones(n.shape, dtype=np.int64)
+    for j in range(2, config.max_simultaneous_faults + 1):
+        more = (order == j - 1) & (unmonitored_probability(n, p, j - 1) > _MONITOR_SHARE * risk) & (n > j)
+        order = np.where(more, j, order)
+    # beyond the largest order the levels are infinite anyway: the single hypotheses (detection) suffice
+    hopeless = unmonitored_probability(n, p, order) >= risk
+    return np.where(hopeless, 1, order)
+
+
 def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
                       config: ProcessingConfig) -> tuple[F64, F64, NDArray[np.bool_]]:
     """ARAIM-style protection levels by solution separation, and the separation test, of
@@ -276,20 +328,60 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
     ``n_sat`` satellite rows, then (several systems) one clock constraint row per system.
     Returns ``hpl_m``, ``vpl_m`` (``(t,)``; inf when the unmonitored faults alone exceed
     ``integrity_risk``) and ``detected`` (some ``|Delta_k,q| > T_k,q``).
+
+    With ``max_simultaneous_faults > 1`` the epochs are grouped by their number of used
+    satellites and monitored order (:func:`_monitored_order`) and solved in blocks of at most
+    ``_SUBSET_BUDGET`` epoch-hypotheses; each subset of ``j`` satellites has the prior ``p^j``.
     """
     t, N, m = lin_A.shape
-    k = m - 3
     sat = mask[:, :n_sat]
-    sysid = np.argmax(lin_A[:, :n_sat, 3:], axis=2)  # (t, n): the clock column of each satellite row
-    members = sat[:, None, :] & (sysid[:, None, :] == np.arange(k)[None, :, None])  # (t, k, n)
-    count = members.sum(axis=2)  # (t, k)
+    n = sat.sum(axis=1)
+    single = _single_hypotheses(lin_A, sat, N, config)
+    order = _monitored_order(n, config) if config.max_simultaneous_faults > 1 else np.ones(t, dtype=np.int64)
+    if (order == 1).all():
+        return _levels(lin_A, q, mask, var, we, rot, n_sat, config, *single, order)
+    hpl, vpl, detected = np.empty(t), np.empty(t), np.zeros(t, dtype=bool)
+    groups = np.unique(np.stack([n, order], axis=1), axis=0)
+    for n_e, o in groups:
+        rows = np.flatnonzero((n == n_e) & (order == o))
+        combos = [np.array(list(combinations(range(int(n_e)), j)), dtype=np.intp).reshape(-1, j)
+                  for j in range(2, int(o) + 1)]
+        h = sum(c.shape[0] for c in combos) + single[0].shape[1]
+        step = max(1, _SUBSET_BUDGET // h)
+        for b in range(0, rows.size, step):
+            r = rows[b:b + step]
+            used = np.argsort(~sat[r], axis=1, kind="stable")[:, :n_e]  # (tb, n_e): rows of the used satellites
+            parts = [tuple(a[r] for a in single)]
+            for c in combos:
+                parts.append(_multi_hypotheses(lin_A[r], sat[r], used[:, c], N, config))
+            removed, fixed, candidate, prior = (np.concatenate(z, axis=1) for z in zip(*parts))
+            hpl[r], vpl[r], detected[r] = _levels(lin_A[r], q[r], mask[r], var[r], we[r], rot[r], n_sat, config,
+                                                  removed, fixed, candidate, prior, order[r])
+    return hpl, vpl, detected
+
+
+def _systems(lin_A: F64, sat: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.bool_], NDArray[np.int64]]:
+    """The clock column of each satellite row, the members ``(t, k, n)`` of each system, their counts."""
+    k = lin_A.shape[2] - 3
+    sysid = np.argmax(lin_A[:, :sat.shape[1], 3:], axis=2)
+    members = sat[:, None, :] & (sysid[:, None, :] == np.arange(k)[None, :, None])
+    return sysid, members, members.sum(axis=2)
+
+
+def _single_hypotheses(lin_A: F64, sat: NDArray[np.bool_], N: int, config: ProcessingConfig) -> tuple[
+        NDArray[np.bool_], F64, NDArray[np.bool_], F64]:
+    """Each used satellite and (several systems) each constellation: ``removed`` ``(t, h, N)``,
+    ``fixed`` ``(t, h, m)``, ``candidate`` ``(t, h)`` and ``prior`` ``(t, h)``."""
+    t, n_sat = sat.shape
+    m = lin_A.shape[2]
+    k = m - 3
+    sysid, members, count = _systems(lin_A, sat)
     h_sat = np.zeros((t, n_sat, N), dtype=bool)
     h_sat[:, np.arange(n_sat), np.arange(n_sat)] = sat
     fix_sat = np.zeros((t, n_sat, m))
     alone = sat & (np.take_along_axis(count, sysid, axis=1) == 1) & (k > 1)
     fix_sat[np.nonzero(alone)[0], np.nonzero(alone)[1], 3 + sysid[alone]] = 1.0
     p_sat, p_con = config.prior_fault_satellite, config.prior_fault_constellation
-    unseen_constellation = 0.0
     if k > 1:  # a constellation of two or more satellites, with another constellation present
         h_con = np.zeros((t, k, N), dtype=bool)
         h_con[:, :, :n_sat] = members
@@ -300,20 +392,50 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
         prior = np.concatenate([np.full(n_sat, p_sat), np.full(k, p_con)])
     else:  # one constellation: its own fault cannot be told from the others'
         removed, fixed, candidate, prior = h_sat, fix_sat, sat, np.full(n_sat, p_sat)
-        unseen_constellation = p_con
+    return removed, fixed, candidate, np.broadcast_to(prior, candidate.shape)
+
+
+def _multi_hypotheses(lin_A: F64, sat: NDArray[np.bool_], rows: NDArray[np.intp], N: int,
+                      config: ProcessingConfig) -> tuple[NDArray[np.bool_], F64, NDArray[np.bool_], F64]:
+    """The subsets ``rows`` ``(t, c, j)`` of ``j`` satellite rows each, as :func:`_single_hypotheses`
+    returns them; a system all of whose satellites are out has its clock fixed, prior ``p^j``."""
+    t, c, j = rows.shape
+    m = lin_A.shape[2]
+    k = m - 3
+    removed = np.zeros((t, c, N), dtype=bool)
+    for col in range(j):
+        removed[np.arange(t)[:, None], np.arange(c)[None, :], rows[..., col]] = True
+    fixed = np.zeros((t, c, m))
+    if k > 1:
+        _, members, count = _systems(lin_A, sat)
+        out = np.einsum("thn,tkn->thk", removed[..., :sat.shape[1]].astype(np.int64), members.astype(np.int64))
+        fixed[..., 3:] = ((out == count[:, None, :]) & (count[:, None, :] > 0)).astype(np.float64)
+    prior = np.full((t, c), config.prior_fault_satellite ** j)
+    return removed, fixed, np.ones((t, c), dtype=bool), prior
+
+
+def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
+            config: ProcessingConfig, removed: NDArray[np.bool_], fixed: F64, candidate: NDArray[np.bool_],
+            prior: F64, order: NDArray[np.int64]) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """The levels and the separation test of ``t`` epochs under the given hypotheses, the
+    satellite faults of more than ``order`` satellites unmonitored."""
+    t, N, m = lin_A.shape
+    k = m - 3
+    sat = mask[:, :n_sat]
+    unseen_constellation = config.prior_fault_constellation if k == 1 else 0.0
     sep = separate_subsets(lin_A, np.where(mask, q, 0.0), we, var, removed, fixed, 1.0 / ISB_CONSTRAINT_VAR_M2)
     active = candidate & sep.solvable
     n_h = active.sum(axis=1)
     n = sat.sum(axis=1)
-    # faults no hypothesis covers: two or more satellites at once, and the unsolvable hypotheses
-    multiple = 1.0 - (1.0 - p_sat) ** n - n * p_sat * (1.0 - p_sat) ** np.maximum(n - 1, 0)
+    # faults no hypothesis covers: more than `order` satellites at once, and the unsolvable hypotheses
+    multiple = unmonitored_probability(n, config.prior_fault_satellite, order)
     budget = config.integrity_risk - multiple - unseen_constellation - np.sum(np.where(candidate & ~active, prior, 0.0), axis=1)
     # E, N, U: half the risk and the false-alert probability vertically, a quarter to each horizontal axis
     share = np.array([0.25, 0.25, 0.5])
     ir = np.clip(budget, 1e-300, None)[:, None] * share  # (t, 3)
     k_ff = _q_inverse(ir / (2.0 * (n_h + 1))[:, None])
     k_fa = _q_inverse(config.integrity_pfa * share / (2.0 * np.maximum(n_h, 1))[:, None])  # (t, 3)
-    k_md = _q_inverse(np.minimum(0.5, ir[:, None, :] / (prior[None, :, None] * (n_h + 1)[:, None, None])))
+    k_md = _q_inverse(np.minimum(0.5, ir[:, None, :] / (prior[:, :, None] * (n_h + 1)[:, None, None])))
     pos = slice(0, 3)
     enu = lambda c: np.einsum("tij,thjk,tlk->thil", rot, c[..., pos, pos], rot)  # noqa: E731
     var_d = np.diagonal(enu(sep.cov_delta), axis1=2, axis2=3)

@@ -107,8 +107,10 @@ def _levels_by_loop(A, q, var, rot, cfg):
 
 def test_levels_equal_a_loop_over_the_hypotheses(data_0759):
     """rtklib-0759 (GPS only, 7-9 satellites): every epoch's HPL/VPL equals the hypothesis-by-
-    hypothesis computation, and the written hpl_m/vpl_m are those of the fix."""
-    cfg = load_config()
+    hypothesis computation, and the written hpl_m/vpl_m are those of the fix. Single faults at
+    the prior 1e-3 (the loop covers single-satellite hypotheses; the pairs and triples are checked
+    in test_integrity_multifault.py)."""
+    cfg = replace(load_config(), max_simultaneous_faults=1, prior_fault_satellite=1e-3)
     sol = solve_method(data_0759, "wls", cfg)
     rows = np.arange(0, 120, 7)
     lin = linearize(data_0759, rows, sol.x_ecef_m[rows], sol.clocks_m[rows], cfg)
@@ -144,7 +146,8 @@ def test_undetected_bias_stays_within_the_protection_levels(risk, prior, rate):
     epochs (0.07 %) with the defaults, 23 (0.4 %) with a risk of 0.2; the levels scaled by 0.8
     would give 46 (0.8 %) and 89 (1.5 %), by 0.5 431 (7.5 %). Held here to the allocation and to
     0.2 % (1 %), which a level 20 % too small breaks."""
-    cfg = replace(load_config(), integrity_risk=risk, prior_fault_satellite=prior, prior_fault_constellation=prior / 10)
+    cfg = replace(load_config(), integrity_risk=risk, prior_fault_satellite=prior, prior_fault_constellation=prior / 10,
+                  max_simultaneous_faults=1)  # the single-fault model the allocation below describes
     rng = np.random.default_rng(11)
     T, undetected, misleading, shrunk, allowed = 4000, 0, 0, 0, 0.0
     for n_sat in (7, 8, 10):
@@ -245,12 +248,15 @@ def test_alert_limit_flag_sets_both_keys_and_the_statuses(rinex_dir, tmp_path):
         run_config(None, {"alert_limit": "35"})
     d = rinex_dir / "rtklib-0759"
     out = tmp_path / "pos.csv"
-    res = CliRunner().invoke(solve_cli.app, [str(d / "07590920.05o"), str(d / "07590920.05n"), "--alert-limit", "36.9,inf",
-                                             "-o", str(out), "-q"])
+    # a limit inside the file's HPL range (the defaults' median; 36.9 m before the multi-fault levels)
+    limit = float(np.round(np.median(solve_method(load_epochs(d / "07590920.05o", [d / "07590920.05n"], load_config()),
+                                                  "wls", load_config()).hpl_m), 1))
+    res = CliRunner().invoke(solve_cli.app, [str(d / "07590920.05o"), str(d / "07590920.05n"), "--alert-limit",
+                                             f"{limit},inf", "-o", str(out), "-q"])
     assert res.exit_code == 0, res.output
     table = pd.read_csv(out)
     assert set(table["status"]) == {"ok", "hpl_limit"}
-    assert ((table["status"] == "hpl_limit") == (table["hpl_m"] > 36.9)).all()
+    assert ((table["status"] == "hpl_limit") == (table["hpl_m"] > limit)).all()
     from gnss_cli.cli.exits import run_app
 
     with pytest.raises(SystemExit) as bad:  # a bad value is a configuration error: exit 3
