@@ -101,11 +101,11 @@ class ProcessingConfig:
     """An ``ok`` epoch whose VPL exceeds this (m) gets ``vpl_limit``; inf: no limit (see default.toml)."""
     integrity_risk: float = 1e-3
     """Probability per epoch that the error exceeds a protection level (solution separation)."""
-    prior_fault_satellite: float = 1e-2
+    prior_fault_satellite: float = 1e-3
     """Prior probability per epoch that one satellite's pseudorange is faulty."""
     prior_fault_constellation: float = 1e-4
     """Prior probability per epoch that a whole constellation is faulty."""
-    max_simultaneous_faults: int = 3
+    max_simultaneous_faults: int = 1
     """Largest number of simultaneously faulty satellites the protection levels monitor (see default.toml)."""
     max_exclusions: int = 4
     fde_min_dof: int = 3
