@@ -34,8 +34,8 @@ from gnss_cli.config import load_config
 from gnss_cli.pipeline import process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_urban import RINEX, method_row, real_cases, simulated_cases  # noqa: E402
-from choose_cn0_weights import ESBC_REF  # noqa: E402
+from bench_urban import RINEX, method_row  # noqa: E402
+from choose_cn0_weights import training_cases as cn0_training_cases  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "choose_integrity_priors.json"
@@ -48,17 +48,13 @@ MIN_CLEAN_AVAILABILITY = 0.99
 
 
 def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool) -> list[tuple]:
-    """(name, obs, navs, systems, ref_at, keep_at) of the drives, tst2, Berlin and the clean sets."""
-    cases = [c[:6] for c in simulated_cases(seeds, duration_s, work) + real_cases(quick)]
-    every = lambda t: np.ones(t.size, bool)  # noqa: E731
+    """(name, obs, navs, systems, ref_at, keep_at) of the drives, tst2, Berlin, ESBC (the C/N0
+    choice's training cases) and rtklib-0759."""
+    cases = cn0_training_cases(work, seeds, duration_s, quick)
     r0759 = RINEX / "rtklib-0759"
     if r0759.is_dir():
-        cases.append(("rtklib-0759", r0759 / "07590920.05o", [r0759 / "07590920.05n"], None, lambda t: None, every))
-    esbc = RINEX / "esbc-2020177"
-    if esbc.is_dir() and not quick:
-        cases.append(("esbc", esbc / "ESBC00DNK_R_20201770000_01D_30S_MO.crx.gz",
-                      [esbc / "ESBC00DNK_R_20201770000_01D_MN.rnx.gz"], None,
-                      lambda t: np.broadcast_to(ESBC_REF, (t.size, 3)), every))
+        cases.append(("rtklib-0759", r0759 / "07590920.05o", [r0759 / "07590920.05n"], None, lambda t: None,
+                      lambda t: np.ones(t.size, bool)))
     return cases
 
 
