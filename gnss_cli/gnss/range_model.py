@@ -39,7 +39,7 @@ them, as RTKLIB.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -273,10 +273,15 @@ def pseudorange_variance_m2(
     ``[weights] cn0_model = "sigma-epsilon"``.
     """
     w = config.weights
+    var = _model_variance_m2(config, el_rad, ura_m, iono_m, efact)
     if w.cn0_model == "sigma-epsilon" and cn0_dbhz is not None:
-        plain = replace(config, weights=replace(w, cn0_model="off"))
-        return pseudorange_variance_m2(plain, el_rad, ura_m, iono_m, efact) + cn0_variance_m2(
-            cn0_dbhz, w.cn0_c_m2hz, w.cn0_ref_dbhz)
+        var = var + cn0_variance_m2(cn0_dbhz, w.cn0_c_m2hz, w.cn0_ref_dbhz)
+    return var
+
+
+def _model_variance_m2(config: ProcessingConfig, el_rad: F64, ura_m: F64, iono_m: F64, efact: F64 | float) -> F64:
+    """The ``[weights] model`` part of :func:`pseudorange_variance_m2` (m^2), without the C/N0 term."""
+    w = config.weights
     sin_el = np.sin(np.clip(el_rad, np.deg2rad(0.1), None))
     if w.model == "equal":
         return np.full_like(el_rad, w.a_m**2)
