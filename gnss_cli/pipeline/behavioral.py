@@ -334,7 +334,10 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         if fit.basis is not None and fit.basis.shape[2] > 0:
             dop_windows.append((seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis), mine))
     sol = finish_smoothing(data, wls, config, x_s, status, smoothed, dop_windows, method)
-    return with_paper_gdop(sol, segs, jobs, fits, opts.lag, opts.kernel), tuple(models)
+    sol, no_paper_gdop = with_paper_gdop(sol, segs, jobs, fits, opts.lag, opts.kernel)
+    for k, why in no_paper_gdop.items():  # the window's record says why its epochs have no gdop_paper
+        models[k] = replace(models[k], message=f"{models[k].message}; no paper STLS GDOP: {why}")
+    return sol, tuple(models)
 
 
 def finish_smoothing(data: EpochData, wls: MethodSolution, config: ProcessingConfig, x_s: F64, status: NDArray[np.str_],

@@ -428,13 +428,14 @@ class PaperGdopColumn:
         the identified kernel's parameters from the window's fixes, not a geometry DOP); NaN for an
         epoch no window supplied and for the epochs of a window where the formula is degenerate.
     n_windows : windows evaluated.
-    degenerate : ``(messages)`` one per window where the formula does not exist (nongeneric
-        ``H_p H_p^T - s^2 I``, lag 1 with the shared kernel's fixed root), in window order.
+    degenerate : ``((index, message), ...)`` one per window where the formula does not exist
+        (nongeneric ``H_p H_p^T - s^2 I``, lag 1 with the shared kernel's fixed root): its index
+        in the ``windows`` given, and why.
     """
 
     gdop_paper: F64
     n_windows: int
-    degenerate: tuple[str, ...]
+    degenerate: tuple[tuple[int, str], ...]
 
 
 def paper_stls_gdops(n_epochs: int, windows: Iterable[tuple[F64, NDArray[np.intp]]], lag: int,
@@ -463,7 +464,7 @@ def paper_stls_gdops(n_epochs: int, windows: Iterable[tuple[F64, NDArray[np.intp
         out of range.
     """
     out = np.full(int(n_epochs), np.nan)
-    degenerate: list[str] = []
+    degenerate: list[tuple[int, str]] = []
     n = 0
     for w, epochs in windows:
         e = np.asarray(epochs, dtype=np.intp)
@@ -473,14 +474,15 @@ def paper_stls_gdops(n_epochs: int, windows: Iterable[tuple[F64, NDArray[np.intp
         try:
             out[e] = paper_stls_gdop(*paper_stls_hankel(w, lag, structure)).gdop
         except DegeneratePaperGdopError as err:
-            degenerate.append(str(err))
+            degenerate.append((n - 1, str(err)))
     return PaperGdopColumn(out, n, tuple(degenerate))
 
 
 def with_paper_gdop(sol: Any, segs: Sequence[Any], jobs: Sequence[Any], fits: Sequence[Any], lag: int,
-                    structure: str) -> Any:
+                    structure: str) -> tuple[Any, dict[int, str]]:
     """``sol`` (an ``stls --lag L`` :class:`~gnss_cli.pipeline.results.MethodSolution`) with
-    ``gdop_paper`` from :func:`paper_stls_gdops`.
+    ``gdop_paper`` from :func:`paper_stls_gdops`, and why the formula does not exist for a window
+    (``{job index: message}``; the caller records it with the window).
 
     ``segs``, ``jobs``, ``fits``: the segments (``.w`` ENU fixes, ``.epochs``), windows (``.segment``,
     ``.a:.b`` the window, ``.lo:.hi`` the epochs it supplies, segment-local) and fits (``.w_hat``
@@ -490,7 +492,9 @@ def with_paper_gdop(sol: Any, segs: Sequence[Any], jobs: Sequence[Any], fits: Se
     present for these rows."""
     from dataclasses import replace
 
-    windows = [(segs[j.segment].w[j.a : j.b], segs[j.segment].epochs[j.lo : j.hi])
-               for j, f in zip(jobs, fits) if f.w_hat is not None]
-    col = paper_stls_gdops(sol.x_ecef_m.shape[0], windows, lag, structure).gdop_paper
-    return replace(sol, gdop_paper=np.where(np.all(np.isfinite(sol.x_ecef_m), axis=1), col, np.nan))
+    used = [k for k, f in enumerate(fits) if f.w_hat is not None]
+    windows = [(segs[jobs[k].segment].w[jobs[k].a : jobs[k].b], segs[jobs[k].segment].epochs[jobs[k].lo : jobs[k].hi])
+               for k in used]
+    col = paper_stls_gdops(sol.x_ecef_m.shape[0], windows, lag, structure)
+    degenerate = {used[i]: message for i, message in col.degenerate}
+    return replace(sol, gdop_paper=np.where(np.all(np.isfinite(sol.x_ecef_m), axis=1), col.gdop_paper, np.nan)), degenerate

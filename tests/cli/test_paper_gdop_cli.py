@@ -63,3 +63,21 @@ def test_stls_lag3_rows_have_the_papers_stls_gdop(tmp_path: Path, capsys: pytest
     assert not np.allclose(got, stls["gdop"].to_numpy(), rtol=0.05)
     summary = pd.read_csv(out / "summary.csv").set_index("method")
     assert summary.loc["stls", "mean_gdop_paper"] == pytest.approx(float(np.mean(got)), rel=1e-3, abs=1e-3)
+
+
+def test_a_window_without_the_formula_says_so_in_its_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Lag 1 with the shared kernel (the fixed root z = 1 leaves nothing identified): the formula
+    does not exist, so the cells are empty and every window's record in --model-out says why."""
+    import json
+
+    sim = tmp_path / "sim"
+    _run(simulate.app, "gnss-simulate", ["--duration", "40", "--interval", "1", "--systems", "G", "--seed", "3",
+                                         "--errors", "noise", "--out-dir", sim, "--quiet"])
+    out, model = tmp_path / "p.csv", tmp_path / "m.json"
+    _run(solve.app, "gnss-solve", [sim / "obs.rnx", sim / "nav.rnx", "--method", "wls,stls", "--lag", "1",
+                                   "-o", out, "--model-out", model, "-q"])
+    capsys.readouterr()
+    pos = pd.read_csv(out)
+    assert pos.loc[pos["method"] == "stls", "gdop_paper"].isna().all()
+    records = [w for w in json.loads(model.read_text())["windows"] if w["method"] == "stls"]
+    assert records and all("no paper STLS GDOP" in w["message"] for w in records)
