@@ -241,23 +241,95 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
 
     Notes
     -----
-    Removing rows changes the normal matrix ``N = A^T W_e A`` by the sum of their outer products,
-    ``N_k = N - sum_{i in S_k} w_i a_i a_i^T (+ fixed_weight e_j e_j^T)``, so every subset of every
-    epoch is formed from the ``(t, N, m, m)`` row products at once (one batched matmul) and
-    solved by a batched ``(m, m)`` solve: ``h`` is a few tens and ``m`` at most 3 + clocks.
+    Most hypotheses leave out one satellite row and fix nothing: for those the subset solution
+    follows from the full set's in closed form (:func:`_separate_one_row`, a rank-one downdate),
+    without forming or inverting a normal matrix per hypothesis. The others (constellations,
+    several satellites, a satellite alone in its system) are solved as a batch
+    (:func:`_separate_batched`). The two give the same numbers (tests compare both with explicit
+    least squares); the closed form takes the whole-run cost of the levels on a day of
+    multi-GNSS data from ~1.5 s to ~0.1 s (``benchmarks/bench_full_run.py``).
     """
     t, N, m = A.shape
-    D = (A[..., :, None] * A[..., None, :]).reshape(t, N, m * m)
+    h = removed.shape[1]
+    Aw = np.swapaxes(A * we[..., None], 1, 2)  # (t, m, N): A^T W_e
+    G0 = np.linalg.inv(Aw @ A)
+    V0 = (Aw * (we * var)[:, None, :]) @ A
+    x0 = np.einsum("tab,tb->ta", G0, np.einsum("tan,tn->ta", Aw, q))
+    P0 = G0 @ V0 @ G0
+    delta, cov_delta = np.zeros((t, h, m)), np.zeros((t, h, m, m))
+    cov_subset = np.broadcast_to(P0[:, None], (t, h, m, m)).copy()
+    solvable = np.ones((t, h), dtype=bool)
+    n_removed = removed.sum(axis=2)
+    one_row = (n_removed == 1) & ~fixed.any(axis=2)
+    ti, hi = np.nonzero(one_row)
+    if ti.size:
+        row = np.argmax(removed[ti, hi], axis=1)
+        d, cd, ck, ok = _separate_one_row(A[ti, row], q[ti, row], we[ti, row], var[ti, row], G0[ti], x0[ti], V0[ti],
+                                          P0[ti])
+        delta[ti, hi], cov_delta[ti, hi], cov_subset[ti, hi], solvable[ti, hi] = d, cd, ck, ok
+    ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
+    if ti.size:
+        sub = _separate_batched(A[ti], q[ti], we[ti], var[ti], removed[ti, hi][:, None], fixed[ti, hi][:, None],
+                                fixed_weight)
+        delta[ti, hi], cov_delta[ti, hi] = sub.delta[:, 0], sub.cov_delta[:, 0]
+        cov_subset[ti, hi], solvable[ti, hi] = sub.cov_subset[:, 0], sub.solvable[:, 0]
+    bad = ~solvable
+    delta[bad], cov_delta[bad], cov_subset[bad] = np.nan, np.nan, np.nan
+    return Separation(delta=delta, cov_delta=cov_delta, cov_subset=cov_subset, cov_full=P0, solvable=solvable)
+
+
+def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
+                      ) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
+    """Subsets that leave out one row each, in closed form: ``p`` cases of the row ``a``
+    (``(p, m)``), its right-hand side ``q``, estimator weight ``w`` and variance ``var``
+    (``(p,)``), and the full set's ``G0 = N0^-1``, solution ``x0``, ``V0 = A^T W_e Sigma W_e A``
+    and covariance ``P0``.
+
+    With ``u = G0 a``, ``s = a^T u`` and ``c = w / (1 - w s)`` (Sherman-Morrison:
+    ``N_k^-1 = G0 + c u u^T``), the subset minus the full solution is ``Delta = -c r u`` with the
+    row's residual ``r = q - a^T x0``; ``Delta = -c u l^T q`` for ``l = e_i - W_e A G0 a``, so
+    ``cov(Delta) = c^2 (l^T Sigma l) u u^T`` with ``l^T Sigma l = var (1 - 2 w s) + u^T V0 u``, and
+    the subset's covariance ``P_k = P0 + cov(Delta) - c (g u^T + u g^T)`` with
+    ``g = w var u - G0 V0 u`` (``cov(x0, Delta) = -c g u^T``). For ``W_e = Sigma^-1``, ``g = 0``
+    and ``cov(Delta) = c u u^T = P_k - P0``. A row the others cannot do without (``1 - w s``
+    below 1e-9) leaves a singular subset: not solvable.
+    """
+    u = np.einsum("pab,pb->pa", G0, a)
+    s = np.einsum("pa,pa->p", a, u)
+    rest = 1.0 - w * s
+    solvable = rest > 1e-9
+    c = np.where(solvable, w / np.where(solvable, rest, 1.0), np.nan)
+    r = q - np.einsum("pa,pa->p", a, x0)
+    delta = -(c * r)[:, None] * u
+    V0u = np.einsum("pab,pb->pa", V0, u)
+    spread = var * (1.0 - 2.0 * w * s) + np.einsum("pa,pa->p", u, V0u)
+    uu = u[:, :, None] * u[:, None, :]
+    cov_delta = (c * c * spread)[:, None, None] * uu
+    g = (w * var)[:, None] * u - np.einsum("pab,pb->pa", G0, V0u)
+    gu = g[:, :, None] * u[:, None, :]
+    cov_subset = P0 + cov_delta - c[:, None, None] * (gu + np.swapaxes(gu, 1, 2))
+    return delta, cov_delta, cov_subset, solvable
+
+
+def _separate_batched(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,
+                      fixed_weight: float) -> Separation:
+    """:func:`separate_subsets` by forming every subset's normal matrix
+    ``N_k = A^T W_e,k A (+ fixed_weight e_j e_j^T)``, ``W_e,k`` the estimator weights with the
+    left-out rows at 0, by batched ``(m, N) x (N, m)`` products, and inverting it (``m`` at most
+    3 + clocks)."""
+    t, N, m = A.shape
+    keep = ~removed
     wv = we * we * var
-    N0 = np.einsum("tn,tnk->tk", we, D).reshape(t, m, m)
-    V0 = np.einsum("tn,tnk->tk", wv, D).reshape(t, m, m)
+    AT = np.swapaxes(A, 1, 2)  # (t, m, N)
+    N0 = (AT * we[:, None, :]) @ A
+    V0 = (AT * wv[:, None, :]) @ A
     b0 = np.einsum("tn,tna->ta", we * q, A)
-    rem = removed.astype(np.float64)
+    wk = we[:, None, :] * keep  # (t, h, N)
     E = fixed[..., :, None] * np.eye(m) * fixed_weight  # (t, h, m, m)
-    Nk = N0[:, None] - ((rem * we[:, None, :]) @ D).reshape(t, -1, m, m) + E
-    Xk = V0[:, None] - ((rem * wv[:, None, :]) @ D).reshape(t, -1, m, m)  # K_k Sigma W_e A without the new rows
+    Nk = (AT[:, None] * wk[:, :, None, :]) @ A[:, None] + E
+    Xk = (AT[:, None] * (wv[:, None, :] * keep)[:, :, None, :]) @ A[:, None]  # K_k Sigma W_e A without the new rows
     Vk = Xk + E  # the pseudo-observations: weight^2 * variance = weight
-    bk = b0[:, None] - np.einsum("thn,tna->tha", rem * (we * q)[:, None, :], A)
+    bk = np.einsum("thn,tna->tha", wk * q[:, None, :], A)
     scale = np.sqrt(np.clip(np.diagonal(Nk, axis1=2, axis2=3), 1e-300, None))
     unit = Nk / scale[..., :, None] / scale[..., None, :]
     solvable = (np.diagonal(Nk, axis1=2, axis2=3) > 0).all(axis=2) & np.isfinite(unit).all(axis=(2, 3))
@@ -338,9 +410,14 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
     n = sat.sum(axis=1)
     single = _single_hypotheses(lin_A, sat, N, config)
     order = _monitored_order(n, config) if config.max_simultaneous_faults > 1 else np.ones(t, dtype=np.int64)
-    if (order == 1).all():
-        return _levels(lin_A, q, mask, var, we, rot, n_sat, config, *single, order)
     hpl, vpl, detected = np.empty(t), np.empty(t), np.zeros(t, dtype=bool)
+    if (order == 1).all():  # in blocks of epochs: memory bounded by _SUBSET_BUDGET
+        step = max(1, _SUBSET_BUDGET // max(single[0].shape[1], 1))
+        for b in range(0, t, step):
+            r = slice(b, b + step)
+            hpl[r], vpl[r], detected[r] = _levels(lin_A[r], q[r], mask[r], var[r], we[r], rot[r], n_sat, config,
+                                                  *(a[r] for a in single), order[r])
+        return hpl, vpl, detected
     groups = np.unique(np.stack([n, order], axis=1), axis=0)
     for n_e, o in groups:
         rows = np.flatnonzero((n == n_e) & (order == o))
@@ -414,6 +491,13 @@ def _multi_hypotheses(lin_A: F64, sat: NDArray[np.bool_], rows: NDArray[np.intp]
     return removed, fixed, np.ones((t, c), dtype=bool), prior
 
 
+def _enu_variances(rot: F64, cov: F64) -> F64:
+    """East, north and up variances ``(t, h, 3)`` of ECEF position covariances ``cov``
+    ``(t, h, 3, 3)``: the diagonal of ``R C R^T`` for the rotations ``rot`` ``(t, 3, 3)``."""
+    R = rot[:, None]
+    return np.sum((R @ cov) * R, axis=3)
+
+
 def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
             config: ProcessingConfig, removed: NDArray[np.bool_], fixed: F64, candidate: NDArray[np.bool_],
             prior: F64, order: NDArray[np.int64]) -> tuple[F64, F64, NDArray[np.bool_]]:
@@ -437,10 +521,9 @@ def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot:
     k_fa = _q_inverse(config.integrity_pfa * share / (2.0 * np.maximum(n_h, 1))[:, None])  # (t, 3)
     k_md = _q_inverse(np.minimum(0.5, ir[:, None, :] / (prior[:, :, None] * (n_h + 1)[:, None, None])))
     pos = slice(0, 3)
-    enu = lambda c: np.einsum("tij,thjk,tlk->thil", rot, c[..., pos, pos], rot)  # noqa: E731
-    var_d = np.diagonal(enu(sep.cov_delta), axis1=2, axis2=3)
-    var_k = np.diagonal(enu(sep.cov_subset), axis1=2, axis2=3)
-    var_0 = np.diagonal(enu(sep.cov_full[:, None]), axis1=2, axis2=3)[:, 0]
+    var_d = _enu_variances(rot, sep.cov_delta[..., pos, pos])
+    var_k = _enu_variances(rot, sep.cov_subset[..., pos, pos])
+    var_0 = _enu_variances(rot, sep.cov_full[:, None, pos, pos])[:, 0]
     d_enu = np.einsum("tij,thj->thi", rot, sep.delta[..., pos])
     thr = k_fa[:, None, :] * np.sqrt(np.clip(var_d, 0.0, None))
     detected = (active[..., None] & (np.abs(d_enu) > thr)).any(axis=(1, 2))
