@@ -85,6 +85,7 @@ from scipy.stats import norm
 
 from gnss_cli.behavior import StlsStatus
 from gnss_cli.behavior.batch import identify_windows
+from gnss_cli.behavior.kernel import shared_kernel_coefficients
 from gnss_cli.behavior.behavior_solve import behavior_misfit, shared_modes, solve_in_behavior
 from gnss_cli.behavior.multi_epoch import shared_behavior_bases
 from gnss_cli.behavior.records import shared_kernel_records
@@ -296,7 +297,9 @@ def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: in
     sig = 0.5 * (sig + np.swapaxes(sig, -1, -2))
     good = np.all(np.isfinite(w), axis=(1, 2)) & np.all(np.isfinite(sig), axis=(1, 2, 3))
     out = np.full((n_b, lag + 1), np.nan)
-    if good.any():
+    if lag == 1:  # the root at 1 is the whole kernel, z - 1: nothing to identify (and no dense window projection)
+        out[good] = shared_kernel_coefficients((1.0,))
+    elif good.any():
         fits = identify_windows(w[good], lag, sig[good], fixed_roots=(1.0,), tol=tol, max_iter=max_iter)
         out[good] = np.where((fits.status >= 0)[:, None], fits.r, np.nan)
     return out

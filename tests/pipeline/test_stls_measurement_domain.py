@@ -177,3 +177,21 @@ def test_settings_name_the_measurements_used(noisy: Path) -> None:
     assert s.estimator == "identified Hankel STLS (measurement domain, alternation)"
     assert s.measurements == "pseudorange+doppler"
     assert method_settings(replace(cfg, measurements=("pseudorange",)), True, False)["stls"].measurements == "pseudorange"
+
+
+def test_lag_one_is_the_static_kernel_without_an_identification(noisy: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ``--lag 1`` the shared kernel's root at 1 is the whole kernel, ``z - 1``: the windows
+    are solved in it without running the identification (whose dense window projection took a
+    whole-day ``--window 0`` run to 12 GB), and every window's record holds exactly ``[-1, 1]``."""
+    import gnss_cli.pipeline.identified as identified
+
+    def refuse(*args, **kwargs):  # type: ignore[no-untyped-def]
+        raise AssertionError("lag 1 needs no identification")
+
+    monkeypatch.setattr(identified, "identify_windows", refuse)
+    cfg, data, wls, _ = _load(noisy, "pseudorange")
+    cfg = replace(cfg, stls=replace(cfg.stls, lag=1, window=0))
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    assert models and all(np.array_equal(np.asarray(m.kernel.shared_coefficients), [-1.0, 1.0]) for m in models
+                          if m.kernel is not None)
+    assert np.isfinite(sol.x_ecef_m[sol.status == "ok"]).all() and (sol.status == "ok").sum() > 0
