@@ -170,6 +170,24 @@ def test_quiet_runs_write_nothing_on_stderr(tmp_path: Path) -> None:
         assert proc.returncode == 0 and proc.stderr.startswith(f"{command}: "), (command, proc.stderr)
 
 
+def test_quiet_runs_still_report_errors(tmp_path: Path) -> None:
+    """``-q`` silences progress and summaries, never the error: each command given a missing
+    input exits 4 with a line naming it on stderr (gnss-batch: the file's line and the count)."""
+    nav = str(SAMPLE / "nav.rnx")
+    runs = {
+        "gnss-simulate": ["--trajectory", "csv:nosuch.csv", "--out-dir", "sim"],
+        "gnss-solve": ["nosuch.rnx", nav],
+        "gnss-identify": ["nosuch.csv"],
+        "gnss-batch": ["nosuch.rnx", "--nav", nav, "--out", "batch", "-j", "1"],
+    }
+    for command, args in runs.items():
+        proc = _run(command, [*args, "-q"], tmp_path)
+        assert proc.returncode == 4 and "nosuch" in proc.stderr, (command, proc.returncode, proc.stderr)
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 2 and "nosuch.rnx: failed (exit 4)" in lines[0], lines
+    assert lines[1].startswith("gnss-batch: 0 of 1 files solved, 1 failed"), lines
+
+
 def test_docs_quote_the_help_as_printed(tmp_path: Path) -> None:
     """docs/cli.md's copy of ``gnss-solve --help`` is what the command prints at 80 columns."""
     doc = (REPO / "docs" / "cli.md").read_text()
