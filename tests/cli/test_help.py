@@ -188,6 +188,20 @@ def test_quiet_runs_still_report_errors(tmp_path: Path) -> None:
     assert lines[1].startswith("gnss-batch: 0 of 1 files solved, 1 failed"), lines
 
 
+@pytest.mark.parametrize(("command", "typo", "offered", "retired"), [
+    ("gnss-solve", "--mehtod", "(Possible options: --method)", "--model"),
+    ("gnss-solve", "--modle", "--kf-model", "--model"),
+    ("gnss-batch", "--smoothr", "", "--smoother"),
+])
+def test_a_misspelt_flag_is_never_offered_a_retired_spelling(command: str, typo: str, offered: str, retired: str,
+                                                             tmp_path: Path) -> None:
+    """Click suggests the close matches among the options; a retired spelling (hidden, it exits 2
+    itself) is not among them, and the mistake stays a usage error."""
+    proc = _run(command, [str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx"), typo, "x"], tmp_path)
+    assert proc.returncode == 2 and f"No such option: {typo}" in proc.stderr, proc.stderr
+    assert offered in proc.stderr and not re.search(rf"[ (]{retired}\b", proc.stderr), proc.stderr
+
+
 def test_docs_quote_the_help_as_printed(tmp_path: Path) -> None:
     """docs/cli.md's copy of ``gnss-solve --help`` is what the command prints at 80 columns."""
     doc = (REPO / "docs" / "cli.md").read_text()
