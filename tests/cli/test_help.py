@@ -153,6 +153,26 @@ def test_every_example_runs(tmp_path: Path) -> None:
     assert (summary["epochs_with_reference"] == summary["epochs"]).all() and summary.loc["wls", "rms_3d_m"] < 5
 
 
+def test_identify_example_fits_a_drawn_flight_too(tmp_path: Path) -> None:
+    """The chain of the examples on ``--trajectory flight`` (a path drawn from --seed), where a
+    full lag-3 kernel is singular: the gnss-identify example (``--structure shared``) still runs,
+    and without it the error is one plain sentence saying what to try."""
+    sim = _run("gnss-simulate", ["--trajectory", "flight", "--duration", "300", "--interval", "1", "--out-dir", "flight",
+                                 "-q"], tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    solve_args = next(a for a in examples(_run("gnss-solve", ["--help"], tmp_path).stdout, "gnss-solve")
+                      if "flight.csv" in a)
+    assert _run("gnss-solve", [*solve_args, "-q"], tmp_path).returncode == 0
+    (identify_args,) = examples(_run("gnss-identify", ["--help"], tmp_path).stdout, "gnss-identify")
+    proc = _run("gnss-identify", identify_args, tmp_path)
+    assert proc.returncode == 0 and (tmp_path / "predicted.csv").is_file(), proc.stderr
+    k = identify_args.index("--structure")
+    full = _run("gnss-identify", [*identify_args[:k], *identify_args[k + 2:]], tmp_path)
+    assert full.returncode == 5 and full.stderr.count("\n") == 1, full.stderr
+    assert full.stderr.startswith("gnss-identify: error: stls: no full lag-3 kernel can be fitted to these 200 samples")
+    assert full.stderr.endswith("; try --structure shared, a smaller --lag or a longer --train\n"), full.stderr
+
+
 def test_quiet_runs_write_nothing_on_stderr(tmp_path: Path) -> None:
     obs, nav = str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx")
     runs = {
