@@ -52,7 +52,8 @@ class PanelCommand(typer.core.TyperCommand):
         try:
             return super().parse_args(ctx, args)
         except no_such_option as exc:
-            hidden = {o for p in self.get_params(ctx) if getattr(p, "hidden", False) for o in (*p.opts, *p.secondary_opts)}
+            hidden = {o for p in self.get_params(ctx) if getattr(p, "hidden", False)
+                      for o in (*p.opts, *p.secondary_opts)}
             if not hidden & set(exc.possibilities or ()):
                 raise
             shown = [o for o in exc.possibilities or () if o not in hidden]

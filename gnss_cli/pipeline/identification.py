@@ -135,7 +135,9 @@ def identify_trajectory(
     if not np.isfinite(res.misfit):  # no starting kernel gave a regular weighted problem
         tries = (["--structure shared"] if structure == "full" else []) + (["a smaller --lag"] if lag > 1 else []) \
             + (["a longer --train"] if k < n_t else [])
-        hint = "" if not tries else "; try " + (tries[0] if len(tries) == 1 else f"{', '.join(tries[:-1])} or {tries[-1]}")
+        if len(tries) > 1:
+            tries = [f"{', '.join(tries[:-1])} or {tries[-1]}"]
+        hint = f"; try {tries[0]}" if tries else ""
         raise NoSolutionError(f"{method}: no {structure} lag-{lag} kernel can be fitted to these {k} samples "
                               f"(the problem is numerically singular){hint}")
     fit = res.w_hat

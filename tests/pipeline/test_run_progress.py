@@ -22,7 +22,8 @@ def test_multi_epoch_progress_reaches_100_percent_only_when_the_last_method_is_d
     run = Run(SAMPLE / "obs.rnx", [SAMPLE / "nav.rnx"], replace(config, chunk_epochs=chunk, stream_above_epochs=chunk),
               lambda stage, fraction: calls.append((stage, fraction)))
     assert sum(p is not RESTART for p in run.parts()) >= 1
-    multi = [(stage, fraction) for stage, fraction in calls if stage.endswith(": solving") and not stage.startswith("part")]
+    multi = [(stage, fraction) for stage, fraction in calls
+             if stage.endswith(": solving") and not stage.startswith("part")]
     # the sample's 121 epochs are one piece of the multi-epoch methods (shorter than their margins)
     assert multi == [("kf: solving", 0.0), ("smoother: solving", pytest.approx(1 / 3)),
                      ("stls: solving", pytest.approx(2 / 3)), ("stls: solving", 1.0)]
