@@ -9,7 +9,8 @@ status, epochs, solved, 3D RMS with a reference, seconds, error) and ``DIR/summa
 written together or not at all; ``--plots DIR`` / ``--report FILE.html`` add the network's
 figures and one page with a row per station. A failing file never stops the others; the exit code is 0
 when every file was solved, else the code of the first failed file in the order given.
-Progress: one line per finished file on stderr.
+Progress: one line per finished file on stderr (with ``-q`` only the failed files' lines and
+the closing count of failures: quiet silences progress, never errors).
 """
 
 from __future__ import annotations
@@ -259,14 +260,15 @@ def nav_spans(nav_paths: list[Path], quiet: bool) -> tuple[tuple[str, float, flo
 
 
 def _run_all(stream: Any, total: int, dataset: Any, quiet: bool) -> list[Any]:
-    """Store each result as it arrives (its rows into the dataset) and report it on stderr."""
+    """Store each result as it arrives (its rows into the dataset) and report it on stderr (with
+    ``quiet``, only a failed one)."""
     t0 = time.perf_counter()
     results = []
     try:
         for result in stream:
             dataset.add(result)
             results.append(result)
-            if not quiet:
+            if not quiet or result.status != "ok":
                 sys.stderr.write(_progress_line(result, len(results), total, time.perf_counter() - t0))
                 sys.stderr.flush()
     finally:
@@ -326,14 +328,16 @@ def _stage_network(outputs: Any, targets: dict[str, Path], results: list[Any], c
 
 def _finish(results: list[Any], out: Path, quiet: bool, written: list[tuple[Path, str]]) -> int:
     """The closing lines (the files solved, then the outputs written) and the exit code: 0, or
-    that of the first failed file in input order."""
+    that of the first failed file in input order. With ``quiet`` only the count line, and only
+    when a file failed."""
     from gnss_cli.cli.tables import written_lines
 
     failures = sorted((r for r in results if r.status != "ok"), key=lambda r: r.index)
-    if not quiet:
+    if not quiet or failures:
         ok = len(results) - len(failures)
         tail = f", {len(failures)} failed (errors in {out / 'files.csv'})" if failures else ""
         sys.stderr.write(f"{PROG}: {ok} of {len(results)} files solved{tail}; results in {out}\n")
+    if not quiet:
         sys.stderr.write("".join(f"{line}\n" for line in written_lines(written, PROG)))
     return failures[0].exit_code if failures else 0
 

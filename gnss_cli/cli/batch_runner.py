@@ -24,7 +24,8 @@ from typing import Any, Optional
 from gnss_cli.cli.batch_task import SINGLE_THREAD_ENV, BatchSettings, FileResult, failed, init_worker, run_file, warm_up
 from gnss_cli.errors import ConfigError
 
-CLUSTER_HINT = "pip install 'gnss-solve[cluster]'"
+CLUSTER_HINT = "pip install 'gnss-solve[cluster]' (from a clone: pip install -e '.[cluster]')"
+"""How to install the optional Dask dependency, for an installed package and for a clone."""
 CONNECT_TIMEOUT_S = 5.0
 
 

@@ -12,11 +12,14 @@ Click's plain-text formatter and :class:`PanelCommand` writes the panels with it
   they are (``OBS NAV...``, not ``[OBS NAV [NAV]...]...``);
 - defaults read ``[default: wls]`` (the packaged value as written on the command line);
 - the epilog (the examples) is printed line for line, not re-wrapped, so an example can be
-  copied as it stands.
+  copied as it stands;
+- a misspelt flag is answered with the close matches among the shown options only: a hidden
+  option (a retired spelling such as ``--model``, which exits 2 itself) is never suggested.
 """
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import typer.core
@@ -42,6 +45,19 @@ class PanelCommand(typer.core.TyperCommand):
             if param.param_type_name == "argument" and not getattr(param, "hidden", False):
                 pieces.append(param.metavar or param.name.upper())
         return pieces
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        """Click's parsing, with hidden options left out of a misspelt flag's suggestions."""
+        no_such_option = sys.modules[typer.BadParameter.__module__].NoSuchOption  # (the Click this Typer uses)
+        try:
+            return super().parse_args(ctx, args)
+        except no_such_option as exc:
+            hidden = {o for p in self.get_params(ctx) if getattr(p, "hidden", False)
+                      for o in (*p.opts, *p.secondary_opts)}
+            if not hidden & set(exc.possibilities or ()):
+                raise
+            shown = [o for o in exc.possibilities or () if o not in hidden]
+            raise no_such_option(exc.option_name, exc.message, shown or None, exc.ctx) from None
 
     def format_options(self, ctx: Any, formatter: Any) -> None:
         """One section per panel (:data:`PANELS` order; an unnamed panel: ``Arguments`` / ``Options``)."""

@@ -27,10 +27,11 @@ from gnss_cli.errors import ConfigError
 
 EXAMPLES = """\
 Examples:
-  A lag-3 kernel from the first 200 stls fixes of a gnss-solve CSV, then the
-  next 60 epochs predicted:
-    gnss-identify flight.csv --source-method stls --lag 3 --train 200 \\
-        --predict 60 -o predicted.csv --model-out model.json
+  A lag-3 kernel shared by East, North and Up (--structure shared: it fits
+  flights where a full kernel is singular) from the first 200 stls fixes of
+  gnss-solve's flight.csv example, then the next 60 epochs predicted:
+    gnss-identify flight.csv --source-method stls --lag 3 --structure shared \\
+        --train 200 --predict 60 -o predicted.csv --model-out model.json
 """
 """The epilog of ``gnss-identify --help`` (``tests/cli/test_help.py`` runs every example)."""
 

@@ -117,7 +117,7 @@ def identify_trajectory(
     InputError
         Fewer than ``lag + 2`` training samples.
     NoSolutionError
-        The identification failed, or the kernel cannot predict.
+        The identification failed (one sentence saying what to try), or the kernel cannot predict.
     """
     n_t = traj.xyz_m.shape[0]
     k = n_t if train is None else train
@@ -132,8 +132,14 @@ def identify_trajectory(
     enu = ecef2enu(traj.xyz_m[:k], origin)
     solver = stls if method == "stls" else wtls
     res = solver(enu, lag, order, structure=structure)
-    if not np.isfinite(res.misfit):
-        raise NoSolutionError(f"{method}: {res.message}")
+    if not np.isfinite(res.misfit):  # no starting kernel gave a regular weighted problem
+        tries = (["--structure shared"] if structure == "full" else []) + (["a smaller --lag"] if lag > 1 else []) \
+            + (["a longer --train"] if k < n_t else [])
+        if len(tries) > 1:
+            tries = [f"{', '.join(tries[:-1])} or {tries[-1]}"]
+        hint = f"; try {tries[0]}" if tries else ""
+        raise NoSolutionError(f"{method}: no {structure} lag-{lag} kernel can be fitted to these {k} samples "
+                              f"(the problem is numerically singular){hint}")
     fit = res.w_hat
     rows_enu = [fit]
     kinds = ["fit"] * k

@@ -123,9 +123,13 @@ class MultiEpoch:
         self.kept: RunResult | None = None
         self.pending = 0  # index in ``kept`` of the first epoch not yet handed out
 
-    def push(self, part: RunResult | None, last: bool = False) -> RunResult | None:
+    def push(self, part: RunResult | None, last: bool = False,
+             report: Callable[[str, float], None] | None = None) -> RunResult | None:
         """Add ``part`` (None: nothing more) and return the epochs now final, or None.
-        ``last``: the file ends with this part."""
+        ``last``: the file ends with this part. ``report(method, epochs)`` is called as each
+        method starts and once after the last one, with the epochs of this call's output done
+        so far (each method counts for an equal share of them: ``0`` at the first method, all
+        of them at the end)."""
         if part is None and self.kept is None:
             return None
         buf = self.kept if part is None else part if self.kept is None else concat_results([self.kept, part])
@@ -141,10 +145,15 @@ class MultiEpoch:
         models = []
         t = buf.epochs.time_gps_s
         first, final = (t[start], t[end - 1]) if end > start else (np.inf, -np.inf)
-        for m in self.config.multi_epoch_methods:
+        methods = self.config.multi_epoch_methods
+        for i, m in enumerate(methods):
+            if report is not None:
+                report(m, (end - start) * i / len(methods))
             sol, found = solve_multi_epoch(m, buf.epochs, buf.solutions["wls"], self.config, self.factors)
             solutions[m] = take_solution(sol, slice(start, end))
             models += [w for w in found if first <= w.start_time_gps_s <= final]  # each window once
+        if report is not None:
+            report(methods[-1], float(end - start))
         keep_from = max(0, end - self.margin)
         self.kept = None if last else take_result(buf, slice(keep_from, None), copy=True)
         self.pending = end - keep_from
@@ -460,20 +469,26 @@ class Run:
         cov: Coverage | None = None
         counts: dict[str, dict[str, int]] = {}
         done = 0
+        handed = 0  # epochs the multi-epoch methods have finished
+        total = max(n_epochs, 1)
+
+        def report(method: str, epochs: float) -> None:
+            """A multi-epoch method's progress: the epochs it and those before it have finished."""
+            if self.progress:
+                self.progress(f"{method}: solving", (handed + epochs) / total)
         for k, (data, part_cov, last) in enumerate(self._epochs(setup, systems, sv, used, pieces)):
             cov = part_cov if cov is None else cov.merge(part_cov)
             if self.progress:
-                self.progress(f"part {k + 1}: solving" if pieces is None else "solving", done / max(n_epochs, 1))
+                self.progress(f"part {k + 1}: solving" if pieces is None else "solving", done / total)
             solutions = solve_methods(data, snapshot)
             _add_counts(counts, status_counts(solutions))
             done += data.time_gps_s.size
             part = RunResult(data, solutions)
             del data, solutions
-            if multi is not None and self.progress:
-                self.progress(f"{', '.join(config.multi_epoch_methods)}: solving", done / max(n_epochs, 1))
-            out = multi.push(part, last) if multi is not None else part
+            out = multi.push(part, last, report) if multi is not None else part
             del part
             if out is not None:
+                handed += out.epochs.time_gps_s.size
                 yield finish(with_velocity(with_settings(out, config), config))
             del out  # before the next part is read: one part in memory at a time
         assert cov is not None

@@ -60,8 +60,8 @@ NETWORK_FIGURES = {
 }
 """The figures of ``gnss-batch --plots``: file stem -> caption."""
 
-PLOT_EXTRA_HINT = "pip install 'gnss-solve[plot]'"
-"""How to install the optional plotting dependency."""
+PLOT_EXTRA_HINT = "pip install 'gnss-solve[plot]' (from a clone: pip install -e '.[plot]')"
+"""How to install the optional plotting dependency, for an installed package and for a clone."""
 
 
 def require_matplotlib(option: str) -> None:

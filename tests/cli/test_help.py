@@ -153,6 +153,26 @@ def test_every_example_runs(tmp_path: Path) -> None:
     assert (summary["epochs_with_reference"] == summary["epochs"]).all() and summary.loc["wls", "rms_3d_m"] < 5
 
 
+def test_identify_example_fits_a_drawn_flight_too(tmp_path: Path) -> None:
+    """The chain of the examples on ``--trajectory flight`` (a path drawn from --seed), where a
+    full lag-3 kernel is singular: the gnss-identify example (``--structure shared``) still runs,
+    and without it the error is one plain sentence saying what to try."""
+    sim = _run("gnss-simulate", ["--trajectory", "flight", "--duration", "300", "--interval", "1", "--out-dir", "flight",
+                                 "-q"], tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    solve_args = next(a for a in examples(_run("gnss-solve", ["--help"], tmp_path).stdout, "gnss-solve")
+                      if "flight.csv" in a)
+    assert _run("gnss-solve", [*solve_args, "-q"], tmp_path).returncode == 0
+    (identify_args,) = examples(_run("gnss-identify", ["--help"], tmp_path).stdout, "gnss-identify")
+    proc = _run("gnss-identify", identify_args, tmp_path)
+    assert proc.returncode == 0 and (tmp_path / "predicted.csv").is_file(), proc.stderr
+    k = identify_args.index("--structure")
+    full = _run("gnss-identify", [*identify_args[:k], *identify_args[k + 2:]], tmp_path)
+    assert full.returncode == 5 and full.stderr.count("\n") == 1, full.stderr
+    assert full.stderr.startswith("gnss-identify: error: stls: no full lag-3 kernel can be fitted to these 200 samples")
+    assert full.stderr.endswith("; try --structure shared, a smaller --lag or a longer --train\n"), full.stderr
+
+
 def test_quiet_runs_write_nothing_on_stderr(tmp_path: Path) -> None:
     obs, nav = str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx")
     runs = {
@@ -168,6 +188,38 @@ def test_quiet_runs_write_nothing_on_stderr(tmp_path: Path) -> None:
         args = [a.replace("sim", "sim2").replace("identified", "identified2") for a in runs[command]]
         proc = _run(command, args, tmp_path)
         assert proc.returncode == 0 and proc.stderr.startswith(f"{command}: "), (command, proc.stderr)
+
+
+def test_quiet_runs_still_report_errors(tmp_path: Path) -> None:
+    """``-q`` silences progress and summaries, never the error: each command given a missing
+    input exits 4 with a line naming it on stderr (gnss-batch: the file's line and the count)."""
+    nav = str(SAMPLE / "nav.rnx")
+    runs = {
+        "gnss-simulate": ["--trajectory", "csv:nosuch.csv", "--out-dir", "sim"],
+        "gnss-solve": ["nosuch.rnx", nav],
+        "gnss-identify": ["nosuch.csv"],
+        "gnss-batch": ["nosuch.rnx", "--nav", nav, "--out", "batch", "-j", "1"],
+    }
+    for command, args in runs.items():
+        proc = _run(command, [*args, "-q"], tmp_path)
+        assert proc.returncode == 4 and "nosuch" in proc.stderr, (command, proc.returncode, proc.stderr)
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 2 and "nosuch.rnx: failed (exit 4)" in lines[0], lines
+    assert lines[1].startswith("gnss-batch: 0 of 1 files solved, 1 failed"), lines
+
+
+@pytest.mark.parametrize(("command", "typo", "offered", "retired"), [
+    ("gnss-solve", "--mehtod", "(Possible options: --method)", "--model"),
+    ("gnss-solve", "--modle", "--kf-model", "--model"),
+    ("gnss-batch", "--smoothr", "", "--smoother"),
+])
+def test_a_misspelt_flag_is_never_offered_a_retired_spelling(command: str, typo: str, offered: str, retired: str,
+                                                             tmp_path: Path) -> None:
+    """Click suggests the close matches among the options; a retired spelling (hidden, it exits 2
+    itself) is not among them, and the mistake stays a usage error."""
+    proc = _run(command, [str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx"), typo, "x"], tmp_path)
+    assert proc.returncode == 2 and f"No such option: {typo}" in proc.stderr, proc.stderr
+    assert offered in proc.stderr and not re.search(rf"[ (]{retired}\b", proc.stderr), proc.stderr
 
 
 def test_docs_quote_the_help_as_printed(tmp_path: Path) -> None:

@@ -71,7 +71,7 @@ def test_without_matplotlib_one_line_and_nothing_written(tmp_path, capsys, monke
     for option, target in (("--plots", tmp_path / "fig"), ("--report", tmp_path / "r.html")):
         code, out, err = invoke([*sample_args(tmp_path), option, target], capsys)
         assert code == 3
-        assert err.count("\n") == 1 and option in err and "pip install 'gnss-solve[plot]'" in err
+        assert err.count("\n") == 1 and option in err and "pip install 'gnss-solve[plot]' (from a clone: pip install -e '.[plot]')" in err
         assert list(tmp_path.iterdir()) == []
 
 
