@@ -53,22 +53,35 @@ def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool)
     return cases
 
 
+def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple], prog: str
+                     ) -> tuple[dict[str, dict[str, object]], dict[str, dict[str, float]]]:
+    """WLS with each candidate's settings on each training case (``training_cases``'s tuples):
+    ``bench_urban.method_row`` of every candidate and case, and the seconds each run took."""
+    t0 = time.perf_counter()
+    results: dict[str, dict[str, object]] = {c: {} for c in candidates}
+    seconds: dict[str, dict[str, float]] = {c: {} for c in candidates}
+    for name, obs, navs, systems, ref_at, keep_at in cases:
+        for cand, over in candidates.items():
+            cfg = load_config(None, {"methods": "wls", **({"systems": systems} if systems else {}), **over})
+            t1 = time.perf_counter()
+            res = process(obs, navs, cfg)
+            seconds[cand][name] = time.perf_counter() - t1
+            t = res.epochs.time_gps_s
+            keep = keep_at(t)
+            results[cand][name] = method_row(res.solutions["wls"], ref_at(t[keep]), keep)
+        print(f"{prog}: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    return results, seconds
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2")
     args = parser.parse_args()
     seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
     t0 = time.perf_counter()
-    results: dict[str, dict[str, object]] = {c: {} for c in CANDIDATES}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, obs, navs, systems, ref_at, keep_at in training_cases(Path(tmp), seeds, duration, args.quick):
-            for cand, over in CANDIDATES.items():
-                cfg = load_config(None, {"methods": "wls", **({"systems": systems} if systems else {}), **over})
-                res = process(obs, navs, cfg)
-                t = res.epochs.time_gps_s
-                keep = keep_at(t)
-                results[cand][name] = method_row(res.solutions["wls"], ref_at(t[keep]), keep)
-            print(f"choose_cn0_weights: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+        results, _ = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, args.quick),
+                                      "choose_cn0_weights")
     names = list(results["off"])
     lines = ["| candidate | " + " | ".join(names) + " | score | misleading |", "|---|" + "---|" * (len(names) + 2)]
     table_rows: list[list[object]] = []

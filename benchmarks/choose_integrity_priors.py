@@ -30,12 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gnss_cli.config import load_config
-from gnss_cli.pipeline import process
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_urban import RINEX, method_row  # noqa: E402
-from choose_cn0_weights import training_cases as cn0_training_cases  # noqa: E402
+from bench_urban import RINEX  # noqa: E402
+from choose_cn0_weights import score_candidates, training_cases as cn0_training_cases  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "choose_integrity_priors.json"
@@ -64,19 +61,9 @@ def main() -> None:
     args = parser.parse_args()
     seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
     t0 = time.perf_counter()
-    results: dict[str, dict[str, object]] = {c: {} for c in CANDIDATES}
-    seconds: dict[str, dict[str, float]] = {c: {} for c in CANDIDATES}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, obs, navs, systems, ref_at, keep_at in training_cases(Path(tmp), seeds, duration, args.quick):
-            for cand, over in CANDIDATES.items():
-                cfg = load_config(None, {"methods": "wls", **({"systems": systems} if systems else {}), **over})
-                t1 = time.perf_counter()
-                res = process(obs, navs, cfg)
-                seconds[cand][name] = time.perf_counter() - t1
-                t = res.epochs.time_gps_s
-                keep = keep_at(t)
-                results[cand][name] = method_row(res.solutions["wls"], ref_at(t[keep]), keep)
-            print(f"choose_integrity_priors: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+        results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, args.quick),
+                                            "choose_integrity_priors")
     names = list(next(iter(results.values())))
     drives = [n for n in names if n.startswith("sim-")]
     summary: dict[str, dict[str, object]] = {}
