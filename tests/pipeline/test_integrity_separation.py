@@ -281,3 +281,26 @@ def test_a_multi_epoch_row_without_redundancy_is_untested(data_0759):
         assert (out.status[rows] == word).all() and np.isfinite(out.x_ecef_m[rows]).all()
         others = np.setdiff1d(np.arange(120), rows)
         assert (out.status[others] == wls.status[others]).all()
+
+
+def test_a_row_the_others_cannot_do_without_leaves_its_subset_unsolvable():
+    """Four rows for four unknowns: leaving out any one row (the closed form of one-row subsets)
+    leaves a singular system, which is reported as not solvable with NaN numbers, never as a
+    finite separation; with a fifth row every one-row subset solves and equals least squares."""
+    rng = np.random.default_rng(3)
+    for n_rows, solvable in ((4, False), (5, True)):
+        A = np.zeros((1, n_rows, 4))
+        A[0, :, :3] = rng.normal(size=(n_rows, 3))
+        A[0, :, 3] = 1.0
+        q = rng.normal(size=(1, n_rows))
+        var = rng.uniform(0.5, 2.0, size=(1, n_rows))
+        removed = np.eye(n_rows, dtype=bool)[None]
+        sep = separate_subsets(A, q, 1.0 / var, var, removed, np.zeros((1, n_rows, 4)), FIXED_W)
+        assert sep.solvable.all() == solvable and sep.solvable.any() == solvable
+        if not solvable:
+            assert np.isnan(sep.delta).all() and np.isnan(sep.cov_delta).all()
+        else:
+            x0, _ = _explicit(A[0], q[0], 1.0 / var[0], var[0], np.ones(n_rows), np.zeros(4))
+            for h in range(n_rows):
+                xk, _ = _explicit(A[0], q[0], 1.0 / var[0], var[0], ~removed[0, h], np.zeros(4))
+                np.testing.assert_allclose(sep.delta[0, h], xk - x0, rtol=1e-8, atol=1e-9)
