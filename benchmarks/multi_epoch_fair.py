@@ -20,7 +20,7 @@ factors and gates:
 flights and drives with 1 m code noise, a small grid per method and measurement set is run and
 the best 3D RMS (pooled over the training seeds of both trajectories) picked: ``kf cv``
 ``accel_psd_m2_s3``, ``kf ca`` ``jerk_psd_m2_s5``, the smoother's quadrature lag, the stls
-window. They are written to the JSON and then fixed for the evaluation seeds (101-110), the
+window and its behavior test's false-alarm probability (``behavior_pfa``). They are written to the JSON and then fixed for the evaluation seeds (101-110), the
 noise-free flight and the real sets; the phase set, which the simulator does not write, uses the
 Doppler set's choices.
 
@@ -91,9 +91,21 @@ GRID: dict[str, tuple[str, tuple[Any, ...]]] = {
     "kf cv": ("kalman.accel_psd_m2_s3", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "kf ca": ("kalman.jerk_psd_m2_s5", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "smoother quadrature": ("smoother.lag", (1, 2, 3)),
-    "stls": ("stls.window", (10, 15, 20, 30)),
+    "stls": ("stls.window,stls.behavior_pfa", tuple((w, p) for w in (10, 15, 20, 30) for p in (1e-3, 1e-6, 1e-9, 1e-12))),
 }
-"""The setting tuned per method (config key, candidates); smoother cv / ca have none."""
+"""The setting tuned per method (config key, candidates; keys joined by commas take tuples of
+values); smoother cv / ca have none."""
+
+
+def setting(key: str, candidate: Any) -> dict[str, Any]:
+    """The overrides of one candidate of :data:`GRID` (``key``: one config key or several, comma-joined)."""
+    keys = key.split(",")
+    return dict(zip(keys, candidate if len(keys) > 1 else (candidate,)))
+
+
+def label_of(candidate: Any) -> str:
+    """A candidate as written in the scores (no spaces: ``15/1e-09`` for a pair)."""
+    return "/".join(map(str, candidate)) if isinstance(candidate, tuple) else str(candidate)
 
 BASE: dict[str, dict[str, Any]] = {
     "kf cv": {"kalman.model": "cv"}, "kf ca": {"kalman.model": "ca"},
@@ -191,7 +203,7 @@ def variants_for(chosen: dict[str, Any], names: tuple[str, ...]) -> dict[str, di
     for name in names:
         v = dict(BASE[name])
         if name in GRID:
-            v[GRID[name][0]] = chosen[name]
+            v.update(setting(GRID[name][0], chosen[name]))
         out[name] = v
     return out
 
@@ -207,7 +219,7 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
         scores: dict[str, dict[str, float]] = {name: {} for name in GRID}
         n = max(len(c) for _, c in GRID.values())
         for i in range(n):
-            variants = {f"{name} {key}={cands[i]}": {**BASE[name], key: cands[i]}
+            variants = {f"{name} {key}={label_of(cands[i])}": {**BASE[name], **setting(key, cands[i])}
                         for name, (key, cands) in GRID.items() if i < len(cands)}
             runs = [solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv", variants, common) for d in files]
             for vname in variants:
@@ -215,7 +227,7 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
                 scores[name][cand.split("=")[1]] = stats(pooled(runs, vname))["rms_3d_m"]
         chosen[label] = {"choice": {}, "rms_3d_m": scores}
         for name, (key, cands) in GRID.items():
-            best = min(cands, key=lambda c: scores[name][str(c)])
+            best = min(cands, key=lambda c: scores[name][label_of(c)])
             chosen[label]["choice"][name] = best
         print(f"training {label}: " + ", ".join(f"{n} {GRID[n][0]}={c}" for n, c in chosen[label]["choice"].items()),
               file=sys.stderr)

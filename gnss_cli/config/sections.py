@@ -56,8 +56,9 @@ class StlsConfig:
 
     ``lag = 0``: single-epoch structured TLS. ``lag >= 1``: the paper's behavioral method -- a
     kernel identified from the data by weighted Hankel STLS in sliding windows of ``window``
-    epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a full kernel). The defaults
-    equal the packaged TOML.
+    epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a full kernel), each window's
+    behavior tested at the false-alarm probability ``behavior_pfa`` (:mod:`gnss_cli.pipeline.spans`).
+    The defaults equal the packaged TOML.
     """
 
     lag: int = 0
@@ -66,6 +67,7 @@ class StlsConfig:
     window: int = 15
     tolerance: float = 1e-6
     max_iterations: int = 200
+    behavior_pfa: float = 1e-9
 
     @property
     def full_order(self) -> int | None:
@@ -89,6 +91,8 @@ class StlsConfig:
             raise ConfigError(f"stls.kernel: expected one of {', '.join(STLS_KERNELS)}; received {self.kernel!r}")
         if not self.tolerance > 0:
             raise ConfigError(f"stls.tolerance: expected > 0; received {self.tolerance}")
+        if not 0 < self.behavior_pfa < 1:
+            raise ConfigError(f"stls.behavior_pfa: expected a probability between 0 and 1; received {self.behavior_pfa}")
         if self.lag == 0:
             if self.order:
                 raise ConfigError(f"stls.order = {self.order} needs stls.lag >= 1 (lag 0 = single-epoch STLS)")

@@ -55,6 +55,7 @@ from gnss_cli.pipeline.results import (
     EpochData,
     EpochStatus,
     MethodSolution,
+    WINDOW_REJECTED,
     WindowModel,
     window_epoch_status,
     window_status_word,
@@ -99,7 +100,9 @@ class WindowJob:
 class Fit:
     """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU); for the
     measurement-domain alternation (:mod:`gnss_cli.pipeline.identified`) its iterations, whether it
-    converged and the domain of the result (``position``: the STLS of the fixes)."""
+    converged, the domain of the result (``position``: the STLS of the fixes), its behavior test
+    (statistic and degrees of freedom, :func:`~gnss_cli.pipeline.identified.behavior_tests`) and
+    whether the test rejected it (:mod:`gnss_cli.pipeline.spans`)."""
 
     w_hat: F64 | None
     kernel: KernelRecord | None
@@ -110,6 +113,9 @@ class Fit:
     iterations: int | None = None
     converged: bool | None = None
     domain: str = "position"
+    test_stat: float | None = None
+    test_dof: int | None = None
+    rejected: bool = False
 
 
 def _failed(message: str) -> Fit:
@@ -282,30 +288,24 @@ def smooth(
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     fits = fit_all(segs, jobs, opts)
     if measurements is not None:
-        from gnss_cli.pipeline.identified import alternate_windows  # imports this module
+        from gnss_cli.pipeline.spans import tested_windows  # imports this module
 
-        fits, runs, _ = alternate_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
-        gated = np.zeros(data.usable.shape, dtype=bool)  # pseudoranges the gate of an epoch's owning window excluded
-        for run in runs:
-            for b, k in enumerate(run.jobs):
-                job = jobs[k]
-                if fits[k].domain == "measurement":
-                    own = slice(job.lo - job.a, job.hi - job.a)
-                    gated[run.epochs[b, own]] |= run.gated[0, b, own]
+        jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
-        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits)
+        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits)
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models
     return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 
 
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                    jobs: list[WindowJob], status: NDArray[np.str_], method: str = "stls",
-                   segment_ids: list[int] | None = None,
-                   fits: list[Fit] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+                   segment_ids: list[int] | None = None, fits: list[Fit] | None = None,
+                   limits: dict[int, float] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """Fit the windows ``jobs`` of the segments ``segs`` and finish the smoothed solution of
     :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
     ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
-    (default: its index). ``fits``: the windows' fits when already computed (one per job)."""
+    (default: its index). ``fits``: the windows' fits when already computed (one per job).
+    ``limits``: the behavior test's limit of the tested windows (by job index, :mod:`gnss_cli.pipeline.spans`)."""
     opts = config.stls
     T = data.time_gps_s.size
     x_s = wls.x_ecef_m.copy()
@@ -315,7 +315,8 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
 
     models: list[WindowModel] = []
     dop_windows: list[tuple[NDArray[np.intp], F64, NDArray[np.intp]]] = []  # (window epochs, ECEF basis, owned)
-    for job, fit in zip(jobs, fits):
+    limits = limits or {}
+    for k, (job, fit) in enumerate(zip(jobs, fits)):
         seg = segs[job.segment]
         mine = seg.epochs[job.lo : job.hi]
         models.append(WindowModel(
@@ -323,8 +324,9 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             start_time_gps_s=float(data.time_gps_s[seg.epochs[job.a]]),
             end_time_gps_s=float(data.time_gps_s[seg.epochs[job.b - 1]]), n_epochs=int(job.b - job.a),
             model="identified", structure=opts.kernel, kernel=fit.kernel, misfit=fit.misfit,
-            status=window_status_word(fit.status), message=fit.message, method=method,
-            iterations=fit.iterations, converged=fit.converged,
+            status=WINDOW_REJECTED if fit.rejected else window_status_word(fit.status), message=fit.message,
+            method=method, iterations=fit.iterations, converged=fit.converged, test_stat=fit.test_stat,
+            test_dof=fit.test_dof, test_limit=limits.get(k),
         ))
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:

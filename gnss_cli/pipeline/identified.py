@@ -1,7 +1,8 @@
 """The ``stls --lag L`` windows in the measurement domain: kernel and trajectory by alternation.
 
 The paper's joint problem (DESIGN.md section 6), per sliding window of ``[stls] window`` epochs
-(the windows of :mod:`gnss_cli.pipeline.behavioral`; spans are not chosen from the data):
+(the windows of :mod:`gnss_cli.pipeline.behavioral`; :mod:`gnss_cli.pipeline.spans` tests each
+result, :func:`behavior_tests`, and solves the epochs of a rejected window again in shorter ones):
 unknowns the trajectory ``w^``, the receiver clocks (one per epoch and system, and a drift per
 epoch with Doppler) and the shared kernel ``r(z) I_3`` with its root at ``z = 1``; data the
 pseudoranges and, as ``--measurements`` gives them, the range rates and the time-differenced
@@ -105,7 +106,7 @@ from gnss_cli.pipeline.measurements import (
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
 
-__all__ = ["alternate_windows", "WindowRun", "window_rows", "RTOL", "MAX_ALTERNATIONS", "GATE_PASSES"]
+__all__ = ["alternate_windows", "behavior_tests", "WindowRun", "window_rows", "RTOL", "MAX_ALTERNATIONS", "GATE_PASSES"]
 
 F64 = NDArray[np.float64]
 
@@ -136,6 +137,8 @@ class WindowRun:
     gates : residual gates evaluated; ``gate_final``: the last gate left the rows unchanged.
     r_identified : ``(B, l+1)`` the kernels of step (a) under the current gate (NaN: none);
         ``stale`` where they are to be identified again (module docstring).
+    test_stat, test_dof : the behavior test of the result (:func:`behavior_tests`; NaN and 0
+        where it was not evaluated).
     """
 
     jobs: NDArray[np.intp]
@@ -160,6 +163,8 @@ class WindowRun:
     gate_final: NDArray[np.bool_]
     r_identified: F64
     stale: NDArray[np.bool_]
+    test_stat: F64
+    test_dof: NDArray[np.int64]
 
 
 def _colors(spans: list[tuple[int, int]]) -> list[int]:
@@ -369,7 +374,7 @@ def _start(jobs: NDArray[np.intp], segs: list[Segment], all_jobs: list[WindowJob
                      np.full(n_b, np.inf), [[] for _ in range(n_b)], np.zeros(n_b, np.int64), np.zeros(n_b, bool),
                      np.zeros(n_b, bool), np.zeros(n_b, bool), [""] * n_b, np.ones((3, n_b, n_t, n_sv)),
                      np.zeros((3, n_b, n_t, n_sv), bool), np.zeros(n_b, np.int64), np.zeros(n_b, bool),
-                     np.full_like(r, np.nan), np.ones(n_b, bool))
+                     np.full_like(r, np.nan), np.ones(n_b, bool), np.full(n_b, np.nan), np.zeros(n_b, np.int64))
 
 
 def _project_start(run: WindowRun, velocity: bool) -> None:
@@ -456,6 +461,47 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     run.iterations[act] += 1
 
 
+def _free_gain(M: F64, r: F64) -> tuple[F64, NDArray[np.int64]]:
+    """``r^T M^+ r`` and the rank of each ``M (K, p, p)``: the misfit a free unknown of the rows takes away."""
+    u, sv, _ = np.linalg.svd(M, hermitian=True)
+    keep = sv > 1e-10 * np.maximum(sv[:, :1], 1e-300)
+    proj = np.einsum("kij,ki->kj", u, r)
+    return np.sum(np.where(keep, proj**2 / np.where(keep, sv, 1.0), 0.0), axis=1), keep.sum(axis=1).astype(np.int64)
+
+
+def behavior_tests(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...]) -> tuple[F64, NDArray[np.int64]]:
+    """The windows' behavior test: statistic and degrees of freedom, ``(B,)`` each.
+
+    Generalized likelihood ratio of the result (positions in the identified behavior) against the
+    relaxed model where every epoch's position, every epoch's velocity (with range rates) and every
+    phase pair's displacement is free, with ``rows`` linearized at the result and the gate's
+    multipliers and the variance factors applied (so the statistic is in units of the file's own
+    noise): ``D = J_behavior - J_free``, the sum over epochs of ``r^T M^+ r`` for the pseudoranges
+    and the pairs (whose corrections are zero at the result) and ``(v - v_free)^T M (v - v_free)``
+    for the range rates. Under the behavior ``D ~ chi2(d)`` with ``d`` the free unknowns the rows
+    determine (ranks of the epochs' normals) minus the behavior's ``3 l`` coefficients and the
+    kernel's ``l - 1`` identified ones. ``d`` is 0 where the test cannot be evaluated (a kernel
+    without velocities under range rates, or no redundancy).
+    """
+    n_b, n_t = run.epochs.shape
+    lag = run.r.shape[1] - 1
+    pr, rr, ph = _normals(rows, run.mult, factors)
+    stat, rank = _free_gain(pr.M, pr.r)
+    stat, dof = stat.reshape(n_b, n_t).sum(axis=1), rank.reshape(n_b, n_t).sum(axis=1)
+    if rr is not None:
+        v = run.v.reshape(n_b * n_t, 3)
+        g, k = _free_gain(rr.M, rr.r)
+        q = np.einsum("kp,kpq,kq->k", v, rr.M, v) - 2 * np.einsum("kp,kp->k", v, rr.r) + g
+        stat = stat + q.reshape(n_b, n_t).sum(axis=1)
+        dof = dof + k.reshape(n_b, n_t).sum(axis=1)
+    if ph is not None:  # the displacement's normals: the pair rows are [-P3, P3] on [z_{t-1}, z_t]
+        g, k = _free_gain(ph.M[:, 3:, 3:], ph.r[:, 3:])
+        stat, dof = stat + g.reshape(n_b, n_t).sum(axis=1), dof + k.reshape(n_b, n_t).sum(axis=1)
+    dof = dof - 3 * lag - (lag - 1)
+    ok = np.isfinite(stat) & (dof > 0)
+    return np.where(ok, np.maximum(stat, 0.0), np.nan), np.where(ok, dof, 0)
+
+
 def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                       jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
                       factors: tuple[float, ...] | None = None) -> tuple[list[Fit], list[WindowRun], tuple[float, ...]]:
@@ -528,6 +574,14 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
                         run.history[b] = []
         if all(run.done.all() for run in runs):
             break
+    if config.integrity != "off":  # the behavior test, at the results (rows of every window that finished)
+        done = [run.done.copy() for run in runs]
+        for run in runs:
+            run.done = ~(run.converged & ~run.failed)
+        for run, rw in zip(runs, window_rows(data, config, kinds, base, runs, colors)):
+            run.test_stat, run.test_dof = behavior_tests(run, rw, factors)
+        for run, d in zip(runs, done):
+            run.done = d
     for run in runs:
         _finish(run, out, kinds)
     return out, runs, factors
@@ -552,4 +606,6 @@ def _finish(run: WindowRun, out: list[Fit], kinds: frozenset[str]) -> None:
         out[k] = Fit(w_hat, recs[b], float(run.misfit[b]), StlsStatus.CONVERGED,
                      f"measurement domain ({used}), alternation: {run.message[b]} after {run.iterations[b]} "
                      f"iterations under the last of {int(run.gates[b])} residual gates", bases[b],
-                     iterations=int(run.iterations[b]), converged=True, domain="measurement")
+                     iterations=int(run.iterations[b]), converged=True, domain="measurement",
+                     test_stat=float(run.test_stat[b]) if run.test_dof[b] > 0 else None,
+                     test_dof=int(run.test_dof[b]) if run.test_dof[b] > 0 else None)

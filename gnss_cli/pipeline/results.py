@@ -23,8 +23,9 @@ value                   meaning
 ``non_finite``          solver: non-finite values in the computation
 ``too_few_rows``        solver: fewer used rows than unknowns
 ``degenerate_data``     solver: degenerate data (e.g. a zero augmented matrix)
-``fallback_wls``        stls with lag: the segment was too short or the window fit failed;
-                        the WLS fix, covariance and DOPs are kept
+``fallback_wls``        stls with lag: the segment was too short, the window fit failed, or the
+                        behavior test rejected even the shortest window (smoother: a degenerate
+                        segment); the WLS fix, covariance and DOPs are kept
 ``integrity_fail``      the chi-square test of the residuals fails: ls/wls when no satellite can
                         be excluded any more (``integrity = "check"``: when it fails); every other
                         method (tls ... wtls, stls with lag, smoother, kf) when it fails at the
@@ -109,6 +110,9 @@ _SOLVER_STATUS = {
 
 WINDOW_FAILED = "failed"
 """Status of a window model record whose fit failed (no kernel, no misfit)."""
+WINDOW_REJECTED = "rejected"
+"""Status of an ``stls`` window whose behavior test failed (kernel and misfit kept; its epochs went to
+shorter windows or keep the WLS fix, :mod:`gnss_cli.pipeline.spans`)."""
 
 
 def solver_epoch_status(code: int | Status) -> EpochStatus:
@@ -171,6 +175,12 @@ class WindowModel:
     """Alternations of the measurement-domain ``stls`` window (None: not alternated)."""
     converged: bool | None = None
     """Whether that alternation converged (False: the position-domain result was kept)."""
+    test_stat: float | None = None
+    """The behavior test's statistic (:func:`gnss_cli.pipeline.identified.behavior_tests`; None: not tested)."""
+    test_dof: int | None = None
+    """Its degrees of freedom."""
+    test_limit: float | None = None
+    """Its limit at ``integrity_pfa`` (above it the window is ``rejected``, :mod:`gnss_cli.pipeline.spans`)."""
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""
@@ -186,6 +196,9 @@ class WindowModel:
             out.update({"misfit": self.misfit, "status": self.status, "message": self.message})
         if self.iterations is not None:
             out.update({"iterations": self.iterations, "converged": self.converged})
+        if self.test_stat is not None:
+            out.update({"behavior_test_stat": self.test_stat, "behavior_test_dof": self.test_dof,
+                        "behavior_test_limit": self.test_limit})
         return out
 
 

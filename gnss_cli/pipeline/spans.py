@@ -1,0 +1,134 @@
+"""Spans chosen from the data for ``stls --lag L``: each window's behavior tested, shorter where it fails.
+
+A lag-``L`` behavior holds a trajectory only piecewise: a straight leg, a constant-rate turn or
+a steady climb each lie in one, the transitions between them do not (a noise-free manoeuvring
+flight in fixed windows of 15 epochs is off by up to 2.7 m from the model class alone). So the
+windows' spans are not taken as given. After the measurement-domain alternation
+(:mod:`gnss_cli.pipeline.identified`) every window's result is tested against its own
+measurements (:func:`~gnss_cli.pipeline.identified.behavior_tests`: the likelihood ratio of the
+behavior against free per-epoch positions, velocities and pair displacements, in units of the
+file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm probability
+``[stls] behavior_pfa``:
+
+* passed: the window supplies its epochs;
+* rejected: its epochs are solved again in windows of half its length (not below the shortest
+  window the kernel can be identified on, :meth:`~gnss_cli.config.StlsConfig.min_window`), each
+  identified and alternated afresh, and tested again;
+* rejected at the shortest length: its epochs keep their WLS fix, status ``fallback_wls``.
+
+Every tested window stays in the model records, with its statistic, degrees of freedom and
+limit; a rejected one says so (status ``rejected``) and which windows took its epochs. Windows
+left in the position domain (full kernels; an alternation that did not finish) have no
+measurement-domain misfit and are not tested; with ``integrity = "off"`` nothing is tested.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from gnss_cli.behavior.windows import windows
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, fit_all
+from gnss_cli.pipeline.identified import alternate_windows
+from gnss_cli.pipeline.results import EpochData, MethodSolution
+
+__all__ = ["tested_windows", "split_window", "behavior_limit"]
+
+
+def behavior_limit(dof: int, pfa: float) -> float:
+    """The behavior test's limit: the ``1 - pfa`` quantile of ``chi2(dof)``."""
+    return float(chi2.isf(pfa, dof))
+
+
+def split_window(job: WindowJob, length: int, n_segment: int) -> list[WindowJob]:
+    """Windows of ``length`` epochs that take over the epochs ``job`` supplied (``lo:hi``).
+
+    The windows slide over the supplied epochs and half a window either side (within the
+    segment of ``n_segment`` epochs), so an epoch at the edge is still near a window's centre;
+    each window supplies the supplied epochs nearest its centre, and together they supply
+    exactly ``lo:hi``.
+    """
+    a0 = max(0, min(job.lo - length // 2, n_segment - length))
+    b0 = min(n_segment, max(job.hi + length // 2, a0 + length))
+    bounds, owner = windows(b0 - a0, length)
+    out = []
+    for wi, (a, b) in enumerate(bounds):
+        own = np.flatnonzero(owner == wi) + a0
+        own = own[(own >= job.lo) & (own < job.hi)]
+        if own.size:
+            out.append(WindowJob(job.segment, job.window, a0 + a, a0 + b, int(own[0]), int(own[-1]) + 1))
+    return out
+
+
+def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
+                   jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
+                   factors: tuple[float, ...] | None = None,
+                   ) -> tuple[list[WindowJob], list[Fit], NDArray[np.bool_], dict[int, float]]:
+    """The measurement-domain windows with spans chosen by the behavior test (module docstring).
+
+    Parameters
+    ----------
+    data, wls, config, segs, jobs, fits, kinds, factors
+        As :func:`~gnss_cli.pipeline.identified.alternate_windows` (``fits``: the position-domain
+        fits of ``jobs``).
+
+    Returns
+    -------
+    jobs, fits : every window solved, in time order and numbered within each segment; a rejected
+        window supplies no epoch (``lo == hi``) unless it was the last try, whose epochs keep the
+        WLS fix (``w_hat`` None).
+    gated : ``(T, n)`` pseudoranges the gate of the window that supplied the epoch excluded.
+    limits : the test's limit of every tested window (by index into ``jobs``).
+    """
+    opts = config.stls
+    shortest = opts.min_window()
+    testing = config.integrity != "off"
+    alone = frozenset({"pseudorange"})
+    gated = np.zeros(data.usable.shape, dtype=bool)
+    done: list[tuple[WindowJob, Fit, float | None]] = []
+    stage: dict[frozenset[str], tuple[list[WindowJob], list[Fit]]] = {kinds: (jobs, fits)}
+    while stage:
+        following: dict[frozenset[str], list[WindowJob]] = {}
+        for used, (stage_jobs, stage_fits) in stage.items():
+            solved, runs, factors = alternate_windows(data, wls, config, segs, stage_jobs, stage_fits, used, factors)
+            run_of = {int(k): (run, b) for run in runs for b, k in enumerate(run.jobs)}
+            for k, (job, fit) in enumerate(zip(stage_jobs, solved)):
+                limit = behavior_limit(fit.test_dof, opts.behavior_pfa) if testing and fit.test_dof else None
+                if limit is None or fit.test_stat is None or fit.test_stat <= limit:
+                    if fit.domain == "measurement":
+                        run, b = run_of[k]
+                        own = slice(job.lo - job.a, job.hi - job.a)
+                        gated[run.epochs[b, own]] |= run.gated[0, b, own]
+                    done.append((job, fit, limit))
+                    continue
+                length, n_seg = job.b - job.a, segs[job.segment].epochs.size
+                why = f"rejected: behavior test {fit.test_stat:.4g} > {limit:.4g} (chi2, {fit.test_dof} dof)"
+                if length > shortest:
+                    retry, shorter, what = used, max(shortest, length // 2), "in windows of {n} epochs"
+                elif used != alone:
+                    retry, shorter, what = alone, min(max(opts.window, shortest), n_seg), \
+                        "with pseudoranges alone in windows of {n} epochs"
+                else:
+                    done.append((job, replace(fit, w_hat=None, basis=None, rejected=True,
+                                              message=f"{why}; its epochs keep the WLS fix; {fit.message}"), limit))
+                    continue
+                done.append((replace(job, hi=job.lo), replace(
+                    fit, w_hat=None, basis=None, rejected=True,
+                    message=f"{why}; its epochs solved again {what.format(n=shorter)}; {fit.message}"), limit))
+                following.setdefault(retry, []).extend(split_window(job, shorter, n_seg))
+        stage = {used: (more, fit_all(segs, more, opts)) for used, more in following.items()}
+    done.sort(key=lambda d: (d[0].segment, d[0].a, d[0].b))
+    out_jobs, out_fits, limits = [], [], {}
+    counter: dict[int, int] = {}
+    for job, fit, limit in done:
+        number = counter.get(job.segment, 0)
+        counter[job.segment] = number + 1
+        if limit is not None:
+            limits[len(out_jobs)] = limit
+        out_jobs.append(replace(job, window=number))
+        out_fits.append(fit)
+    return out_jobs, out_fits, gated, limits

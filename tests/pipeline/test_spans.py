@@ -1,0 +1,140 @@
+"""Spans chosen from the data for ``stls --lag L`` (:mod:`gnss_cli.pipeline.spans`): the behavior
+test's statistic against an independent computation, its calibration on a track the model class
+holds, the noise-free manoeuvring flight to 1 cm, and the windows that take a rejected one's epochs."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gnss_cli.config import load_config
+from gnss_cli.io.reference import reference_from_csv
+from gnss_cli.pipeline import load_epochs, solve_method
+from gnss_cli.pipeline.behavioral import WindowJob, _schedule, fit_all
+from gnss_cli.pipeline.identified import alternate_windows
+from gnss_cli.pipeline.kalman import nominal_trajectory
+from gnss_cli.pipeline.measurements import measurement_rows
+from gnss_cli.pipeline.methods import solve_multi_epoch
+from gnss_cli.pipeline.spans import behavior_limit, split_window
+from gnss_cli.sim.error_sources import parse_error_list
+from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
+
+BASE = {"methods": "wls,stls", "stls.lag": 3, "iono": "none", "tropo": "none"}
+
+
+def _simulate(out: Path, trajectory: str, errors: str, seed: int, duration_s: float) -> Path:
+    base = ScenarioConfig()
+    cfg = replace(base, trajectory=trajectory, duration_s=duration_s, interval_s=1.0, seed=seed,
+                  errors=base.errors.with_sources(parse_error_list(errors)))
+    write_scenario(run_scenario(cfg), out)
+    return out
+
+
+def _load(d: Path, measurements: str, **more: object):  # type: ignore[no-untyped-def]
+    cfg = load_config(None, {**BASE, "measurements": measurements, **more})
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    return cfg, data, solve_method(data, "wls", cfg), np.asarray(reference_from_csv(d / "truth.csv", data.time_gps_s))
+
+
+@pytest.fixture(scope="module")
+def noisy_arc(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A constant-speed semicircle with 1 m code noise: its track is in a lag-3 shared behavior."""
+    return _simulate(tmp_path_factory.mktemp("arc"), "semicircle", "noise", 5, 300.0)
+
+
+@pytest.fixture(scope="module")
+def exact_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A noise-free manoeuvring flight (path drawn from the seed): not in any one lag-3 behavior."""
+    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "none", 101, 180.0)
+
+
+def test_statistic_is_the_misfit_given_up_against_free_epochs(noisy_arc: Path) -> None:
+    """Pseudoranges alone: each window's statistic equals its behavior misfit minus the sum of the
+    epochs' own weighted least-squares misfits (position and clocks free, an independent ``lstsq``
+    of the same rows linearized at the result), and its degrees of freedom are ``3 N - 3 l - (l - 1)``."""
+    cfg, data, wls, _ = _load(noisy_arc, "pseudorange")
+    solved = (wls.status == "ok") & np.isfinite(wls.x_ecef_m).all(axis=1)
+    segs, jobs = _schedule(data, wls, solved, wls.status.astype("<U24").copy(), cfg.stls, None, 1.5)
+    fits, runs, factors = alternate_windows(data, wls, cfg, segs, jobs, fit_all(segs, jobs, cfg.stls),
+                                            frozenset({"pseudorange"}))
+    if wls.excluded is not None:
+        data = replace(data, usable=data.usable & ~wls.excluded)
+    base = nominal_trajectory(data.time_gps_s, np.where(solved[:, None], wls.x_ecef_m, np.nan))
+    checked = 0
+    for run in runs:
+        for b, k in enumerate(run.jobs):
+            fit = fits[k]
+            if fit.domain != "measurement":
+                continue
+            seg, ep = segs[jobs[k].segment], run.epochs[b]
+            nominal = base.copy()
+            nominal[ep] = seg.origin + fit.w_hat @ seg.rot
+            rows = measurement_rows(data, nominal, cfg, False)
+            free = 0.0
+            for t, e in enumerate(ep):
+                w = rows["w"][e] * run.mult[0, b, t] / factors[0]
+                use = w > 0
+                a = np.hstack([rows["P"][e][use], rows["C"][e][use]])
+                a = a[:, np.any(a != 0, axis=0)]
+                sw = np.sqrt(w[use])
+                x = np.linalg.lstsq(a * sw[:, None], rows["y"][e][use] * sw, rcond=None)[0]
+                free += float(np.sum(w[use] * (rows["y"][e][use] - a @ x) ** 2))
+            assert fit.test_dof == 3 * ep.size - 3 * 3 - 2
+            assert fit.test_stat == pytest.approx(fit.misfit - free, rel=1e-6, abs=1e-6)
+            checked += 1
+    assert checked >= 10
+
+
+def test_statistic_is_chi_square_where_the_behavior_holds(noisy_arc: Path) -> None:
+    """On a track the model class holds, with 1 m noise, the statistic per degree of freedom
+    averages 1 (the variance factors put it in units of the file's own noise) and the test rejects
+    no window at the default false-alarm probability: every epoch comes from a full-length window."""
+    cfg, data, wls, ref = _load(noisy_arc, "pseudorange")
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    tested = [m for m in models if m.test_stat is not None]
+    assert len(tested) >= 20
+    ratio = np.array([m.test_stat / m.test_dof for m in tested])
+    assert 0.8 <= ratio.mean() <= 1.25, ratio.mean()
+    assert all(m.status != "rejected" for m in models)
+    assert {m.n_epochs for m in models} == {cfg.stls.window}
+    assert (sol.status == "ok").all()
+
+
+@pytest.mark.parametrize("measurements", ["pseudorange", "pseudorange,doppler"])
+def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path, measurements: str) -> None:
+    """Noise-free, the windows whose behavior the manoeuvres break are rejected and their epochs
+    solved in shorter spans (or kept at the exact WLS fix): stls --lag 3 is the truth to 1 cm, where
+    the fixed 15-epoch windows without the test are off by decimetres to metres."""
+    cfg, data, wls, ref = _load(exact_flight, measurements)
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
+    assert np.isfinite(err).all() and err.max() <= 0.01, err.max()
+    rejected = [m for m in models if m.status == "rejected"]
+    assert rejected and all(m.test_stat > m.test_limit for m in rejected)
+    assert all(m.test_stat <= m.test_limit for m in models if m.test_stat is not None and m.status != "rejected")
+    assert (sol.status == "ok").sum() > 0.5 * sol.status.size  # most epochs still come from a behavior
+    untested, _ = solve_multi_epoch("stls", data, wls, replace(cfg, integrity="off"))
+    assert np.nanmax(np.linalg.norm(untested.x_ecef_m - ref, axis=1)) > 0.1
+
+
+@pytest.mark.parametrize("lo, hi, length, n_seg", [(0, 8, 8, 100), (30, 38, 8, 100), (92, 100, 8, 100),
+                                                   (10, 25, 10, 40), (0, 40, 20, 40), (5, 6, 8, 12)])
+def test_shorter_windows_take_exactly_the_rejected_windows_epochs(lo: int, hi: int, length: int, n_seg: int) -> None:
+    """The windows of :func:`split_window` lie in the segment, have the new length and together
+    supply each epoch the rejected window supplied, once."""
+    job = WindowJob(segment=2, window=7, a=max(0, lo - 4), b=min(n_seg, hi + 4), lo=lo, hi=hi)
+    out = split_window(job, length, n_seg)
+    supplied = np.concatenate([np.arange(j.lo, j.hi) for j in out])
+    np.testing.assert_array_equal(supplied, np.arange(lo, hi))
+    for j in out:
+        assert j.segment == 2 and 0 <= j.a <= j.lo < j.hi <= j.b <= n_seg and j.b - j.a == min(length, n_seg)
+
+
+def test_limit_is_the_chi_square_quantile() -> None:
+    from scipy.stats import chi2
+
+    assert behavior_limit(13, 1e-3) == pytest.approx(chi2.ppf(1 - 1e-3, 13), rel=1e-9)
+    assert behavior_limit(34, 1e-9) > behavior_limit(34, 1e-3)
