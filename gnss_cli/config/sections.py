@@ -179,18 +179,18 @@ class NlosConfig:
     """The NLOS detector of the ls/wls fixes (``[nlos]`` in ``gnss_cli/configs/default.toml``,
     which explains each value; :mod:`gnss_cli.pipeline.nlos`)."""
 
-    detector: str = "off"
+    detector: str = "arcs"
     template_quantile: float = 0.9
     template_bin_deg: float = 5.0
     template_min_count: int = 10
-    cn0_enter_db: float = 7.0
-    cn0_exit_db: float = 4.0
+    cn0_enter_db: float = 9.0
+    cn0_exit_db: float = 5.0
     cn0_min_epochs: int = 2
     cn0_min_delay_m: float = float("-inf")
     residual_k: float = 1.0
     residual_h: float = float("inf")
-    min_dof: int = 2
-    failed_epochs: str = "keep"
+    min_dof: int = 1
+    failed_epochs: str = "retry"
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
