@@ -51,6 +51,7 @@ def test_rtklib_peer_sets_what_it_claims() -> None:
     assert cfg.weights.model == "rtklib"
     assert cfg.methods == ("wls",)
     assert cfg.healthy_only
+    assert cfg.weights.cn0_model == "off" and cfg.nlos.detector == "off"  # pntpos.c has neither
     assert cfg.signals["G"][0] == "C1C" and all(code[1] == "1" for code in cfg.signals["G"])  # L1 only
 
 
