@@ -25,7 +25,9 @@ An epoch keeps its redundancy: satellites are excluded most suspicious first (la
 over ``cn0_enter_db``, or ``u`` over ``residual_k``), and no further once the epoch would keep
 fewer than ``3 + k + min_dof`` satellites (``k`` its clocks) or fewer than ``min_satellites``.
 The excluded satellites are in the WLS solution's ``excluded`` mask (with FDE's); every method
-that starts from the WLS fix leaves them out too. The template is the solved part's (a file of
+that starts from the WLS fix leaves them out too. With ``failed_epochs = "retry"`` an epoch that is
+not ``ok`` after the exclusions is solved again with every satellite (:func:`monitor_without_nlos`).
+The detector runs with ``integrity = "check"`` or ``"fde"``; ``"off"`` is the plain fix. The template is the solved part's (a file of
 at most ``stream_above_epochs`` epochs is one part).
 """
 

@@ -104,7 +104,7 @@ def solve_method(
         return _robust_refit(sub, method, config, sol, unconverged) if config.robust != "off" else sol
 
     first = fit(data, report=progress)
-    if config.nlos.detector == "arcs":
+    if config.nlos.detector == "arcs" and config.integrity != "off":  # off: the plain fix, nothing excluded
         return monitor_without_nlos(data, first, fit, config)
     return monitor(data, first, config, fit)
 

@@ -139,8 +139,8 @@ def test_open_sky_and_clean_files_lose_no_satellite(open_sky: Path, rinex_dir: P
 def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> None:
     """+20 m on one satellite for 15 s, its C/N0 untouched: the residual test excludes it from
     the first to the last biased epoch and nowhere else, and the fixes there are those without
-    it. (``integrity = "off"``: the exclusions are the detector's alone.)"""
-    cfg = load_config(None, {**ARCS, "integrity": "off", "nlos.residual_k": 2.0, "nlos.residual_h": 10.0})
+    it. (``integrity = "check"``: no FDE, the exclusions are the detector's alone.)"""
+    cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.residual_k": 2.0, "nlos.residual_h": 10.0})
     data = load_epochs(open_sky / "obs.rnx", [open_sky / "nav.rnx"], cfg)
     span = np.zeros(data.usable.shape[0], dtype=bool)
     span[40:55] = True
@@ -155,10 +155,12 @@ def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> Non
     clean = solve_method(replace(data, usable=data.usable & ~one), "wls", cfg)
     np.testing.assert_allclose(sol.x_ecef_m, clean.x_ecef_m, atol=1e-6)
     # without the residual test (C/N0 only) the bias stays in, and pulls the fixes of its span
-    no_cusum = load_config(None, {**ARCS, "integrity": "off"})
+    no_cusum = load_config(None, {**ARCS, "integrity": "check"})
     kept = solve_method(biased, "wls", no_cusum)
     assert not kept.excluded.any()
     assert np.linalg.norm(kept.x_ecef_m[span] - clean.x_ecef_m[span], axis=1).min() > 1.0
+    # integrity "off": the plain fix, no detector
+    assert not solve_method(biased, "wls", replace(cfg, integrity="off")).excluded.any()
 
 
 @pytest.mark.parametrize(("key", "value", "match"), [
