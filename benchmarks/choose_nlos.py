@@ -4,20 +4,22 @@
 
 Training data: simulated urban drives with seeds 101-103 (``bench_urban.py`` reports seeds 1-10),
 both receiver profiles, 300 s at 1 Hz (against the simulator's truth, and its ``faults.csv``
-labels); tst2 (against its truth); smartloc-berlin (availability only: no reference); ESBC, a clean
-station (24 h at 30 s), which must not change. For each candidate -- ``off``, and ``arcs`` with a few
-C/N0 thresholds (enter/exit, dB), redundancies (``min_dof``), with ``failed_epochs`` "keep" or
-"retry", the delay test of the C/N0 spans and the residual CUSUM (``residual_k``/``residual_h``) -- ``wls`` with the default integrity (``fde``) and
-every other option at its default. Per case: availability, misleading epochs, 3D RMS of the ``ok``
-epochs, satellite-epochs excluded; on the drives the share of NLOS and of LOS satellite-epochs
-excluded or down-weighted below 10 % (``bench_urban.nlos_handling``).
+labels); tst2 (against its truth); smartloc-berlin (availability only: no reference); ESBC, a
+clean station (24 h at 30 s), which must not change. For each candidate -- ``off``, and ``arcs``
+with a few C/N0 thresholds (enter/exit, dB), redundancies (``min_dof``), ``failed_epochs``
+"keep" or "retry", the delay test of the C/N0 spans and the residual CUSUM
+(``residual_k``/``residual_h``) -- ``wls`` with the default integrity (``fde``) and every other
+option at its default. Per case: availability, misleading epochs, 3D RMS of the ``ok`` epochs,
+satellite-epochs excluded; on the drives the share of NLOS and of LOS satellite-epochs excluded
+or down-weighted below 10 % (``bench_urban.nlos_handling``).
 
 Rule: the allowed candidates have no more misleading epochs (summed over the cases with a
-reference) than ``off``, exclude at most 5 % of the LOS satellite-epochs of the drives, keep
-the availability of tst2 and smartloc-berlin within 2 points of ``off``'s, and on ESBC exclude no
-more satellite-epochs than ``off`` (clean signals: nothing to flag) with its RMS within 1 cm; among them the one that excludes the largest share of the drives' NLOS
-satellite-epochs (ties: the lower score, the mean RMS over ``off``'s). ``off`` is chosen when no
-``arcs`` candidate is allowed. Prints a table and writes ``benchmarks/results/choose_nlos.json``.
+reference) than ``off``, exclude at most 5 % of the LOS satellite-epochs of the drives, keep the
+availability of tst2 and smartloc-berlin within 2 points of ``off``'s, and on ESBC exclude no
+more satellite-epochs than ``off`` (clean signals: nothing to flag) with its RMS within 1 cm;
+among them the one that excludes the largest share of the drives' NLOS satellite-epochs (ties:
+the lower score, the mean RMS over ``off``'s). ``off`` is chosen when no ``arcs`` candidate is
+allowed. Prints a table and writes ``benchmarks/results/choose_nlos.json``.
 About 3 minutes on one core.
 """
 

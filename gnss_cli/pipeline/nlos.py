@@ -15,6 +15,9 @@ from the first to the last epoch of the span:
    deficit ``d = C/N0_los(el) - C/N0`` (dB) is large over a reflection; a span is a run of
    epochs with ``d > cn0_exit_db`` that holds at least ``cn0_min_epochs`` epochs with
    ``d > cn0_enter_db`` (a hysteresis: one weak epoch neither starts nor ends a reflection).
+   With a finite ``cn0_min_delay_m`` a span stays only when the fix without it predicts the
+   satellite's pseudoranges short by at least that much on average over the span (a reflection
+   lengthens the path; an attenuated direct signal does not).
 2. **Persistent positive residuals.** At the WLS fix without the C/N0 spans, the standardized
    post-fit residual ``u = r / sigma`` (``sigma`` the a-priori pseudorange sigma) of each
    satellite; a one-sided CUSUM over runs of ``u > residual_k``: a run is a span when
@@ -25,10 +28,11 @@ An epoch keeps its redundancy: satellites are excluded most suspicious first (la
 over ``cn0_enter_db``, or ``u`` over ``residual_k``), and no further once the epoch would keep
 fewer than ``3 + k + min_dof`` satellites (``k`` its clocks) or fewer than ``min_satellites``.
 The excluded satellites are in the WLS solution's ``excluded`` mask (with FDE's); every method
-that starts from the WLS fix leaves them out too. With ``failed_epochs = "retry"`` an epoch that is
-not ``ok`` after the exclusions is solved again with every satellite (:func:`monitor_without_nlos`).
-The detector runs with ``integrity = "check"`` or ``"fde"``; ``"off"`` is the plain fix. The template is the solved part's (a file of
-at most ``stream_above_epochs`` epochs is one part).
+that starts from the WLS fix leaves them out too. With ``failed_epochs = "retry"`` an epoch that
+is not ``ok`` after the exclusions is solved again with every satellite
+(:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
+``"off"`` is the plain fix. The template is the solved part's (a file of at most
+``stream_above_epochs`` epochs is one part).
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
-from gnss_cli.pipeline.integrity import Solver, check_fixes, merge_epochs, monitor, take_epochs
+from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
 __all__ = ["los_cn0_template_dbhz", "persistent_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans",
@@ -50,6 +54,8 @@ __all__ = ["los_cn0_template_dbhz", "persistent_spans", "span_means", "keep_redu
 F64 = NDArray[np.float64]
 Fit = Callable[[EpochData], MethodSolution]
 """Gauss-Newton of the ls/wls method on the given epochs (no exclusion)."""
+Refit = Callable[..., MethodSolution]
+"""Gauss-Newton of the ls/wls method on ``(epochs, x0 (t, 3) or None, clocks0 (t, k) or None)``."""
 
 
 def los_cn0_template_dbhz(snr_dbhz: F64, el_deg: F64, groups: NDArray[np.int64], *, bin_deg: float = 5.0,
@@ -263,7 +269,7 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m))
 
 
-def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Solver, config: ProcessingConfig) -> MethodSolution:
+def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, config: ProcessingConfig) -> MethodSolution:
     """:func:`~gnss_cli.pipeline.integrity.monitor` (the test, FDE, protection levels) of the fixes
     without the reflections :func:`exclude_nlos` finds from the plain fix ``first``; ``fit`` solves a
     subset of epochs from given starting fixes. The excluded satellites join FDE's in ``excluded``.

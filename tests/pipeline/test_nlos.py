@@ -15,7 +15,7 @@ from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import load_epochs, process, solve_method
-from gnss_cli.pipeline.nlos import keep_redundancy, los_cn0_template_dbhz, persistent_spans
+from gnss_cli.pipeline.nlos import keep_redundancy, los_cn0_template_dbhz, persistent_spans, span_means
 
 ROOT = Path(__file__).resolve().parents[2]
 ARCS = {"methods": "wls", "nlos.detector": "arcs"}
@@ -52,6 +52,14 @@ def test_spans_are_runs_whose_score_reaches_the_threshold() -> None:
     assert got[:, 0].tolist() == [True, True, False, False, False, False]
     assert got[:, 1].tolist() == [True, False, True, True, True, True]
     assert not persistent_spans(np.zeros((4, 2), bool), score[:4], 0.0).any()
+
+
+def test_span_means_average_each_run() -> None:
+    spans = np.array([[1, 0], [1, 1], [0, 0], [1, 1]], dtype=bool)
+    values = np.array([[2.0, 9.0], [4.0, np.nan], [7.0, np.nan], [5.0, 1.0]])
+    got = span_means(spans, values)
+    np.testing.assert_array_equal(got[:, 0], [3.0, 3.0, np.nan, 5.0])
+    np.testing.assert_array_equal(got[:, 1], [np.nan, np.nan, np.nan, 1.0])  # a run of NaNs has no mean
 
 
 def test_the_template_is_an_upper_quantile_per_bin_and_satellite_level() -> None:
@@ -120,6 +128,19 @@ def test_the_canyon_reflections_are_excluded_and_the_direct_signals_kept(canyon:
     assert (labels == 0).sum() > 500  # a canyon: hundreds of reflected satellite-epochs
     assert shares["arcs"][0] > 0.75 and shares["arcs"][1] < 0.02
     assert shares["off"][0] < 0.3
+
+
+def test_the_delay_test_keeps_only_spans_the_fix_predicts_short(canyon: Path) -> None:
+    """``cn0_min_delay_m``: of the C/N0 spans, those whose pseudoranges the fix without them
+    predicts short by that much (a reflection's extra path) stay out. The simulator's reflections
+    are late by metres: with 2 m almost all stay out; with 10 km none does."""
+    def excluded(**over: object) -> np.ndarray:
+        cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.failed_epochs": "keep", **over})
+        return process(canyon / "obs.rnx", [canyon / "nav.rnx"], cfg).solutions["wls"].excluded
+
+    every, late = excluded(), excluded(**{"nlos.cn0_min_delay_m": 2.0})
+    assert every.sum() > 300 and not (late & ~every).any() and late.sum() >= 0.9 * every.sum()
+    assert not excluded(**{"nlos.cn0_min_delay_m": 1e4}).any()
 
 
 def test_open_sky_and_clean_files_lose_no_satellite(open_sky: Path, rinex_dir: Path) -> None:
