@@ -179,7 +179,7 @@ class NlosConfig:
     """The NLOS detector of the ls/wls fixes (``[nlos]`` in ``gnss_cli/configs/default.toml``,
     which explains each value; :mod:`gnss_cli.pipeline.nlos`)."""
 
-    detector: str = "arcs"
+    detector: str = "off"
     template_quantile: float = 0.9
     template_bin_deg: float = 5.0
     template_min_count: int = 10

@@ -45,8 +45,7 @@ def esbc_plain(rinex_dir, tmp_path_factory) -> tuple[Path, Path]:
 
 def _ours(rinex_dir, systems: list[str] | None, config: Path | None = None):
     d = rinex_dir / "esbc-2020177"
-    overrides: dict[str, object] = {"methods": "wls", "iono": "iono-free", "weights.cn0_model": "off",
-                                    "nlos.detector": "off"}  # the peer's weights, no NLOS detector
+    overrides: dict[str, object] = {"methods": "wls", "iono": "iono-free", "weights.cn0_model": "off"}  # the peer's weights
     if systems:
         overrides["systems"] = systems
     cfg = load_config(config, overrides)

@@ -1,4 +1,4 @@
-"""The NLOS detector (``[nlos] detector = "arcs"``, :mod:`gnss_cli.pipeline.nlos`): its parts on
+"""The NLOS detector (``[nlos] detector = "arcs"``, off by default; :mod:`gnss_cli.pipeline.nlos`): its parts on
 hand-made arrays, and the WLS exclusions it makes against the simulator's LOS/NLOS labels, on
 open sky, and for a bias injected over a known span."""
 
@@ -15,6 +15,7 @@ from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import load_epochs, process, solve_method
+from gnss_cli.pipeline.methods import method_settings
 from gnss_cli.pipeline.nlos import keep_redundancy, los_cn0_template_dbhz, persistent_spans, span_means
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -191,3 +192,14 @@ def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> Non
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
+
+
+def test_summary_names_the_detector_only_when_it_runs() -> None:
+    """summary.csv's integrity column: off by default, so the defaults write ``fde`` alone; on, the
+    ls/wls rows say so; with integrity off the detector does not run and is not named."""
+    def integrity(**over: object) -> str:
+        return method_settings(load_config(None, {"methods": "wls", **over}), False, False)["wls"].integrity
+
+    assert integrity() == "fde"
+    assert integrity(**{"nlos.detector": "arcs"}) == "fde, nlos arcs"
+    assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
