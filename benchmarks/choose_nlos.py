@@ -1,4 +1,4 @@
-"""How the default of ``[nlos]`` (the detector of persistent reflections) was chosen: on training data only.
+"""How the settings of ``[nlos]`` (the detector of persistent reflections) were chosen: on training data only.
 
     python benchmarks/choose_nlos.py [--quick]
 
@@ -19,7 +19,10 @@ availability of tst2 and smartloc-berlin within 2 points of ``off``'s, and on ES
 more satellite-epochs than ``off`` (clean signals: nothing to flag) with its RMS within 1 cm;
 among them the one that excludes the largest share of the drives' NLOS satellite-epochs (ties:
 the lower score, the mean RMS over ``off``'s). ``off`` is chosen when no ``arcs`` candidate is
-allowed. Prints a table and writes ``benchmarks/results/choose_nlos.json``.
+allowed. The chosen candidate's values are the packaged ``[nlos]`` settings; the detector itself
+stays off by default (``detector = "off"``: it costs accuracy away from street canyons, see
+``gnss_cli/configs/default.toml``) and ``configs/urban.toml`` turns it on. Prints a table and
+writes ``benchmarks/results/choose_nlos.json``.
 About 3 minutes on one core.
 """
 
