@@ -175,6 +175,7 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
     """Every method with each integrity setting on one file, and rnx2rtkp."""
     entry: dict[str, object] = {"case": name, "settings": {}}
     t_all = keep = ref = None
+    wls_of: dict[str, object] = {}  # each judged setting's WLS solution, for the distance to rnx2rtkp
     for label, overrides in SETTINGS.items():
         over = {"methods": ",".join(METHODS), "stls.lag": 3, **overrides}
         if systems:
@@ -191,17 +192,20 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
             rows["wls"]["nlos"] = nlos_handling(res.solutions["wls"], res.epochs, faults)
         rows["seconds"] = seconds
         entry["settings"][label] = rows  # type: ignore[index]
+        if label in SETTING_NAMES:
+            wls_of[label] = res.solutions["wls"]
         entry["resolved"] = {m: s.to_dict() for m, s in res.settings.items()} if res.settings else {}
     assert t_all is not None and keep is not None
     sys_list = systems or ",".join(sorted({s[0] for s in res.epochs.sv.astype(str)}))
     pr = peer_row(obs, navs, sys_list, t_all, keep, ref_at)
     if pr is not None:
         t_p, x_p = pr.pop("t_gps_s"), pr.pop("xyz_m")
-        wls = res.solutions["wls"]
         idx = np.clip(np.searchsorted(t_all, t_p), 0, t_all.size - 1)
-        both = (np.abs(t_all[idx] - t_p) < 0.01) & (wls.status[idx] == "ok")
-        d = np.linalg.norm(wls.x_ecef_m[idx[both]] - x_p[both], axis=1)
-        pr["wls_ok_vs_peer_rms_m"] = float(np.sqrt(np.mean(d**2))) if d.size else None
+        pr["wls_ok_vs_peer_rms_m"] = {}
+        for label, wls in wls_of.items():  # RMS distance (m) of WLS's ok fixes to rnx2rtkp's, per setting
+            both = (np.abs(t_all[idx] - t_p) < 0.01) & (wls.status[idx] == "ok")  # type: ignore[attr-defined]
+            d = np.linalg.norm(wls.x_ecef_m[idx[both]] - x_p[both], axis=1)  # type: ignore[attr-defined]
+            pr["wls_ok_vs_peer_rms_m"][label] = float(np.sqrt(np.mean(d**2))) if d.size else None
         entry["rnx2rtkp"] = pr
     return entry
 
