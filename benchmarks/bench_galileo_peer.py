@@ -222,7 +222,8 @@ def run_peer(exe: str, obs: Path, navs: list[Path], folder: Path) -> dict[str, n
 
 def run_ours(obs: Path, navs: list[Path]) -> dict[str, np.ndarray]:
     """gnss-solve ``--systems E --method wls``: GPS time (s), fix (m), status, satellites used."""
-    res = process(obs, navs, load_config(None, {"systems": ["E"], "methods": "wls", "weights.cn0_model": "off"}))  # the peer's weights
+    res = process(obs, navs, load_config(None, {"systems": ["E"], "methods": "wls", "weights.cn0_model": "off",
+                                                 "nlos.detector": "off"}))  # the peer's weights, no NLOS detector
     sol = res.solutions["wls"]
     return {"time_gps_s": res.epochs.time_gps_s, "x_ecef_m": sol.x_ecef_m, "solved": np.isin(sol.status, ("ok", "untested")),
             "used": np.isfinite(sol.residuals_m), "sv": np.asarray(res.epochs.sv).astype(str),

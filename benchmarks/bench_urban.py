@@ -16,15 +16,16 @@ Cases:
   availability only, and the distance to rnx2rtkp on the epochs both write.
 
 Methods: ``wls``, ``smoother``, ``kf`` and ``stls --lag 3`` in one run, each file with
-``--integrity off`` and with the defaults (``fde`` and the multi-epoch gates). Per method and
+``--integrity off``, with the defaults (``fde`` and the multi-epoch gates) and with the defaults and
+the NLOS detector (``[nlos] detector = "arcs"``, as ``configs/urban.toml``). Per method and
 setting: availability (share of the epochs with status ``ok``), misleading epochs (``ok`` with the
 horizontal error above HPL or the vertical above VPL), ``ok`` epochs that carry no protection level,
 and the 3D RMS / 95th percentile / max of the ``ok`` epochs. rnx2rtkp (``../shared/peer/
 rnx2rtkp-spp.conf`` with the file's systems) writes no protection levels: availability and errors.
 
-Nothing here chooses a setting: every run uses the packaged defaults. Prints a table and writes
-``benchmarks/results/urban.json``. The full run (20 drives of 300 s, tst2, Berlin) takes about
-10 minutes on one core; ``--quick`` (2 drives of 120 s, tst2) about 1 minute.
+Nothing here chooses a setting: every run uses the packaged defaults but for the settings above.
+Prints a table and writes ``benchmarks/results/urban.json``. The full run (20 drives of 300 s, tst2,
+Berlin) takes about 15 minutes on one core; ``--quick`` (2 drives of 120 s, tst2) about 1 minute.
 """
 
 from __future__ import annotations
@@ -55,8 +56,12 @@ PEER_CONF = SHARED / "peer" / "rnx2rtkp-spp.conf"
 OUT = ROOT / "benchmarks" / "results" / "urban.json"
 NAVSYS = {"G": 1, "R": 4, "E": 8, "J": 16, "C": 32}
 METHODS = ("wls", "smoother", "kf", "stls")
-SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off"}, "default": {}}
-"""Integrity settings of each run (every other option at its packaged default)."""
+SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off"}, "default": {},
+                                           "nlos": {"nlos.detector": "arcs"}}
+"""Integrity settings of each run (every other option at its packaged default): integrity off, the
+defaults, and the defaults with the NLOS detector (``[nlos] detector = "arcs"``, off by default)."""
+SETTING_NAMES = {"default": "defaults", "nlos": "defaults + nlos arcs"}
+"""The judged settings (every one but ``off``) as the tables name them."""
 TST_TRUTH = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
 TST_TOW = (270149.0, 270305.0)
 
@@ -170,6 +175,7 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
     """Every method with each integrity setting on one file, and rnx2rtkp."""
     entry: dict[str, object] = {"case": name, "settings": {}}
     t_all = keep = ref = None
+    wls_of: dict[str, object] = {}  # each judged setting's WLS solution, for the distance to rnx2rtkp
     for label, overrides in SETTINGS.items():
         over = {"methods": ",".join(METHODS), "stls.lag": 3, **overrides}
         if systems:
@@ -186,17 +192,20 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
             rows["wls"]["nlos"] = nlos_handling(res.solutions["wls"], res.epochs, faults)
         rows["seconds"] = seconds
         entry["settings"][label] = rows  # type: ignore[index]
+        if label in SETTING_NAMES:
+            wls_of[label] = res.solutions["wls"]
         entry["resolved"] = {m: s.to_dict() for m, s in res.settings.items()} if res.settings else {}
     assert t_all is not None and keep is not None
     sys_list = systems or ",".join(sorted({s[0] for s in res.epochs.sv.astype(str)}))
     pr = peer_row(obs, navs, sys_list, t_all, keep, ref_at)
     if pr is not None:
         t_p, x_p = pr.pop("t_gps_s"), pr.pop("xyz_m")
-        wls = res.solutions["wls"]
         idx = np.clip(np.searchsorted(t_all, t_p), 0, t_all.size - 1)
-        both = (np.abs(t_all[idx] - t_p) < 0.01) & (wls.status[idx] == "ok")
-        d = np.linalg.norm(wls.x_ecef_m[idx[both]] - x_p[both], axis=1)
-        pr["wls_ok_vs_peer_rms_m"] = float(np.sqrt(np.mean(d**2))) if d.size else None
+        pr["wls_ok_vs_peer_rms_m"] = {}
+        for label, wls in wls_of.items():  # RMS distance (m) of WLS's ok fixes to rnx2rtkp's, per setting
+            both = (np.abs(t_all[idx] - t_p) < 0.01) & (wls.status[idx] == "ok")  # type: ignore[attr-defined]
+            d = np.linalg.norm(wls.x_ecef_m[idx[both]] - x_p[both], axis=1)  # type: ignore[attr-defined]
+            pr["wls_ok_vs_peer_rms_m"][label] = float(np.sqrt(np.mean(d**2))) if d.size else None
         entry["rnx2rtkp"] = pr
     return entry
 
@@ -262,8 +271,8 @@ def table(entries: list[dict[str, object]]) -> str:
     return "\n".join(lines)
 
 
-def aggregate(entries: list[dict[str, object]], prefix: str) -> dict[str, object]:
-    """Pooled over the simulated drives of one profile: the Done-when quantities of the issue."""
+def aggregate(entries: list[dict[str, object]], prefix: str, label: str) -> dict[str, object]:
+    """Pooled over the simulated drives of one profile, setting ``label`` against ``off``."""
     out: dict[str, object] = {}
     chosen = [e for e in entries if str(e["case"]).startswith(prefix)]
     if not chosen:
@@ -272,7 +281,7 @@ def aggregate(entries: list[dict[str, object]], prefix: str) -> dict[str, object
         ok = mis = with_pl = 0
         rms_on, rms_off = [], []
         for e in chosen:
-            r, r_off = e["settings"]["default"][m], e["settings"]["off"][m]  # type: ignore[index]
+            r, r_off = e["settings"][label][m], e["settings"]["off"][m]  # type: ignore[index]
             ok += r["ok"]
             mis += r.get("misleading", 0)
             with_pl += r["ok"] - r["ok_without_pl"]
@@ -280,15 +289,15 @@ def aggregate(entries: list[dict[str, object]], prefix: str) -> dict[str, object
                 rms_on.append(r["rms_3d_m"] ** 2 * r["ok"])
             if r_off.get("rms_3d_m") is not None:
                 rms_off.append(r_off["rms_3d_m"] ** 2 * r_off["ok"])
-        n_ok = sum(e["settings"]["default"][m]["ok"] for e in chosen)  # type: ignore[index]
+        n_ok = sum(e["settings"][label][m]["ok"] for e in chosen)  # type: ignore[index]
         n_off = sum(e["settings"]["off"][m]["ok"] for e in chosen)  # type: ignore[index]
         rms = float(np.sqrt(sum(rms_on) / n_ok)) if n_ok else None
         rms_o = float(np.sqrt(sum(rms_off) / n_off)) if n_off else None
-        out[m] = {"ok": ok, "epochs": sum(e["settings"]["default"][m]["epochs"] for e in chosen),  # type: ignore[index]
+        out[m] = {"ok": ok, "epochs": sum(e["settings"][label][m]["epochs"] for e in chosen),  # type: ignore[index]
                   "misleading": mis, "misleading_pct_of_ok_with_pl": 100 * mis / max(with_pl, 1),
                   "ok_without_pl": ok - with_pl, "rms_3d_ok_m": rms, "rms_3d_ok_integrity_off_m": rms_o,
                   "rms_ratio_to_off": (rms / rms_o) if rms and rms_o else None}
-    nl = [e["settings"]["default"]["wls"].get("nlos") for e in chosen]  # type: ignore[index]
+    nl = [e["settings"][label]["wls"].get("nlos") for e in chosen]  # type: ignore[index]
     nl = [x for x in nl if x]
     if nl:
         out["wls_nlos_dropped_pct"] = float(np.sum([x["nlos_dropped_pct"] * x["nlos_candidates"] for x in nl])
@@ -298,34 +307,42 @@ def aggregate(entries: list[dict[str, object]], prefix: str) -> dict[str, object
     return out
 
 
-def summary_table(entries: list[dict[str, object]], pooled: dict[str, dict[str, object]]) -> dict[str, object]:
-    """The results page's table: the drives pooled per receiver profile, then each real set, per method."""
+def summary_table(entries: list[dict[str, object]], pooled: dict[str, dict[str, dict[str, object]]]) -> dict[str, object]:
+    """The results page's table: the drives pooled per receiver profile, then each real set, per
+    method and judged setting (``pooled[label][profile]`` from :func:`aggregate`)."""
     rows: list[list[object]] = []
-    for profile, agg in pooled.items():
+    for profile in ("single", "dual"):
         for m in METHODS:
-            if m not in agg:
-                continue
-            a = agg[m]
-            rows.append([f"simulated drives, {profile} profile", m, round(100 * a["ok"] / max(a["epochs"], 1), 1),
-                         a["misleading"], round(a["misleading_pct_of_ok_with_pl"], 2), a["ok_without_pl"],
-                         None if a["rms_3d_ok_m"] is None else round(a["rms_3d_ok_m"], 2),
-                         None if a["rms_ratio_to_off"] is None else round(a["rms_ratio_to_off"], 2)])
+            for label, name in SETTING_NAMES.items():
+                agg = pooled[label].get(profile, {})
+                if m not in agg:
+                    continue
+                a = agg[m]
+                out = (None if m != "wls" or "wls_nlos_dropped_pct" not in agg else
+                       f"{agg['wls_nlos_dropped_pct']:.1f} / {agg['wls_los_dropped_pct']:.2f}")
+                rows.append([f"simulated drives, {profile} profile", m, name,
+                             round(100 * a["ok"] / max(a["epochs"], 1), 1), a["misleading"],
+                             round(a["misleading_pct_of_ok_with_pl"], 2), a["ok_without_pl"],
+                             None if a["rms_3d_ok_m"] is None else round(a["rms_3d_ok_m"], 2),
+                             None if a["rms_ratio_to_off"] is None else round(a["rms_ratio_to_off"], 2), out])
     for e in entries:
         if str(e["case"]).startswith("sim-"):
             continue
         for m in METHODS:
-            r, off = e["settings"]["default"][m], e["settings"]["off"][m]  # type: ignore[index]
-            rms, rms_off = r.get("rms_3d_m"), off.get("rms_3d_m")
-            rows.append([e["case"], m, round(100 * r["availability"], 1), r.get("misleading"),
-                         None if "misleading_pct" not in r else round(r["misleading_pct"], 2), r["ok_without_pl"],
-                         None if rms is None else round(rms, 2),
-                         None if not (rms and rms_off) else round(rms / rms_off, 2)])
+            for label, name in SETTING_NAMES.items():
+                r, off = e["settings"][label][m], e["settings"]["off"][m]  # type: ignore[index]
+                rms, rms_off = r.get("rms_3d_m"), off.get("rms_3d_m")
+                rows.append([e["case"], m, name, round(100 * r["availability"], 1), r.get("misleading"),
+                             None if "misleading_pct" not in r else round(r["misleading_pct"], 2),
+                             r["ok_without_pl"], None if rms is None else round(rms, 2),
+                             None if not (rms and rms_off) else round(rms / rms_off, 2), None])
         p = e.get("rnx2rtkp")
         if p:
-            rows.append([e["case"], "rnx2rtkp", round(100 * p["availability"], 1), None, None, None,
-                         None if p.get("rms_3d_m") is None else round(p["rms_3d_m"], 2), None])
-    return {"columns": ["data", "method", "ok %", "misleading", "misleading % of ok with PL", "ok without PL",
-                        "3D RMS of ok, m", "RMS / RMS integrity off"], "rows": rows}
+            rows.append([e["case"], "rnx2rtkp", "its χ²", round(100 * p["availability"], 1), None, None, None,
+                         None if p.get("rms_3d_m") is None else round(p["rms_3d_m"], 2), None, None])
+    return {"columns": ["data", "method", "integrity", "ok %", "misleading", "misleading % of ok with PL",
+                        "ok without PL", "3D RMS of ok, m", "RMS / RMS integrity off",
+                        "NLOS / LOS sat-epochs out, %"], "rows": rows}
 
 
 def main() -> None:
@@ -343,11 +360,13 @@ def main() -> None:
             entry = run_case(*case)
             entries.append(entry)
             print(f"bench_urban: {entry['case']} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    summary = {p: aggregate(entries, f"sim-{p}-") for p in ("single", "dual")}
+    summary = {label: {p: aggregate(entries, f"sim-{p}-", label) for p in ("single", "dual")}
+               for label in SETTING_NAMES}
     print(table(entries))
     print()
-    for p, agg in summary.items():
-        print(f"simulated {p}-profile drives, pooled: {json.dumps(agg, indent=None)}")
+    for label, by_profile in summary.items():
+        for p, agg in by_profile.items():
+            print(f"simulated {p}-profile drives, {SETTING_NAMES[label]}, pooled: {json.dumps(agg, indent=None)}")
     if not args.quick:
         args.out.write_text(json.dumps({
             "title": "Integrity in street canyons",
@@ -355,7 +374,11 @@ def main() -> None:
             "table": summary_table(entries, summary),
             "notes": (f"{2 * n_seeds} simulated urban drives of {duration:g} s (seeds 1-{n_seeds}, both receiver "
                       "profiles, pooled), tst2 in its truth window, smartloc-berlin (no reference: availability). "
-                      "Defaults throughout; 'RMS / RMS integrity off' compares with the same run with --integrity off. "
+                      "'defaults': the packaged defaults (the NLOS detector off); 'defaults + nlos arcs': the same "
+                      "with [nlos] detector = \"arcs\" (as configs/urban.toml). 'RMS / RMS integrity off' "
+                      "compares with the same run with --integrity off. 'NLOS / LOS sat-epochs out': the "
+                      "share of the drives' NLOS and LOS satellite-epochs WLS excluded or down-weighted "
+                      "below 10 %. "
                       "Multi-epoch methods write no protection levels yet: their ok epochs cannot be judged "
                       "misleading ('ok without PL')."),
             "seeds": n_seeds, "duration_s": duration, "methods": METHODS, "settings": SETTINGS,

@@ -21,12 +21,13 @@ import json
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from gnss_cli.config import load_config
-from gnss_cli.pipeline import process
+from gnss_cli.pipeline import RunResult, process
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import RINEX, method_row, real_cases, simulated_cases  # noqa: E402
@@ -53,10 +54,12 @@ def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool)
     return cases
 
 
-def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple], prog: str
+def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple], prog: str,
+                     extra: Callable[[str, RunResult], dict[str, object]] | None = None,
                      ) -> tuple[dict[str, dict[str, object]], dict[str, dict[str, float]]]:
     """WLS with each candidate's settings on each training case (``training_cases``'s tuples):
-    ``bench_urban.method_row`` of every candidate and case, and the seconds each run took."""
+    ``bench_urban.method_row`` of every candidate and case (with ``extra(case name, run)``'s
+    entries when given), and the seconds each run took."""
     t0 = time.perf_counter()
     results: dict[str, dict[str, object]] = {c: {} for c in candidates}
     seconds: dict[str, dict[str, float]] = {c: {} for c in candidates}
@@ -69,6 +72,8 @@ def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple
             t = res.epochs.time_gps_s
             keep = keep_at(t)
             results[cand][name] = method_row(res.solutions["wls"], ref_at(t[keep]), keep)
+            if extra is not None:
+                results[cand][name].update(extra(name, res))
         print(f"{prog}: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return results, seconds
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from importlib.resources import files
 from pathlib import Path
 
@@ -51,7 +52,18 @@ def test_rtklib_peer_sets_what_it_claims() -> None:
     assert cfg.weights.model == "rtklib"
     assert cfg.methods == ("wls",)
     assert cfg.healthy_only
+    assert cfg.weights.cn0_model == "off" and cfg.nlos.detector == "off"  # pntpos.c has neither
     assert cfg.signals["G"][0] == "C1C" and all(code[1] == "1" for code in cfg.signals["G"])  # L1 only
+
+
+def test_the_nlos_detector_is_off_by_default_and_on_in_the_urban_settings() -> None:
+    """Off in the packaged defaults (it costs accuracy away from street canyons); configs/urban.toml
+    turns it on beside its multi-satellite protection levels, every other [nlos] key packaged."""
+    default = load_config(None)
+    assert default.nlos.detector == "off"
+    urban = load_config(ROOT / "configs" / "urban.toml")
+    assert urban.nlos == replace(default.nlos, detector="arcs")
+    assert urban.max_simultaneous_faults == 3 and urban.prior_fault_satellite == 1e-2
 
 
 def test_rtklib_peer_matches_the_peer_options() -> None:

@@ -22,9 +22,11 @@ from gnss_cli.config.sections import (
     KALMAN_MODELS,
     KALMAN_OUTPUTS,
     MEASUREMENT_KINDS,
+    NLOS_DETECTORS,
     SMOOTHER_MOTIONS,
     STLS_KERNELS,
     KalmanConfig,
+    NlosConfig,
     SmootherConfig,
     StlsConfig,
     WeightConfig,
@@ -42,11 +44,11 @@ if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
 __all__ = [
-    "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "load_config",
+    "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "NlosConfig", "load_config",
     "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
     "parse_alert_limits",
     "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
-    "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "RENAMED",
+    "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "NLOS_DETECTORS", "RENAMED",
 ]
 
 IONO_OPTIONS = ("klobuchar", "iono-free", "none")
@@ -126,6 +128,8 @@ class ProcessingConfig:
     phase_slip_m: float = 1.0
     """A phase difference further than this (m) from the range rates' trapezoid is a slip (see default.toml)."""
     kalman: KalmanConfig = field(default_factory=lambda: KalmanConfig())
+    nlos: NlosConfig = field(default_factory=NlosConfig)
+    """The NLOS detector of the ls/wls fixes (``[nlos]``, :mod:`gnss_cli.pipeline.nlos`)."""
     chunk_epochs: int = 1200
     """Epochs per part of a long observation file (``gnss-solve``'s streamed run, see default.toml); 0 = whole file."""
     stream_above_epochs: int = 3600
@@ -244,6 +248,7 @@ class ProcessingConfig:
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
         self.kalman.validated()
+        self.nlos.validated()
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
         if self.robust not in ROBUST_OPTIONS:
@@ -351,8 +356,9 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
 
 
-_SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman")
-_OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman"}
+_SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman", "nlos")
+_OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman",
+               "nlos"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
@@ -431,6 +437,11 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             cfg = replace(cfg, kalman=_apply_table(cfg.kalman, data["kalman"], "kalman", source, text=("model", "output"),
                                                    floats=tuple(f.name for f in fields(KalmanConfig)
                                                                 if f.name not in ("model", "output"))))
+        if "nlos" in data:
+            cfg = replace(cfg, nlos=_apply_table(cfg.nlos, data["nlos"], "nlos", source, text=("detector", "failed_epochs"),
+                                                 floats=tuple(f.name for f in fields(NlosConfig) if f.name not in
+                                                              ("detector", "failed_epochs", "template_min_count", "cn0_min_epochs",
+                                                               "min_dof"))))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise

@@ -1,5 +1,5 @@
 """The sections of the processing configuration: pseudorange weights and the multi-epoch methods
-(``[weights]``, ``[stls]``, ``[smoother]``, ``[kalman]`` of ``gnss_cli/configs/default.toml``).
+and the NLOS detector (``[weights]``, ``[stls]``, ``[smoother]``, ``[kalman]``, ``[nlos]`` of ``gnss_cli/configs/default.toml``).
 
 Re-exported by :mod:`gnss_cli.config`.
 """
@@ -12,7 +12,7 @@ from gnss_cli.errors import ConfigError
 
 __all__ = [
     "WeightConfig", "CN0_MODELS", "StlsConfig", "SmootherConfig", "KalmanConfig", "STLS_KERNELS", "SMOOTHER_MOTIONS",
-    "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS",
+    "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "NlosConfig", "NLOS_DETECTORS", "NLOS_FAILED_EPOCHS",
 ]
 
 
@@ -169,4 +169,58 @@ class KalmanConfig:
                      "initial_drift_sigma_m_s", "gap_s", "clock_reset_m"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"kalman.{name}: expected > 0; received {getattr(self, name)}")
+        return self
+
+
+NLOS_DETECTORS = ("off", "arcs")
+NLOS_FAILED_EPOCHS = ("keep", "retry")
+"""``[nlos] failed_epochs``: an epoch that fails after the exclusions stays so, or is solved again with every satellite."""
+"""``[nlos] detector``: none, or the per-satellite spans of :mod:`gnss_cli.pipeline.nlos`."""
+
+
+@dataclass(frozen=True)
+class NlosConfig:
+    """The NLOS detector of the ls/wls fixes (``[nlos]`` in ``gnss_cli/configs/default.toml``,
+    which explains each value; :mod:`gnss_cli.pipeline.nlos`)."""
+
+    detector: str = "off"
+    template_quantile: float = 0.9
+    template_bin_deg: float = 5.0
+    template_min_count: int = 10
+    cn0_enter_db: float = 9.0
+    cn0_exit_db: float = 5.0
+    cn0_min_epochs: int = 2
+    cn0_min_delay_m: float = float("-inf")
+    residual_k: float = 1.0
+    residual_h: float = float("inf")
+    min_dof: int = 1
+    failed_epochs: str = "retry"
+
+    def validated(self) -> "NlosConfig":
+        """Self, after checking every value; raises :class:`ConfigError` naming the key."""
+        if self.detector not in NLOS_DETECTORS:
+            raise ConfigError(f"nlos.detector: expected one of {', '.join(NLOS_DETECTORS)}; received {self.detector!r}")
+        if not 0.5 <= self.template_quantile < 1.0:
+            raise ConfigError(f"nlos.template_quantile: expected 0.5 <= value < 1; received {self.template_quantile}")
+        if not 0.0 < self.template_bin_deg <= 90.0:
+            raise ConfigError(f"nlos.template_bin_deg: expected 0 < value <= 90 (deg); received {self.template_bin_deg}")
+        for name in ("template_min_count", "cn0_min_epochs"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"nlos.{name}: expected >= 1; received {getattr(self, name)}")
+        if not 0.0 <= self.cn0_exit_db <= self.cn0_enter_db < float("inf"):
+            raise ConfigError(f"nlos.cn0_exit_db, cn0_enter_db: expected 0 <= exit <= enter (dB); received "
+                              f"{self.cn0_exit_db}, {self.cn0_enter_db}")
+        if not 0.0 < self.cn0_enter_db:
+            raise ConfigError(f"nlos.cn0_enter_db: expected > 0 (dB); received {self.cn0_enter_db}")
+        if not 0.0 < self.residual_k < float("inf"):
+            raise ConfigError(f"nlos.residual_k: expected a positive number (sigmas); received {self.residual_k}")
+        if not self.residual_h > 0.0:
+            raise ConfigError(f"nlos.residual_h: expected > 0 (sigmas; inf: no residual test); received {self.residual_h}")
+        if self.failed_epochs not in NLOS_FAILED_EPOCHS:
+            raise ConfigError(f"nlos.failed_epochs: expected one of {', '.join(NLOS_FAILED_EPOCHS)}; "
+                              f"received {self.failed_epochs!r}")
+        if self.cn0_min_delay_m != self.cn0_min_delay_m:
+            raise ConfigError("nlos.cn0_min_delay_m: expected a number (m; -inf: no delay test); received nan")
+        if self.min_dof < 1:
+            raise ConfigError(f"nlos.min_dof: expected >= 1 (an epoch keeps a test); received {self.min_dof}")
         return self

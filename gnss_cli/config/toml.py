@@ -35,6 +35,7 @@ def config_toml(config: ProcessingConfig) -> str:
         ("wtls", {"column_scaling": config.wtls_column_scaling}),
         ("smoother", _fields(config.smoother)),
         ("kalman", _fields(config.kalman)),
+        ("nlos", _fields(config.nlos)),
     ]
     lines = ["# gnss-solve effective configuration (packaged defaults < --config < flags)"]
     for name, table in tables:

@@ -48,7 +48,8 @@ class MethodSettings:
     lag : the kernel's or quadrature rule's lag (epochs), empty where none.
     window : ``1 epoch``, ``15 epochs`` or ``whole segments``.
     measurements : the measurement kinds used, ``+``-joined (``pseudorange+doppler``).
-    integrity : how the rows are tested (``fde``, ``check``, ``gate``, ``off``, ...).
+    integrity : how the rows are tested (``fde``, ``check``, ``gate``, ``off``, ...; ls/wls add
+        ``robust huber`` and ``nlos arcs`` when those run).
     """
 
     method: str
@@ -80,6 +81,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
     without) Doppler and carrier phase."""
     kinds = "+".join(resolved_measurements(config, has_doppler, has_phase))
     snapshot_integrity = config.integrity + (f", robust {config.robust}" if config.robust != "off" else "")
+    if config.integrity != "off" and config.nlos.detector != "off":  # the reflections left out first
+        snapshot_integrity += f", nlos {config.nlos.detector}"
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
     out: dict[str, MethodSettings] = {}
     for m in config.methods:

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.range_model import EARTH_SURFACE_BAND_M, Linearization, linearize, stls_row_cov, width_groups, wtls_column_scale
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, monitor_fixes, take_epochs
+from gnss_cli.pipeline.nlos import monitor_without_nlos
 from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
@@ -102,7 +103,10 @@ def solve_method(
         sol = _gauss_newton(sub, method, config, report, x0, b0, keep_unconverged=unconverged)
         return _robust_refit(sub, method, config, sol, unconverged) if config.robust != "off" else sol
 
-    return monitor(data, fit(data, report=progress), config, fit)
+    first = fit(data, report=progress)
+    if config.nlos.detector == "arcs" and config.integrity != "off":  # off: the plain fix, nothing excluded
+        return monitor_without_nlos(data, first, fit, config)
+    return monitor(data, first, config, fit)
 
 
 def _robust_refit(data: EpochData, method: str, config: ProcessingConfig, sol: MethodSolution,

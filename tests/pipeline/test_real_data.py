@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -47,6 +49,19 @@ def test_0759_wls_matches_rnx2rtkp(run_0759, rinex_dir, peer, tmp_path):
     # Same epochs, same models: every epoch within 1 mm (0.16 mm max measured). Before the
     # time tags were exact, 15 epochs written as xx.9990000 s were 0.87 m off.
     assert np.max(dist) <= 1e-3, np.max(dist)
+
+
+def test_0759_with_the_peer_config_matches_rnx2rtkp(rinex_dir, peer, tmp_path):
+    """configs/rtklib-peer.toml (no C/N0 weights, no NLOS detector, the chi-square check): every
+    epoch rnx2rtkp writes within 1 mm, as with the defaults (the file has no S codes)."""
+    d = rinex_dir / "rtklib-0759"
+    tow, xyz = peer(d / "07590920.05o", [d / "07590920.05n"], tmp_path)
+    r = run(d / "07590920.05o", [d / "07590920.05n"],
+            load_config(Path(__file__).resolve().parents[2] / "configs" / "rtklib-peer.toml"))
+    _, our_tow = gps_s2week_tow(r.epochs.time_gps_s)
+    k = np.clip(np.searchsorted(our_tow, tow - 0.5), 0, our_tow.size - 1)
+    assert tow.size >= 115 and np.all(np.abs(our_tow[k] - tow) < 0.01)
+    assert np.max(np.linalg.norm(r.solutions["wls"].x_ecef_m[k] - xyz, axis=1)) <= 1e-3
 
 
 def test_p433_rinex3_hatanaka_gps(rinex_dir):

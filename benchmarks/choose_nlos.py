@@ -1,0 +1,147 @@
+"""How the settings of ``[nlos]`` (the detector of persistent reflections) were chosen: on training data only.
+
+    python benchmarks/choose_nlos.py [--quick]
+
+Training data: simulated urban drives with seeds 101-103 (``bench_urban.py`` reports seeds 1-10),
+both receiver profiles, 300 s at 1 Hz (against the simulator's truth, and its ``faults.csv``
+labels); tst2 (against its truth); smartloc-berlin (availability only: no reference); ESBC, a
+clean station (24 h at 30 s), which must not change. For each candidate -- ``off``, and ``arcs``
+with a few C/N0 thresholds (enter/exit, dB), redundancies (``min_dof``), ``failed_epochs``
+"keep" or "retry", the delay test of the C/N0 spans and the residual CUSUM
+(``residual_k``/``residual_h``) -- ``wls`` with the default integrity (``fde``) and every other
+option at its default. Per case: availability, misleading epochs, 3D RMS of the ``ok`` epochs,
+satellite-epochs excluded; on the drives the share of NLOS and of LOS satellite-epochs excluded
+or down-weighted below 10 % (``bench_urban.nlos_handling``).
+
+Rule: the allowed candidates have no more misleading epochs (summed over the cases with a
+reference) than ``off``, exclude at most 5 % of the LOS satellite-epochs of the drives, keep the
+availability of tst2 and smartloc-berlin within 2 points of ``off``'s, and on ESBC exclude no
+more satellite-epochs than ``off`` (clean signals: nothing to flag) with its RMS within 1 cm;
+among them the one that excludes the largest share of the drives' NLOS satellite-epochs (ties:
+the lower score, the mean RMS over ``off``'s). ``off`` is chosen when no ``arcs`` candidate is
+allowed. The chosen candidate's values are the packaged ``[nlos]`` settings; the detector itself
+stays off by default (``detector = "off"``: it costs accuracy away from street canyons, see
+``gnss_cli/configs/default.toml``) and ``configs/urban.toml`` turns it on. Prints a table and
+writes ``benchmarks/results/choose_nlos.json``.
+About 3 minutes on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_urban import nlos_handling  # noqa: E402
+from choose_cn0_weights import score_candidates, training_cases  # noqa: E402
+
+from gnss_cli.pipeline import RunResult  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "choose_nlos.json"
+ARCS = {"nlos.detector": "arcs", "nlos.cn0_enter_db": 7.0, "nlos.cn0_exit_db": 4.0, "nlos.min_dof": 2,
+        "nlos.failed_epochs": "retry"}
+CANDIDATES: dict[str, dict[str, object]] = {
+    "off": {"nlos.detector": "off"},
+    "C/N0 7/4 dB, dof 3, keep": {**ARCS, "nlos.min_dof": 3, "nlos.failed_epochs": "keep"},
+    "C/N0 7/4 dB, dof 3": {**ARCS, "nlos.min_dof": 3},
+    "C/N0 7/4 dB, dof 2": ARCS,
+    "C/N0 7/4 dB, dof 1": {**ARCS, "nlos.min_dof": 1},
+    "C/N0 6/3 dB, dof 2": {**ARCS, "nlos.cn0_enter_db": 6.0, "nlos.cn0_exit_db": 3.0},
+    "C/N0 9/5 dB, dof 2": {**ARCS, "nlos.cn0_enter_db": 9.0, "nlos.cn0_exit_db": 5.0},
+    "C/N0 9/5 dB, dof 1": {**ARCS, "nlos.cn0_enter_db": 9.0, "nlos.cn0_exit_db": 5.0, "nlos.min_dof": 1},
+    "C/N0 11/6 dB, dof 1": {**ARCS, "nlos.cn0_enter_db": 11.0, "nlos.cn0_exit_db": 6.0, "nlos.min_dof": 1},
+    "C/N0 7/4 dB, dof 2, delay 0 m": {**ARCS, "nlos.cn0_min_delay_m": 0.0},
+    "C/N0 7/4 dB, dof 2, CUSUM 2/10": {**ARCS, "nlos.residual_k": 2.0, "nlos.residual_h": 10.0},
+}
+"""Every ``arcs`` candidate also keeps the other ``[nlos]`` keys at their packaged values."""
+REAL = ("tst2", "smartloc-berlin")
+MAX_LOS_PCT = 5.0
+MAX_AVAILABILITY_LOSS = 0.02
+MAX_ESBC_RMS_INCREASE_M = 0.01
+
+
+def _extra(faults: dict[str, pd.DataFrame]):  # noqa: ANN202 - the score_candidates hook
+    def extra(name: str, res: RunResult) -> dict[str, object]:
+        sol = res.solutions["wls"]
+        out: dict[str, object] = {"excluded": int(sol.excluded.sum()) if sol.excluded is not None else 0}
+        if name in faults:
+            out["nlos"] = nlos_handling(sol, res.epochs, faults[name])
+        return out
+    return extra
+
+
+def _pooled(rows: dict[str, dict[str, object]], key: str) -> float:
+    """The ``key`` share (%) of the drives' NLOS or LOS satellite-epochs, pooled over the drives."""
+    nl = [r["nlos"] for r in rows.values() if "nlos" in r]
+    kind = key.split("_")[0]
+    n = sum(x[f"{kind}_candidates"] for x in nl)
+    return float(sum(x[key] * x[f"{kind}_candidates"] for x in nl) / max(n, 1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2")
+    args = parser.parse_args()
+    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = training_cases(Path(tmp), seeds, duration, args.quick)
+        faults = {c[0]: pd.read_csv(Path(c[1]).parent / "faults.csv") for c in cases if str(c[0]).startswith("sim-")}
+        results, _ = score_candidates(CANDIDATES, cases, "choose_nlos", extra=_extra(faults))
+    off = results["off"]
+    names = list(off)
+    scores, misleading, nlos_pct, los_pct = {}, {}, {}, {}
+    for cand, rows in results.items():
+        ratios = [rows[n]["rms_3d_m"] / off[n]["rms_3d_m"] for n in names if rows[n].get("rms_3d_m") and off[n].get("rms_3d_m")]
+        scores[cand] = float(np.mean(ratios))
+        misleading[cand] = int(sum(rows[n].get("misleading", 0) for n in names))
+        nlos_pct[cand], los_pct[cand] = _pooled(rows, "nlos_dropped_pct"), _pooled(rows, "los_dropped_pct")
+
+    def allowed(cand: str) -> bool:
+        rows = results[cand]
+        esbc = rows.get("esbc", {}).get("rms_3d_m")
+        return (misleading[cand] <= misleading["off"] and los_pct[cand] <= MAX_LOS_PCT
+                and all(rows[n]["availability"] >= off[n]["availability"] - MAX_AVAILABILITY_LOSS for n in REAL if n in rows)
+                and (esbc is None or (esbc <= off["esbc"]["rms_3d_m"] + MAX_ESBC_RMS_INCREASE_M
+                                      and rows["esbc"]["excluded"] <= off["esbc"]["excluded"])))
+
+    arcs = [c for c in CANDIDATES if c != "off" and allowed(c)]
+    chosen = max(arcs, key=lambda c: (round(nlos_pct[c], 1), -scores[c])) if arcs else "off"
+    lines = ["| candidate | " + " | ".join(names) + " | NLOS / LOS out % | score | misleading | allowed |",
+             "|---|" + "---|" * (len(names) + 4)]
+    table_rows: list[list[object]] = []
+    for cand, rows in results.items():
+        cells = [f"{100 * rows[n]['availability']:.0f} % / " + (f"{rows[n]['rms_3d_m']:.2f} m" if rows[n].get("rms_3d_m")
+                 else "–") + f" / {rows[n]['excluded']}" for n in names]
+        ok = "yes" if cand == "off" or allowed(cand) else "no"
+        lines.append(f"| {cand} | " + " | ".join(cells) + f" | {nlos_pct[cand]:.1f} / {los_pct[cand]:.1f} | "
+                     f"{scores[cand]:.3f} | {misleading[cand]} | {ok} |")
+        table_rows.append([cand, *cells, f"{nlos_pct[cand]:.1f} / {los_pct[cand]:.1f}", round(scores[cand], 3),
+                           misleading[cand], ok])
+    print("\n".join(lines))
+    print(f"chosen: {chosen} (NLOS {nlos_pct[chosen]:.1f} %, LOS {los_pct[chosen]:.1f} %, score {scores[chosen]:.3f})")
+    if not args.quick:
+        OUT.write_text(json.dumps({"title": "Choosing the NLOS detector on training data",
+                                   "command": "python benchmarks/choose_nlos.py",
+                                   "table": {"columns": ["candidate", *[f"{n}: ok / RMS / excluded" for n in names],
+                                                         "NLOS / LOS satellite-epochs out, % (drives)",
+                                                         "score (RMS / off's, mean)", "misleading epochs", "allowed"],
+                                             "rows": table_rows},
+                                   "notes": f"WLS, default integrity; chosen: {chosen}. Training data only: "
+                                            "bench_urban.py reports other seeds.",
+                                   "seeds": seeds, "duration_s": duration, "candidates": CANDIDATES,
+                                   "scores": scores, "misleading": misleading, "nlos_dropped_pct": nlos_pct,
+                                   "los_dropped_pct": los_pct, "chosen": chosen, "cases": results,
+                                   "seconds": time.perf_counter() - t0}, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

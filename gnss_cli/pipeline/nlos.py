@@ -1,0 +1,290 @@
+"""Persistent NLOS reflections: satellites excluded over the spans where their C/N0 or their
+pseudorange residuals say the signal arrives by reflection (``[nlos] detector = "arcs"``).
+
+A reflected (non-line-of-sight) signal travels a longer path: its pseudorange carries a positive
+delay of metres to tens of metres for as long as the reflection lasts (seconds to minutes), and
+it arrives weaker than a direct signal at that elevation. Both signs hold over a span, so the
+tests run over each satellite's track in time, not epoch by epoch, and a satellite is excluded
+from the first to the last epoch of the span:
+
+1. **C/N0 deficit.** A line-of-sight template ``C/N0_los(system, el)`` is estimated from the
+   file itself: per system (one tracked signal each) and elevation bin of ``template_bin_deg``,
+   the ``template_quantile`` of the C/N0 of the bin (bins with fewer than ``template_min_count``
+   values are interpolated in elevation from the others). An upper quantile is a line-of-sight
+   value as long as a bin holds some direct signals: reflections are 8-20 dB weaker. The
+   deficit ``d = C/N0_los(el) - C/N0`` (dB) is large over a reflection; a span is a run of
+   epochs with ``d > cn0_exit_db`` that holds at least ``cn0_min_epochs`` epochs with
+   ``d > cn0_enter_db`` (a hysteresis: one weak epoch neither starts nor ends a reflection).
+   With a finite ``cn0_min_delay_m`` a span stays only when the fix without it predicts the
+   satellite's pseudoranges short by at least that much on average over the span (a reflection
+   lengthens the path; an attenuated direct signal does not).
+2. **Persistent positive residuals.** At the WLS fix without the C/N0 spans, the standardized
+   post-fit residual ``u = r / sigma`` (``sigma`` the a-priori pseudorange sigma) of each
+   satellite; a one-sided CUSUM over runs of ``u > residual_k``: a run is a span when
+   ``sum (u - residual_k) >= residual_h`` (``residual_h = inf``: no residual test). A reflection
+   only lengthens the path, so only positive residuals count.
+
+An epoch keeps its redundancy: satellites are excluded most suspicious first (largest ``d``
+over ``cn0_enter_db``, or ``u`` over ``residual_k``), and no further once the epoch would keep
+fewer than ``3 + k + min_dof`` satellites (``k`` its clocks) or fewer than ``min_satellites``.
+The excluded satellites are in the WLS solution's ``excluded`` mask (with FDE's); every method
+that starts from the WLS fix leaves them out too. With ``failed_epochs = "retry"`` an epoch that
+is not ``ok`` after the exclusions is solved again with every satellite
+(:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
+``"off"`` is the plain fix. The template is the solved part's (a file of at most
+``stream_above_epochs`` epochs is one part).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
+from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
+
+__all__ = ["los_cn0_template_dbhz", "persistent_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans",
+           "prediction_residuals_m", "exclude_nlos", "monitor_without_nlos"]
+
+F64 = NDArray[np.float64]
+Fit = Callable[[EpochData], MethodSolution]
+"""Gauss-Newton of the ls/wls method on the given epochs (no exclusion)."""
+Refit = Callable[..., MethodSolution]
+"""Gauss-Newton of the ls/wls method on ``(epochs, x0 (t, 3) or None, clocks0 (t, k) or None)``."""
+
+
+def los_cn0_template_dbhz(snr_dbhz: F64, el_deg: F64, groups: NDArray[np.int64], *, bin_deg: float = 5.0,
+                          quantile: float = 0.9, min_count: int = 10, rounds: int = 2) -> F64:
+    """The line-of-sight C/N0 ``(T, n)`` (dB-Hz) of every satellite-epoch from the file itself.
+
+    Parameters
+    ----------
+    snr_dbhz : ``(T, n)`` C/N0, dB-Hz (NaN: none).
+    el_deg : ``(T, n)`` elevation, deg (NaN: unknown).
+    groups : ``(n,)`` group of each satellite (a system: one tracked signal each).
+    bin_deg : width of the elevation bins, deg.
+    quantile : the quantile of a bin's C/N0 taken as its line-of-sight value.
+    min_count : values a bin (and a satellite's own level) needs; emptier bins are interpolated
+        linearly in elevation from the group's other bins (held constant beyond the first and last).
+    rounds : alternations of the group's bins and the satellites' own levels.
+
+    Returns
+    -------
+    F64
+        ``L_g(el) + o_s``: the group's level at each satellite-epoch's elevation (interpolated
+        between bin centres) plus the satellite's own offset ``o_s <= 0``, the ``quantile`` of
+        its C/N0 less its group's level over its track (transmit power, satellite block, FDMA
+        channel; a satellite with fewer than ``min_count`` values has none). The bins are taken
+        again from the C/N0 less the offsets, ``rounds`` times, so that a bin held by a weaker
+        satellite does not lower the others' level. NaN where the group has no bin with
+        ``min_count`` values, or C/N0 or elevation are NaN.
+    """
+    edges = np.arange(0.0, 90.0 + bin_deg, bin_deg)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    ok = np.isfinite(snr_dbhz) & np.isfinite(el_deg)
+    b = np.where(ok, np.clip(np.digitize(np.nan_to_num(el_deg), edges) - 1, 0, centres.size - 1), -1)
+    offset = np.zeros(snr_dbhz.shape[1])
+    level = np.full(snr_dbhz.shape, np.nan)
+    for _ in range(rounds):
+        level[:] = np.nan
+        own = snr_dbhz - offset
+        for g in np.unique(groups):
+            cols = groups == g
+            values, bins = own[:, cols], b[:, cols]
+            per_bin = np.full(centres.size, np.nan)
+            for i in np.unique(bins[bins >= 0]):
+                in_bin = values[bins == i]
+                if in_bin.size >= min_count:
+                    per_bin[i] = np.quantile(in_bin, quantile)
+            have = np.isfinite(per_bin)
+            if have.any():
+                level[:, cols] = np.where(ok[:, cols], np.interp(el_deg[:, cols], centres[have], per_bin[have]), np.nan)
+        below = snr_dbhz - level
+        has = np.isfinite(below).sum(axis=0) >= min_count
+        offset = np.zeros(snr_dbhz.shape[1])
+        if has.any():
+            offset[has] = np.minimum(np.nanquantile(below[:, has], quantile, axis=0), 0.0)
+    return level + offset
+
+
+def _span_ids(active: NDArray[np.bool_]) -> tuple[NDArray[np.intp], int]:
+    """``(n, T)`` index of the run of consecutive ``active`` epochs (``(T, n)``, along axis 0)
+    each epoch of each satellite belongs to (-1 outside), and the number of runs."""
+    T, n = active.shape
+    a = active.T
+    start = a & ~np.concatenate([np.zeros((n, 1), dtype=bool), a[:, :-1]], axis=1)
+    return np.where(a, np.cumsum(start.ravel()).reshape(n, T) - 1, -1), int(start.sum())
+
+
+def persistent_spans(active: NDArray[np.bool_], score: F64, threshold: float) -> NDArray[np.bool_]:
+    """The runs of consecutive ``active`` epochs of each satellite (``(T, n)``, along axis 0)
+    whose summed ``score`` reaches ``threshold``: their epochs are True.
+
+    >>> a = np.array([[1], [1], [0], [1]], bool)
+    >>> persistent_spans(a, np.array([[2.0], [2.0], [9.0], [3.0]]), 4.0)[:, 0].tolist()
+    [True, True, False, False]
+    """
+    if not active.any():
+        return np.zeros_like(active)
+    run, count = _span_ids(active)
+    a = run >= 0
+    total = np.bincount(run[a], weights=score.T[a], minlength=count)
+    return (a & (total >= threshold)[np.maximum(run, 0)]).T
+
+
+def span_means(spans: NDArray[np.bool_], values: F64) -> F64:
+    """``(T, n)``: the mean of the finite ``values`` over the run of ``spans`` each epoch belongs to
+    (NaN outside the runs, and for a run without a finite value)."""
+    out = np.full(spans.shape, np.nan)
+    if not spans.any():
+        return out
+    run, count = _span_ids(spans)
+    v = values.T
+    has = (run >= 0) & np.isfinite(v)
+    total = np.bincount(run[has], weights=v[has], minlength=count)
+    n = np.bincount(run[has], minlength=count)
+    mean = np.where(n > 0, total / np.maximum(n, 1), np.nan)
+    out.T[run >= 0] = mean[run[run >= 0]]
+    return out
+
+
+def keep_redundancy(flagged: NDArray[np.bool_], suspicion: F64, used: NDArray[np.bool_],
+                    system_index: NDArray[np.int64], n_systems: int, min_dof: int,
+                    min_satellites: int) -> NDArray[np.bool_]:
+    """The ``flagged`` satellites ``(T, n)`` each epoch can drop: most ``suspicion`` first, while
+    the epoch keeps ``used`` satellites for ``dof = n_used - 3 - k >= min_dof`` (``k``: systems
+    with a satellite left) and ``n_used >= min_satellites``."""
+    T = flagged.shape[0]
+    flagged = flagged & used
+    order = np.argsort(np.where(flagged, -suspicion, np.inf), axis=1, kind="stable")
+    members = np.zeros((T, n_systems), dtype=np.int64)
+    np.add.at(members, (np.nonzero(used)[0], system_index[np.nonzero(used)[1]]), 1)
+    n_used = used.sum(axis=1)
+    going = np.ones(T, dtype=bool)
+    out = np.zeros_like(flagged)
+    rows = np.arange(T)
+    for j in range(int(flagged.sum(axis=1).max(initial=0))):
+        sv = order[:, j]
+        s = system_index[sv]
+        left = members.copy()
+        left[rows, s] -= 1
+        dof = n_used - 1 - 3 - (left > 0).sum(axis=1)
+        go = going & flagged[rows, sv] & (dof >= min_dof) & (n_used - 1 >= min_satellites)
+        going &= go
+        out[rows[go], sv[go]] = True
+        members[rows[go], s[go]] -= 1
+        n_used -= go
+    return out
+
+
+def _elevation_deg(data: EpochData, sol: MethodSolution) -> F64:
+    """Elevations ``(T, n)`` at the fixes of ``sol``; an epoch without a fix takes the nearest
+    earlier (else later) fix, or the header position; NaN without any."""
+    x = sol.x_ecef_m
+    good = np.isfinite(x).all(axis=1)
+    if not good.any():
+        if data.approx_ecef_m is None:
+            return np.full(data.usable.shape, np.nan)
+        x, good = np.broadcast_to(data.approx_ecef_m, x.shape), np.ones(good.size, dtype=bool)
+    idx = np.maximum.accumulate(np.where(good, np.arange(good.size), -1))
+    idx = np.where(idx < 0, np.flatnonzero(good)[0], idx)
+    return satellite_azimuth_elevation_deg(data.sat_ecef_m, x[idx])[1]
+
+
+def cn0_spans(data: EpochData, sol: MethodSolution, config: ProcessingConfig) -> tuple[NDArray[np.bool_], F64]:
+    """The C/N0 spans ``(T, n)`` of the satellites ``sol`` used (module docstring, test 1), and
+    the deficit ``d`` (dB; NaN where there is no template or C/N0)."""
+    cfg = config.nlos
+    used = np.isfinite(sol.residuals_m)
+    if data.snr_dbhz is None:
+        return np.zeros_like(used), np.full(used.shape, np.nan)
+    groups = np.unique([sv[0] for sv in data.sv.astype(str)], return_inverse=True)[1]
+    snr = np.where(used, data.snr_dbhz, np.nan)
+    template = los_cn0_template_dbhz(snr, _elevation_deg(data, sol), groups, bin_deg=cfg.template_bin_deg,
+                                     quantile=cfg.template_quantile, min_count=cfg.template_min_count)
+    deficit = template - snr
+    active = used & (np.nan_to_num(deficit, nan=-np.inf) > cfg.cn0_exit_db)
+    strong = (np.nan_to_num(deficit, nan=-np.inf) > cfg.cn0_enter_db).astype(np.float64)
+    return persistent_spans(active, strong, cfg.cn0_min_epochs), deficit
+
+
+def residual_spans(sol: MethodSolution, config: ProcessingConfig) -> tuple[NDArray[np.bool_], F64]:
+    """The residual spans ``(T, n)`` of ``sol`` (module docstring, test 2) and ``u = r / sigma``."""
+    cfg = config.nlos
+    sigma = sol.sigma_m if sol.sigma_m is not None else np.full(sol.residuals_m.shape, np.nan)
+    u = sol.residuals_m / sigma
+    active = np.nan_to_num(u, nan=-np.inf) > cfg.residual_k
+    if not np.isfinite(cfg.residual_h):
+        return np.zeros_like(active), u
+    return persistent_spans(active, np.where(active, u - cfg.residual_k, 0.0), cfg.residual_h), u
+
+
+def prediction_residuals_m(data: EpochData, sol: MethodSolution, which: NDArray[np.bool_],
+                           config: ProcessingConfig) -> F64:
+    """``(T, n)`` observed minus modelled pseudorange (m) of the satellites ``which`` at the fixes of
+    ``sol`` that left them out (:func:`~gnss_cli.pipeline.integrity.check_fixes`); NaN elsewhere and
+    where ``sol`` has no fix."""
+    out = np.full(which.shape, np.nan)
+    rows = np.flatnonzero(np.isfinite(sol.x_ecef_m).all(axis=1) & np.isfinite(sol.clocks_m).all(axis=1) & which.any(axis=1))
+    if rows.size:
+        sigma = np.where(which[rows], 1.0, np.nan)
+        out[rows] = check_fixes(take_epochs(data, rows), sol.x_ecef_m[rows], sol.clocks_m[rows], sigma, config).residuals_m
+    return out
+
+
+def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: ProcessingConfig) -> NDArray[np.bool_]:
+    """The satellite-epochs ``(T, n)`` to exclude as persistent reflections (module docstring):
+    the C/N0 spans at the fix ``first`` of every satellite (those whose pseudoranges the fix
+    without them predicts short by ``cn0_min_delay_m`` or more on average over the span), then the
+    residual spans at the fix ``fit`` gives without them; each stage keeps every epoch's redundancy."""
+    cfg = config.nlos
+    k = len(data.systems)
+    system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+
+    def allowed(flagged: NDArray[np.bool_], suspicion: F64, used: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        return keep_redundancy(flagged, np.nan_to_num(suspicion), used, system_index, k, cfg.min_dof,
+                               config.min_satellites)
+
+    def without(out: NDArray[np.bool_]) -> MethodSolution:
+        return fit(replace(data, usable=data.usable & ~out))
+
+    used = np.isfinite(first.residuals_m)
+    spans, deficit = cn0_spans(data, first, config)
+    out = allowed(spans, deficit / cfg.cn0_enter_db, used)
+    second: MethodSolution | None = None
+    if np.isfinite(cfg.cn0_min_delay_m) and out.any():
+        second = without(out)
+        delay = span_means(out, prediction_residuals_m(data, second, out, config))
+        kept = out & (np.nan_to_num(delay, nan=np.inf) >= cfg.cn0_min_delay_m)
+        second, out = (second if kept.sum() == out.sum() else None), kept
+    if not np.isfinite(cfg.residual_h):
+        return out
+    second = second if second is not None else without(out)
+    spans, u = residual_spans(second, config)
+    return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m))
+
+
+def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, config: ProcessingConfig) -> MethodSolution:
+    """:func:`~gnss_cli.pipeline.integrity.monitor` (the test, FDE, protection levels) of the fixes
+    without the reflections :func:`exclude_nlos` finds from the plain fix ``first``; ``fit`` solves a
+    subset of epochs from given starting fixes. The excluded satellites join FDE's in ``excluded``.
+
+    With ``[nlos] failed_epochs = "retry"`` an epoch that is not ``ok`` after the exclusions (its
+    test fails and FDE, short of redundancy, cannot repair it) is solved again with every satellite,
+    as without the detector, and takes that solution when it is ``ok``."""
+    reflected = exclude_nlos(data, first, lambda sub: fit(sub, None, None), config)
+    reduced = replace(data, usable=data.usable & ~reflected)
+    sol = monitor(reduced, fit(reduced, None, None), config, fit)
+    sol = replace(sol, excluded=reflected if sol.excluded is None else sol.excluded | reflected)
+    retry = np.flatnonzero((sol.status != EpochStatus.OK) & reflected.any(axis=1))
+    if config.nlos.failed_epochs != "retry" or not retry.size:
+        return sol
+    sub = take_epochs(data, retry)
+    again = monitor(sub, take_solution(first, retry), config, fit)
+    better = np.flatnonzero(again.status == EpochStatus.OK)
+    return merge_epochs(sol, retry[better], take_solution(again, better)) if better.size else sol

@@ -1,0 +1,205 @@
+"""The NLOS detector (``[nlos] detector = "arcs"``, off by default; :mod:`gnss_cli.pipeline.nlos`): its parts on
+hand-made arrays, and the WLS exclusions it makes against the simulator's LOS/NLOS labels, on
+open sky, and for a bias injected over a known span."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gnss_cli.config import load_config
+from gnss_cli.errors import ConfigError
+from gnss_cli.gnss.time import gps_s2week_tow
+from gnss_cli.pipeline import load_epochs, process, solve_method
+from gnss_cli.pipeline.methods import method_settings
+from gnss_cli.pipeline.nlos import keep_redundancy, los_cn0_template_dbhz, persistent_spans, span_means
+
+ROOT = Path(__file__).resolve().parents[2]
+ARCS = {"methods": "wls", "nlos.detector": "arcs"}
+OFF = {"methods": "wls", "nlos.detector": "off"}
+
+
+def _simulate(out: Path, *args: str) -> Path:
+    from gnss_cli.cli.exits import run_app
+    from gnss_cli.cli.simulate import app
+
+    with pytest.raises(SystemExit) as done:
+        run_app(app, "gnss-simulate", ["--trajectory", "drive", "--duration", "90", "--interval", "1",
+                                       "--out-dir", str(out), "-q", *args])
+    assert done.value.code == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def canyon(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _simulate(tmp_path_factory.mktemp("nlos") / "canyon", "--environment", "urban", "--receiver", "dual",
+                     "--seed", "201")
+
+
+@pytest.fixture(scope="module")
+def open_sky(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _simulate(tmp_path_factory.mktemp("nlos") / "open", "--seed", "201")
+
+
+def test_spans_are_runs_whose_score_reaches_the_threshold() -> None:
+    active = np.array([[1, 1], [1, 0], [0, 1], [1, 1], [1, 1], [1, 1]], dtype=bool)
+    score = np.array([[1.0, 5.0], [1.0, 0.0], [9.0, 1.0], [0.5, 1.0], [0.5, 1.0], [0.5, 1.0]])
+    got = persistent_spans(active, score, 2.0)
+    # column 0: runs [0, 1] (sum 2: a span) and [3, 5] (1.5: not); column 1: [0] (5) and [2, 5] (4)
+    assert got[:, 0].tolist() == [True, True, False, False, False, False]
+    assert got[:, 1].tolist() == [True, False, True, True, True, True]
+    assert not persistent_spans(np.zeros((4, 2), bool), score[:4], 0.0).any()
+
+
+def test_span_means_average_each_run() -> None:
+    spans = np.array([[1, 0], [1, 1], [0, 0], [1, 1]], dtype=bool)
+    values = np.array([[2.0, 9.0], [4.0, np.nan], [7.0, np.nan], [5.0, 1.0]])
+    got = span_means(spans, values)
+    np.testing.assert_array_equal(got[:, 0], [3.0, 3.0, np.nan, 5.0])
+    np.testing.assert_array_equal(got[:, 1], [np.nan, np.nan, np.nan, 1.0])  # a run of NaNs has no mean
+
+
+def test_the_template_is_an_upper_quantile_per_bin_and_satellite_level() -> None:
+    """Two satellites of one system climbing through the bins: the line-of-sight level follows
+    the 0.9 quantile of each bin, a satellite 10 dB weaker all through keeps its own level, and
+    its 10 dB drop over part of its track stands out against that level."""
+    rng = np.random.default_rng(1)
+    T = 400
+    el = np.stack([np.linspace(10, 80, T), np.linspace(15, 85, T)], axis=1)
+    los = 30.0 + 15.0 * np.sin(np.radians(el))
+    snr = los + rng.normal(0.0, 0.3, el.shape)
+    snr[:, 1] -= 10.0  # a weaker satellite (transmit power)
+    snr[100:140, 1] -= 10.0  # and a reflection
+    snr[200:230, 0] -= 12.0
+    t = los_cn0_template_dbhz(snr, el, np.array([0, 0]), bin_deg=10.0, quantile=0.9, min_count=10)
+    deficit = t - snr
+    quiet0 = np.ones(T, bool)
+    quiet0[200:230] = False
+    quiet1 = np.ones(T, bool)
+    quiet1[100:140] = False
+    assert np.all(np.abs(deficit[quiet0, 0]) < 2.5) and np.all(np.abs(deficit[quiet1, 1]) < 2.5)
+    assert np.all(deficit[200:230, 0] > 9.0) and np.all(deficit[100:140, 1] > 7.0)
+    # a group without enough values has no template
+    assert np.isnan(los_cn0_template_dbhz(snr[:5], el[:5], np.array([0, 1]), min_count=10)).all()
+
+
+def test_an_epoch_keeps_its_redundancy_most_suspicious_out_first() -> None:
+    used = np.ones((2, 7), dtype=bool)
+    flagged = np.array([[1, 1, 1, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0, 1]], dtype=bool)
+    suspicion = np.array([[1.0, 3.0, 2.0, 0, 0, 0, 0], [5.0, 0, 0, 0, 0, 0, 1.0]])
+    one_system = np.zeros(7, dtype=np.int64)
+    # 7 satellites, one clock: min_dof 1 lets 2 go (dof 3 -> 1), the two most suspicious
+    got = keep_redundancy(flagged, suspicion, used, one_system, 1, min_dof=1, min_satellites=4)
+    assert got[0].tolist() == [False, True, True, False, False, False, False]
+    assert got[1].tolist() == [True, False, False, False, False, False, True]
+    # satellite 6 alone in a second system: dropping it also drops that clock, so dof does not fall
+    two_systems = np.array([0, 0, 0, 0, 0, 0, 1])
+    got = keep_redundancy(flagged, suspicion, used, two_systems, 2, min_dof=1, min_satellites=4)
+    assert got[1].tolist() == [True, False, False, False, False, False, True]
+    assert not keep_redundancy(flagged, suspicion, used, one_system, 1, min_dof=3, min_satellites=4).any()
+
+
+def _labels(res, faults: pd.DataFrame) -> np.ndarray:  # noqa: ANN001 - RunResult
+    """``(T, n)``: 1 LOS, 0 NLOS, -1 no label, from the simulator's faults.csv."""
+    ep = res.epochs
+    tow = np.round(gps_s2week_tow(ep.time_gps_s)[1], 3)
+    ti = {t: i for i, t in enumerate(tow)}
+    si = {s: j for j, s in enumerate(ep.sv.astype(str))}
+    out = np.full(ep.usable.shape, -1)
+    for t, s, los in zip(faults["tow_s"].round(3), faults["sv"].astype(str), faults["los"]):
+        if t in ti and s in si:
+            out[ti[t], si[s]] = los
+    return out
+
+
+def test_the_canyon_reflections_are_excluded_and_the_direct_signals_kept(canyon: Path) -> None:
+    """Against the simulator's labels, of the satellite-epochs WLS used or excluded: most NLOS
+    out (the redundancy guard keeps the rest), almost every LOS in; without the detector, few."""
+    labels = _labels(process(canyon / "obs.rnx", [canyon / "nav.rnx"], load_config(None, OFF)),
+                     pd.read_csv(canyon / "faults.csv"))
+    shares = {}
+    for name, over in (("off", OFF), ("arcs", ARCS)):
+        sol = process(canyon / "obs.rnx", [canyon / "nav.rnx"], load_config(None, over)).solutions["wls"]
+        cand = np.isfinite(sol.residuals_m) | sol.excluded
+        shares[name] = [float(sol.excluded[cand & (labels == v)].mean()) for v in (0, 1)]
+    assert (labels == 0).sum() > 500  # a canyon: hundreds of reflected satellite-epochs
+    assert shares["arcs"][0] > 0.75 and shares["arcs"][1] < 0.02
+    assert shares["off"][0] < 0.3
+
+
+def test_the_delay_test_keeps_only_spans_the_fix_predicts_short(canyon: Path) -> None:
+    """``cn0_min_delay_m``: of the C/N0 spans, those whose pseudoranges the fix without them
+    predicts short by that much (a reflection's extra path) stay out. The simulator's reflections
+    are late by metres: with 2 m almost all stay out; with 10 km none does."""
+    def excluded(**over: object) -> np.ndarray:
+        cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.failed_epochs": "keep", **over})
+        return process(canyon / "obs.rnx", [canyon / "nav.rnx"], cfg).solutions["wls"].excluded
+
+    every, late = excluded(), excluded(**{"nlos.cn0_min_delay_m": 2.0})
+    assert every.sum() > 300 and not (late & ~every).any() and late.sum() >= 0.9 * every.sum()
+    assert not excluded(**{"nlos.cn0_min_delay_m": 1e4}).any()
+
+
+def test_open_sky_and_clean_files_lose_no_satellite(open_sky: Path, rinex_dir: Path) -> None:
+    """Clean C/N0 (the simulator's open sky, the sample file, a geodetic station's 17 minutes):
+    nothing is flagged, and the fixes are those without the detector, bit for bit."""
+    files = [(open_sky / "obs.rnx", [open_sky / "nav.rnx"]),
+             (ROOT / "sample_rinex" / "static" / "obs.rnx", [ROOT / "sample_rinex" / "static" / "nav.rnx"]),
+             (rinex_dir / "p433-2019" / "P43300USA_R_20190012056_17M_15S_MO.crx", [rinex_dir / "p433-2019" / "brdc0010.19n"])]
+    for obs, navs in files:
+        on = process(obs, navs, load_config(None, ARCS))
+        off = process(obs, navs, load_config(None, OFF))
+        assert on.epochs.snr_dbhz is not None and np.isfinite(on.epochs.snr_dbhz).any(), obs
+        assert not on.solutions["wls"].excluded.any(), obs
+        np.testing.assert_array_equal(on.solutions["wls"].x_ecef_m, off.solutions["wls"].x_ecef_m)
+
+
+def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> None:
+    """+20 m on one satellite for 15 s, its C/N0 untouched: the residual test excludes it from
+    the first to the last biased epoch and nowhere else, and the fixes there are those without
+    it. (``integrity = "check"``: no FDE, the exclusions are the detector's alone.)"""
+    cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.residual_k": 2.0, "nlos.residual_h": 10.0})
+    data = load_epochs(open_sky / "obs.rnx", [open_sky / "nav.rnx"], cfg)
+    span = np.zeros(data.usable.shape[0], dtype=bool)
+    span[40:55] = True
+    sigma = solve_method(data, "wls", cfg).sigma_m[span]
+    j = int(np.argmin(np.where(np.isfinite(sigma).all(axis=0), np.nan_to_num(sigma).max(axis=0), np.inf)))
+    assert data.usable[span, j].all()
+    one = np.outer(span, np.arange(data.sv.size) == j)
+    biased = replace(data, pr_corrected_m=data.pr_corrected_m + one * 20.0)
+    sol = solve_method(biased, "wls", cfg)
+    assert sol.excluded[:, j].tolist() == span.tolist()
+    assert not np.delete(sol.excluded, j, axis=1).any()
+    clean = solve_method(replace(data, usable=data.usable & ~one), "wls", cfg)
+    np.testing.assert_allclose(sol.x_ecef_m, clean.x_ecef_m, atol=1e-6)
+    # without the residual test (C/N0 only) the bias stays in, and pulls the fixes of its span
+    no_cusum = load_config(None, {**ARCS, "integrity": "check"})
+    kept = solve_method(biased, "wls", no_cusum)
+    assert not kept.excluded.any()
+    assert np.linalg.norm(kept.x_ecef_m[span] - clean.x_ecef_m[span], axis=1).min() > 1.0
+    # integrity "off": the plain fix, no detector
+    assert not solve_method(biased, "wls", replace(cfg, integrity="off")).excluded.any()
+
+
+@pytest.mark.parametrize(("key", "value", "match"), [
+    ("nlos.detector", "cn0", "nlos.detector"), ("nlos.cn0_exit_db", 12.0, "exit <= enter"),
+    ("nlos.residual_k", 0.0, "nlos.residual_k"), ("nlos.min_dof", 0, "nlos.min_dof"),
+    ("nlos.template_quantile", 1.0, "nlos.template_quantile")])
+def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        load_config(None, {key: value})
+
+
+def test_summary_names_the_detector_only_when_it_runs() -> None:
+    """summary.csv's integrity column: off by default, so the defaults write ``fde`` alone; on, the
+    ls/wls rows say so; with integrity off the detector does not run and is not named."""
+    def integrity(**over: object) -> str:
+        return method_settings(load_config(None, {"methods": "wls", **over}), False, False)["wls"].integrity
+
+    assert integrity() == "fde"
+    assert integrity(**{"nlos.detector": "arcs"}) == "fde, nlos arcs"
+    assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
