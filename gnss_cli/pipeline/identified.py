@@ -43,9 +43,11 @@ the starting trajectory and fixed while alternating (a cost that changes under t
 not be monotone); after convergence it is evaluated again and, if it changed, the alternation
 continues under the new gate (at most :data:`GATE_PASSES` gates; the misfit history restarts).
 
-A window whose normals are singular, whose kernel has no velocity where Doppler is used, or that
-does not converge in :data:`MAX_ALTERNATIONS` iterations keeps its position-domain result; its
-record says so. Full kernels are not alternated (their windows keep the position-domain result).
+A window whose normals are singular or whose kernel has no velocity where Doppler is used keeps
+its position-domain result; its record says so. A window still improving after
+:data:`MAX_ALTERNATIONS` iterations keeps its last iterate (the lowest misfit yet) and its record
+says it stopped there. Full kernels are not alternated (their windows keep the position-domain
+result).
 
 Why both: step (b) is the exact minimizer for a fixed kernel and is linear, step (a) reuses the
 batched STLS of the position-domain method (all windows at once), and the misfit check makes the
@@ -61,26 +63,14 @@ alone 1.30 m, with (c) 1.09 m, and with the windows tied
 (:mod:`gnss_cli.pipeline.tied`) 0.38 m against the fixed-model smoother's 0.36 m. Most
 iterations in the records are those of the residual gates (one to three per window).
 
-Measured (``stls --lag 3``, windows of 15 epochs; 3D / horizontal RMS, m; runtime of the stls
-step alone). Pseudoranges alone, the joint problem with block-diagonal clock-reduced normals *is*
-the weighted STLS of the per-epoch fixes: with ``integrity = "off"`` the simulated 1 m-noise
-600 s flight gives 1.4225 m either way, and most windows stop after one iteration; with the
-residual gate 1.459 (position domain 1.422), as the gate costs ``smoother`` 1-2 %. With Doppler
-the range rates enter: flight 1.33 / 0.91 (pseudoranges alone 1.46 / 0.79; ``smoother`` 0.38 /
-0.21), drive 1.22 / 0.93 (``smoother`` 0.37 / 0.21), the Yamatogawa walk 2.81 / 0.75 (position
-domain 3.02 / 0.93, ``smoother`` 2.72 / 0.57, ``kf`` 2.81 / 0.92). A window of 15 epochs holds
-its position only from its own pseudoranges, and a lag-3 shared kernel does not hold a
-manoeuvring flight exactly (noise-free 600 s: 0.237 m from the model class alone, in either
-domain, 0.287 m with Doppler; a noise-free constant-rate turn, which it holds, comes out to
-0.2 mm); the range rates, weighted
-by their variance factor, then pull the positions towards the kernel's velocities, which is why
-the horizontal error with Doppler is larger than without. Identifying on positions alone in
-step (a) gave 1.36 m on the flight, with the velocity channels 1.33 m. Windows whose kernels
-all have a root on the negative real axis keep the position-domain result (flight 8 of 85 with
-Doppler, drive 29 of 85; a 1 h flight 145 of 514). Runtime of the stls step on a simulated 1 h
-1 Hz flight (GPS, a shared 2-core machine): pseudoranges 1.8 s against 0.7 s in the position
-domain (2.6x), with Doppler 5.3 s against 0.6 s (about 9x: the identification of step (a) on six
-channels, once per residual gate, and the matrix logarithms of the modes dominate).
+Measured with steps (a) and (b) alone, before step (c), the behavior test and the ties
+(``stls --lag 3``, windows of 15 epochs; 3D / horizontal RMS, m): pseudoranges alone, the joint
+problem with block-diagonal clock-reduced normals *is* the weighted STLS of the per-epoch fixes
+(the simulated 1 m-noise 600 s flight: 1.4225 m either way with ``integrity = "off"``); with
+Doppler, flight 1.33 / 0.91 (``smoother`` 0.38 / 0.21), the Yamatogawa walk 2.81 / 0.75
+(``smoother`` 2.72 / 0.57): a window held its position only from its own pseudoranges. The
+numbers of the method as it is now, beside ``kf`` and ``smoother`` on equal information, are
+those of ``benchmarks/multi_epoch_fair.py`` (docs/results.md).
 """
 
 from __future__ import annotations
