@@ -91,8 +91,6 @@ def _log_companion(a: F64) -> tuple[F64, NDArray[np.bool_]]:
     for k in range(1, _SERIES_TERMS + 1):
         term = term @ x
         acc += (-1.0) ** (k + 1) / k * term
-        if np.abs(term).max(initial=0.0) <= 1e-17 * k * max(np.abs(acc).max(initial=0.0), 1e-300):
-            break  # the remaining terms are below rounding (roots near 1: a few terms)
     out[near] = acc * (2.0 ** scale[near])[:, None, None]
     return out, np.all(np.isfinite(out), axis=(1, 2))
 
