@@ -422,7 +422,7 @@ def _newton(p0: F64, misfit, n_b: int, n: int, steps: int) -> F64:  # type: igno
                 H[:, i, j] = H[:, j, i] = (both - up[i] - up[j] + f0) / (h[:, i] * h[:, j])
         active &= np.all(np.isfinite(g), axis=1) & np.all(np.isfinite(H), axis=(1, 2))
         ev = np.linalg.eigvalsh(np.where(active[:, None, None], H, np.eye(n)))
-        newton = active & (ev[:, 0] > 1e-12 * np.abs(ev[:, -1]))  # positive definite, not near singular
+        newton = active & (ev[:, 0] > 0)
         safe = np.where(newton[:, None, None], H, np.eye(n))
         step = np.where(newton[:, None], -np.linalg.solve(safe, np.nan_to_num(g)[..., None])[..., 0],
                         -np.nan_to_num(g) * (np.abs(p).max(axis=1, keepdims=True) + 1.0)
