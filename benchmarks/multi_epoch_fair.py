@@ -91,7 +91,7 @@ GRID: dict[str, tuple[str, tuple[Any, ...]]] = {
     "kf cv": ("kalman.accel_psd_m2_s3", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "kf ca": ("kalman.jerk_psd_m2_s5", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "smoother quadrature": ("smoother.lag", (1, 2, 3)),
-    "stls": ("stls.window,stls.behavior_pfa", tuple((w, p) for w in (15, 30) for p in (1e-6, 1e-12))),
+    "stls": ("stls.window,stls.behavior_pfa", tuple((w, p) for w in (10, 15, 20, 30) for p in (1e-3, 1e-6, 1e-9, 1e-12))),
 }
 """The setting tuned per method (config key, candidates; keys joined by commas take tuples of
 values); smoother cv / ca have none."""

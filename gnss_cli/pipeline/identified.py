@@ -391,13 +391,7 @@ def _descend(r0: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals 
         return _solve(_kernel_of(p), run, normals, {})[3]  # inf where the kernel has no usable behavior
 
     with np.errstate(invalid="ignore"):  # differences of inf: such a window stops descending
-        p0 = _params_of(r0)
-        # also from (z - 1)^l (the polynomial motion) and from the neighbouring windows' kernels
-        # (the windows are in time order): the misfit has local minima a single start stays in
-        starts = [p0, np.zeros((n_b, lag - 1)), np.roll(p0, 1, axis=0), np.roll(p0, -1, axis=0)]
-        ends = [_newton(p0=p0, misfit=misfit, n_b=n_b, n=lag - 1, steps=steps) for p0 in starts]
-        values = np.stack([np.where(np.isfinite(f := misfit(p)), f, np.inf) for p in ends])
-        return _kernel_of(np.choose(np.argmin(values, axis=0)[:, None], ends))
+        return _kernel_of(_newton(p0=_params_of(r0), misfit=misfit, n_b=n_b, n=lag - 1, steps=steps))
 
 
 def _newton(p0: F64, misfit, n_b: int, n: int, steps: int) -> F64:  # type: ignore[no-untyped-def]
