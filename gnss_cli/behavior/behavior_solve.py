@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.window_solve import EpochNormals
 
-__all__ = ["shared_modes", "solve_in_behavior", "behavior_normals", "behavior_misfit", "MIN_RCOND"]
+__all__ = ["shared_modes", "solve_in_behavior", "behavior_misfit", "MIN_RCOND"]
 
 F64 = NDArray[np.float64]
 
@@ -198,22 +198,6 @@ def solve_in_behavior(y: F64, yv: F64 | None, d: F64, pr: EpochNormals, rr: Epoc
     ``J(c) = sum_t s_t - 2 z_t^T r_t + z_t^T M_t z_t`` (plus the range-rate and pair terms) is
     minimized by ``H c = g`` with ``H = sum_t (Y_t^T Y_t) (x) M_t``, ``g = sum_t Y_t^T (r_t + M_t d_t)``.
     """
-    n_b, lag = y.shape[0], y.shape[2]
-    H, g, const = behavior_normals(y, yv, d, pr, rr, ph)
-    finite = np.all(np.isfinite(H), axis=(1, 2)) & np.all(np.isfinite(g), axis=1)
-    Hs = np.where(finite[:, None, None], H, np.eye(3 * lag))
-    ev = np.linalg.eigvalsh(Hs)
-    ok = finite & (ev[:, 0] > MIN_RCOND * np.abs(ev[:, -1]))
-    Hs = np.where(ok[:, None, None], Hs, np.eye(3 * lag))
-    u = np.linalg.solve(Hs, np.where(ok[:, None], g, 0.0)[..., None])[..., 0]
-    misfit = np.where(ok, const - np.einsum("bi,bi->b", g, u), np.inf)
-    return u.reshape(n_b, lag, 3), misfit, ok
-
-
-def behavior_normals(y: F64, yv: F64 | None, d: F64, pr: EpochNormals, rr: EpochNormals | None = None,
-                     ph: EpochNormals | None = None) -> tuple[F64, F64, F64]:
-    """The misfit of :func:`solve_in_behavior` as a quadratic in the flattened coefficients
-    ``u = c.reshape(B, 3 l)`` (index ``3 j + p``): ``J(u) = const - 2 g.u + u.H u``; arguments as there."""
     n_b, n_t, lag = y.shape
     M, r, s = _stacked(pr, (n_b, n_t), 3)
     H = np.einsum("btj,btk,btpq->bjpkq", y, y, M).reshape(n_b, 3 * lag, 3 * lag)
@@ -236,7 +220,15 @@ def behavior_normals(y: F64, yv: F64 | None, d: F64, pr: EpochNormals, rr: Epoch
         rhs6 = (rp + np.einsum("btij,btj->bti", Mp, d6)).reshape(n_b, n_t, 2, 3)
         g += np.einsum("btej,btep->bjp", y6, rhs6).reshape(n_b, 3 * lag)
         const += sp_.sum(axis=1) + 2 * np.einsum("bti,bti->b", d6, rp) + np.einsum("bti,btij,btj->b", d6, Mp, d6)
-    return 0.5 * (H + H.transpose(0, 2, 1)), g, const
+    H = 0.5 * (H + H.transpose(0, 2, 1))
+    finite = np.all(np.isfinite(H), axis=(1, 2)) & np.all(np.isfinite(g), axis=1)
+    Hs = np.where(finite[:, None, None], H, np.eye(3 * lag))
+    ev = np.linalg.eigvalsh(Hs)
+    ok = finite & (ev[:, 0] > MIN_RCOND * np.abs(ev[:, -1]))
+    Hs = np.where(ok[:, None, None], Hs, np.eye(3 * lag))
+    u = np.linalg.solve(Hs, np.where(ok[:, None], g, 0.0)[..., None])[..., 0]
+    misfit = np.where(ok, const - np.einsum("bi,bi->b", g, u), np.inf)
+    return u.reshape(n_b, lag, 3), misfit, ok
 
 
 def behavior_misfit(v: F64 | None, pr: EpochNormals, rr: EpochNormals | None = None,

@@ -101,9 +101,8 @@ class Fit:
     """The result of one window: corrected ENU trajectory, kernel, outcome, DOP basis (ENU); for the
     measurement-domain alternation (:mod:`gnss_cli.pipeline.identified`) its iterations, whether it
     converged, the domain of the result (``position``: the STLS of the fixes), its behavior test
-    (statistic and degrees of freedom, :func:`~gnss_cli.pipeline.identified.behavior_tests`),
-    whether the test rejected it and the measurement kinds it was solved with
-    (:mod:`gnss_cli.pipeline.spans`)."""
+    (statistic and degrees of freedom, :func:`~gnss_cli.pipeline.identified.behavior_tests`) and
+    whether the test rejected it (:mod:`gnss_cli.pipeline.spans`)."""
 
     w_hat: F64 | None
     kernel: KernelRecord | None
@@ -117,7 +116,6 @@ class Fit:
     test_stat: float | None = None
     test_dof: int | None = None
     rejected: bool = False
-    kinds: frozenset[str] = frozenset()
 
 
 def _failed(message: str) -> Fit:
@@ -292,12 +290,7 @@ def smooth(
     if measurements is not None:
         from gnss_cli.pipeline.spans import tested_windows  # imports this module
 
-        jobs, fits, gated, mult, limits, factors = tested_windows(data, wls, config, segs, jobs, fits,
-                                                                  frozenset(measurements), factors)
-        from gnss_cli.pipeline.tied import tie_spans
-
-        plain = data if wls.excluded is None else replace(data, usable=data.usable & ~wls.excluded)
-        fits = tie_spans(plain, config, factors, mult, segs, jobs, fits)
+        jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
         sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits)
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models

@@ -25,12 +25,7 @@ Each iteration, for every window at once:
 3. (b) with the kernel fixed, solve for the window's trajectory in its behavior from all the
    rows (:func:`~gnss_cli.behavior.behavior_solve.solve_in_behavior`; velocities from the modes
    ``s_i = log(z_i) / dt``, :func:`~gnss_cli.behavior.behavior_solve.shared_modes`), once with
-   the identified kernel and once with the current one;
-4. (c) once per residual gate, with (a): variable projection -- from the better of the two
-   kernels, Newton steps on the measurement misfit itself as a function of the kernel (the
-   trajectory eliminated by (b) for each kernel), in the ``l - 1`` free coefficients of ``q(z) =
-   r(z) / (z - 1)`` about ``z = 1`` (:func:`_descend`); of the three, the lowest linearized
-   misfit wins.
+   the identified kernel and once with the current one; the lower linearized misfit wins.
 
 An iterate whose misfit (step 1, at its own linearization) exceeds its predecessor's is not
 taken: the window keeps the predecessor and stops. So the misfit is non-increasing by
@@ -49,18 +44,16 @@ its position-domain result; its record says so. A window still improving after
 says it stopped there. Full kernels are not alternated (their windows keep the position-domain
 result).
 
-Why both: step (b) is the exact minimizer for a fixed kernel and is linear, step (a) reuses the
-batched STLS of the position-domain method (all windows at once), and the misfit check makes the
-iteration safe whatever (a) returns. But (a) identifies from the free fixes and velocities, not
-from the measurement misfit, and over a short window many kernels fit those within their noise:
-on a noise-free-kernel track (a constant-speed semicircle, 1 m code noise, range rates) the
-kernels of (a) left the behavior test at 2 to 80 times its degrees of freedom, and the true kernel
-had a lower measurement misfit than any of them (261 against 379 in one window). Step (c) is the
-variable projection over ``r``: there the misfit surface is a narrow valley in the coefficients
-of ``r`` (two roots ``1 + e`` move them by ``e^2`` and ``e``), which the coefficients of ``q``
-about ``z = 1`` make well scaled. Measured on that track (``stls --lag 3``, 3D RMS): (a) and (b)
-alone 1.30 m, with (c) 1.09 m, and with the windows tied
-(:mod:`gnss_cli.pipeline.tied`) 0.38 m against the fixed-model smoother's 0.36 m. Most
+Why alternation and not variable projection over ``r``: step (b) is the exact minimizer for a
+fixed kernel and is linear, step (a) reuses the batched STLS of the position-domain method (all
+windows at once), and the misfit check makes the iteration safe whatever (a) returns; variable
+projection would need the derivative of the measurement-domain solution with respect to ``r``
+(through the modes' velocities) for every window -- not written, so not compared. What this
+alternation can and cannot do: its kernels are the position-domain one and the STLS kernel of
+the free fixes (with the range rates' velocities), re-identified when the gate changes; the
+measurement misfit chooses between them and the trajectory is the exact measurement-domain
+solution in the chosen behavior. A kernel that minimizes the measurement misfit itself (where
+the range rates and phase pairs act on ``r`` directly) would need that descent over ``r``. Most
 iterations in the records are those of the residual gates (one to three per window).
 
 Measured with steps (a) and (b) alone, before step (c), the behavior test and the ties
@@ -114,12 +107,6 @@ MAX_ALTERNATIONS = 30
 #: Residual gates evaluated per window (the first at the starting trajectory).
 GATE_PASSES = 3
 _RISE_RTOL = 1e-10  # a misfit rise below this (relative) is rounding
-#: Newton steps of the kernel descent on the measurement misfit (step (c), once per gate), at most.
-VP_STEPS = 60
-#: Halvings of a descent step that does not lower the misfit before the window stops descending.
-VP_HALVINGS = 6
-#: Central-difference step of the descent, relative to each coefficient about ``z = 1``.
-VP_DIFF_STEP = 1e-4
 
 
 @dataclass(slots=True)
@@ -349,95 +336,6 @@ def _solve(r: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | N
     return c, x, np.where(has_v[:, None, None], v, np.nan), np.where(ok, mis, np.inf), ok
 
 
-def _taylor(lag: int) -> F64:
-    """``T (l, l)``: the ascending coefficients of ``q(z) = sum_k g_k (z - 1)^k`` are ``T g``."""
-    from scipy.special import comb
-
-    k, j = np.meshgrid(np.arange(lag), np.arange(lag), indexing="xy")
-    return np.where(k >= j, comb(k, j) * (-1.0) ** (k - j), 0.0)
-
-
-def _kernel_of(p: F64) -> F64:
-    """Ascending coefficients ``(B, l+1)`` of ``(z - 1) q(z)`` with ``q(z) = (z - 1)^(l-1) +
-    sum_k p_k (z - 1)^k``: ``p (B, l-1)`` are ``q``'s lower coefficients about ``z = 1``, the
-    scale on which the roots near 1 move (two roots ``1 + e`` give ``p ~ e^2, e``)."""
-    lag = p.shape[1] + 1
-    q = np.concatenate([p, np.ones((p.shape[0], 1))], axis=1) @ _taylor(lag).T
-    zeros = np.zeros((p.shape[0], 1))
-    return np.concatenate([zeros, q], axis=1) - np.concatenate([q, zeros], axis=1)
-
-
-def _params_of(r: F64) -> F64:
-    """The ``p`` of :func:`_kernel_of` for kernels ``r`` with their root at 1 (any scale)."""
-    m = r / r[:, -1:]
-    lag = r.shape[1] - 1
-    q = np.ones((r.shape[0], lag))
-    for i in range(lag - 1, 0, -1):  # r_i = q_{i-1} - q_i
-        q[:, i - 1] = m[:, i] + q[:, i]
-    return np.linalg.solve(_taylor(lag), q.T).T[:, :-1]
-
-
-def _descend(r0: F64, run: WindowRun, normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None],
-             steps: int = VP_STEPS) -> F64:
-    """Step (c): the kernels ``r0`` moved downhill on the measurement misfit itself (variable
-    projection: the trajectory eliminated for each kernel by step (b)), by Newton steps on the
-    ``l - 1`` free coefficients with central-difference derivatives, each step halved until the
-    misfit falls (at most :data:`VP_HALVINGS` times). A window whose derivatives are not finite stops."""
-    n_b, lag = r0.shape[0], r0.shape[1] - 1
-    if lag < 2 or not n_b:
-        return r0
-
-    def misfit(p: F64) -> F64:
-        return _solve(_kernel_of(p), run, normals, {})[3]  # inf where the kernel has no usable behavior
-
-    with np.errstate(invalid="ignore"):  # differences of inf: such a window stops descending
-        return _kernel_of(_newton(p0=_params_of(r0), misfit=misfit, n_b=n_b, n=lag - 1, steps=steps))
-
-
-def _newton(p0: F64, misfit, n_b: int, n: int, steps: int) -> F64:  # type: ignore[no-untyped-def]
-    """Newton steps with central-difference derivatives and halving on ``misfit`` from ``p0`` (:func:`_descend`)."""
-    p = p0
-
-    f0 = misfit(p)
-    active = np.isfinite(f0)
-    eye = np.eye(n)
-    for _ in range(steps):
-        if not active.any():
-            break
-        h = VP_DIFF_STEP * np.maximum(np.abs(p), 1e-6 * np.abs(p).max(axis=1, keepdims=True) + 1e-300)
-        up = [misfit(p + h[:, i, None] * eye[i]) for i in range(n)]
-        down = [misfit(p - h[:, i, None] * eye[i]) for i in range(n)]
-        g = np.stack([(u - d) / (2 * h[:, i]) for i, (u, d) in enumerate(zip(up, down))], axis=1)
-        H = np.zeros((n_b, n, n))
-        for i in range(n):
-            H[:, i, i] = (up[i] - 2 * f0 + down[i]) / h[:, i] ** 2
-            for j in range(i + 1, n):
-                both = misfit(p + h[:, i, None] * eye[i] + h[:, j, None] * eye[j])
-                H[:, i, j] = H[:, j, i] = (both - up[i] - up[j] + f0) / (h[:, i] * h[:, j])
-        active &= np.all(np.isfinite(g), axis=1) & np.all(np.isfinite(H), axis=(1, 2))
-        ev = np.linalg.eigvalsh(np.where(active[:, None, None], H, np.eye(n)))
-        newton = active & (ev[:, 0] > 0)
-        safe = np.where(newton[:, None, None], H, np.eye(n))
-        step = np.where(newton[:, None], -np.linalg.solve(safe, np.nan_to_num(g)[..., None])[..., 0],
-                        -np.nan_to_num(g) * (np.abs(p).max(axis=1, keepdims=True) + 1.0)
-                        / np.maximum(np.linalg.norm(np.nan_to_num(g), axis=1, keepdims=True), 1e-300) * 1e-3)
-        took = np.zeros(n_b, dtype=bool)
-        before = f0.copy()
-        alpha = 1.0
-        for _ in range(VP_HALVINGS + 1):
-            trial = p + alpha * step
-            f1 = misfit(trial)
-            better = active & ~took & np.isfinite(f1) & (f1 < f0)
-            p = np.where(better[:, None], trial, p)
-            f0 = np.where(better, f1, f0)
-            took |= better
-            if (took | ~active).all():
-                break
-            alpha *= 0.5
-        active &= took & (before - f0 > RTOL * np.abs(before))
-    return p
-
-
 def _spread(res: tuple[F64, ...], sel: NDArray[np.intp], n_b: int) -> tuple[F64, ...]:
     """Results of the windows ``sel`` as arrays over all ``n_b`` windows (NaN / inf / False elsewhere)."""
     out = []
@@ -512,10 +410,10 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
                           "converged: no further decrease of the misfit")
     act &= ~stop
     over = act & (run.iterations >= MAX_ALTERNATIONS)
+    run.failed |= over
     run.done |= over
-    run.converged |= over  # finished: the last accepted iterate is kept (its misfit is the lowest yet)
     for b in np.flatnonzero(over):
-        run.message[b] = f"stopped after {MAX_ALTERNATIONS} alternations, the misfit still falling"
+        run.message[b] = f"no convergence in {MAX_ALTERNATIONS} alternations"
     act &= ~over
     act |= nov & (run.iterations < MAX_ALTERNATIONS)
     if not act.any():
@@ -538,28 +436,18 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     taken = tuple(None if n is None else _take(n, sel, n_t) for n in normals)
     solved = [_solve(kernels[sel], part, taken, cache) for kernels in (run.r, r_new)]  # (b) for the current and new kernels
     (c0, x0, v0, m0, ok0), (c1, x1, v1, m1, ok1) = (_spread(res, sel, n_b) for res in solved)
-    # (c) once per gate (with (a)): from the better of the two, downhill on the misfit itself
-    better = np.where((ok1 & (m1 < m0))[:, None], r_new, run.r)
-    r_vp = np.full_like(run.r, np.nan)
-    dsel = np.intersect1d(sel, fresh)
-    if dsel.size:
-        part_d = replace(run, epochs=run.epochs[dsel], rot=run.rot[dsel], x=run.x[dsel], r=run.r[dsel],
-                         dt_s=run.dt_s[dsel])
-        r_vp[dsel] = _descend(better[dsel], part_d, tuple(None if n is None else _take(n, dsel, n_t) for n in normals))
-    c2, x2, v2, m2, ok2 = _spread(_solve(r_vp[sel], part, taken, cache), sel, n_b)
-    sing = act & ~ok0 & ~ok1 & ~ok2
+    sing = act & ~ok0 & ~ok1
     run.failed |= sing
     run.done |= sing
     for b in np.flatnonzero(sing):
         run.message[b] = ("no kernel with a velocity for the range rates (a root on the negative real axis)"
                           if nov[b] else "the measurement-domain normals are singular in the behavior")
     act &= ~sing
-    misfits = np.stack([np.where(ok0, m0, np.inf), np.where(ok1, m1, np.inf), np.where(ok2, m2, np.inf)])
-    pick = np.argmin(misfits, axis=0)
-    for name, cands in (("c", (c0, c1, c2)), ("x", (x0, x1, x2)), ("v", (v0, v1, v2))):
-        val = np.choose(pick[:, None, None], cands)
+    take_new = ok1 & (m1 < m0)
+    for name, a0, a1 in (("c", c0, c1), ("x", x0, x1), ("v", v0, v1)):
+        val = np.where(take_new[:, None, None], a1, a0)
         getattr(run, name)[act] = val[act]
-    run.r[act] = np.choose(pick[:, None], (run.r, r_new, r_vp))[act]
+    run.r[act] = np.where(take_new[:, None], r_new, run.r)[act]
     run.iterations[act] += 1
 
 

@@ -67,8 +67,7 @@ def split_window(job: WindowJob, length: int, n_segment: int) -> list[WindowJob]
 def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                    jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
                    factors: tuple[float, ...] | None = None,
-                   ) -> tuple[list[WindowJob], list[Fit], NDArray[np.bool_], NDArray[np.float64], dict[int, float],
-                              tuple[float, ...]]:
+                   ) -> tuple[list[WindowJob], list[Fit], NDArray[np.bool_], dict[int, float]]:
     """The measurement-domain windows with spans chosen by the behavior test (module docstring).
 
     Parameters
@@ -83,17 +82,13 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         window supplies no epoch (``lo == hi``) unless it was the last try, whose epochs keep the
         WLS fix (``w_hat`` None).
     gated : ``(T, n)`` pseudoranges the gate of the window that supplied the epoch excluded.
-    mult : ``(3, T, n)`` that window's gate (and robust) multipliers of the pseudoranges, range
-        rates and phase pairs (ending at the epoch); 1 where no measurement-domain window supplied it.
     limits : the test's limit of every tested window (by index into ``jobs``).
-    factors : the variance factors used (given, or estimated by the first alternation).
     """
     opts = config.stls
     shortest = opts.min_window()
     testing = config.integrity != "off"
     alone = frozenset({"pseudorange"})
     gated = np.zeros(data.usable.shape, dtype=bool)
-    mult = np.ones((3, *data.usable.shape))
     done: list[tuple[WindowJob, Fit, float | None]] = []
     stage: dict[frozenset[str], tuple[list[WindowJob], list[Fit]]] = {kinds: (jobs, fits)}
     while stage:
@@ -108,8 +103,7 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                         run, b = run_of[k]
                         own = slice(job.lo - job.a, job.hi - job.a)
                         gated[run.epochs[b, own]] |= run.gated[0, b, own]
-                        mult[:, run.epochs[b, own]] = run.mult[:, b, own]
-                    done.append((job, replace(fit, kinds=used), limit))
+                    done.append((job, fit, limit))
                     continue
                 length, n_seg = job.b - job.a, segs[job.segment].epochs.size
                 why = f"rejected: behavior test {fit.test_stat:.4g} > {limit:.4g} (chi2, {fit.test_dof} dof)"
@@ -137,4 +131,4 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             limits[len(out_jobs)] = limit
         out_jobs.append(replace(job, window=number))
         out_fits.append(fit)
-    return out_jobs, out_fits, gated, mult, limits, factors
+    return out_jobs, out_fits, gated, limits
