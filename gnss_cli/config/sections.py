@@ -67,7 +67,7 @@ class StlsConfig:
     window: int = 15
     tolerance: float = 1e-6
     max_iterations: int = 200
-    behavior_pfa: float = 1e-9
+    behavior_pfa: float = 1e-12
 
     @property
     def full_order(self) -> int | None:

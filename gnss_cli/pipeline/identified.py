@@ -38,11 +38,9 @@ the starting trajectory and fixed while alternating (a cost that changes under t
 not be monotone); after convergence it is evaluated again and, if it changed, the alternation
 continues under the new gate (at most :data:`GATE_PASSES` gates; the misfit history restarts).
 
-A window whose normals are singular or whose kernel has no velocity where Doppler is used keeps
-its position-domain result; its record says so. A window still improving after
-:data:`MAX_ALTERNATIONS` iterations keeps its last iterate (the lowest misfit yet) and its record
-says it stopped there. Full kernels are not alternated (their windows keep the position-domain
-result).
+A window whose normals are singular, whose kernel has no velocity where Doppler is used, or that
+does not converge in :data:`MAX_ALTERNATIONS` iterations keeps its position-domain result; its
+record says so. Full kernels are not alternated (their windows keep the position-domain result).
 
 Why alternation and not variable projection over ``r``: step (b) is the exact minimizer for a
 fixed kernel and is linear, step (a) reuses the batched STLS of the position-domain method (all
@@ -56,8 +54,8 @@ solution in the chosen behavior. A kernel that minimizes the measurement misfit 
 the range rates and phase pairs act on ``r`` directly) would need that descent over ``r``. Most
 iterations in the records are those of the residual gates (one to three per window).
 
-Measured with steps (a) and (b) alone, before step (c), the behavior test and the ties
-(``stls --lag 3``, windows of 15 epochs; 3D / horizontal RMS, m): pseudoranges alone, the joint
+Measured before the behavior test of :mod:`gnss_cli.pipeline.spans` (``stls --lag 3``, windows
+of 15 epochs; 3D / horizontal RMS, m): pseudoranges alone, the joint
 problem with block-diagonal clock-reduced normals *is* the weighted STLS of the per-epoch fixes
 (the simulated 1 m-noise 600 s flight: 1.4225 m either way with ``integrity = "off"``); with
 Doppler, flight 1.33 / 0.91 (``smoother`` 0.38 / 0.21), the Yamatogawa walk 2.81 / 0.75
