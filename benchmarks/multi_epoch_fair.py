@@ -50,7 +50,7 @@ in the JSON and in a second table.
 Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
-skipped). The full run took 9.2 min (training 1.8 min) in one process with ``nice -n 10`` on the
+skipped). The full run took 17.6 min in one process with ``nice -n 10`` on the
 shared 2-core machine (``--quick``: 1.3-1.7 min).
 """
 
