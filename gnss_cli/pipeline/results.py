@@ -180,7 +180,7 @@ class WindowModel:
     test_dof: int | None = None
     """Its degrees of freedom."""
     test_limit: float | None = None
-    """Its limit at ``integrity_pfa`` (above it the window is ``rejected``, :mod:`gnss_cli.pipeline.spans`)."""
+    """Its limit at ``[stls] behavior_pfa`` (above it the window is ``rejected``, :mod:`gnss_cli.pipeline.spans`)."""
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""

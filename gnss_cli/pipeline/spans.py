@@ -14,7 +14,11 @@ file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm prob
 * rejected: its epochs are solved again in windows of half its length (not below the shortest
   window the kernel can be identified on, :meth:`~gnss_cli.config.StlsConfig.min_window`), each
   identified and alternated afresh, and tested again;
-* rejected at the shortest length: its epochs keep their WLS fix, status ``fallback_wls``.
+* rejected at the shortest length with range rates or phase: its epochs are solved again with
+  the pseudoranges alone, from windows of ``[stls] window`` epochs down as above (the window
+  records say which measurements each used);
+* rejected at the shortest length with the pseudoranges alone: its epochs keep their WLS fix,
+  status ``fallback_wls``.
 
 Every tested window stays in the model records, with its statistic, degrees of freedom and
 limit; a rejected one says so (status ``rejected``) and which windows took its epochs. Windows
