@@ -171,12 +171,17 @@ def tested(data: EpochData, sol: MethodSolution, wls: MethodSolution, config: Pr
     (:func:`~gnss_cli.pipeline.integrity.monitor_fixes`, unless ``integrity = "off"``): the
     chi-square statistic of the pseudoranges the method used (those with a residual), with the
     WLS sigmas; its degrees of freedom are the pseudoranges less the epoch's clocks (the position
-    is fixed by several epochs, not fitted to this epoch's pseudoranges), then the GDOP limit. An
-    ``ok`` epoch that fails becomes ``integrity_fail`` (``gdop_limit``), keeping its position."""
+    is fixed by several epochs, not fitted to this epoch's pseudoranges), then the GDOP limit,
+    then its own protection levels (:func:`~gnss_cli.pipeline.integrity.estimate_levels`: from
+    the WLS epoch's fault-free subsets) against the alert limits. An ``ok`` epoch that fails
+    becomes ``integrity_fail`` (``gdop_limit``, ``hpl_limit``, ``vpl_limit``), keeping its
+    position; one without levels is ``untested``."""
     if config.integrity == "off" or wls.sigma_m is None:
         return sol
-    from gnss_cli.pipeline.integrity import monitor_fixes
+    from gnss_cli.pipeline.integrity import estimate_levels, monitor_fixes
 
     sigma = np.where(np.isfinite(sol.residuals_m), wls.sigma_m, np.nan)
-    checked = monitor_fixes(data, replace(sol, sigma_m=sigma), wls.status, config, position_unknowns=0)
+    levels = estimate_levels(data, wls, sol.x_ecef_m, config)
+    checked = monitor_fixes(data, replace(sol, sigma_m=sigma), wls.status, config, position_unknowns=0,
+                            levels=levels)
     return replace(checked, sigma_m=sol.sigma_m)

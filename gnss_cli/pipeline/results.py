@@ -32,13 +32,15 @@ value                   meaning
                         method's own fix; position kept
 ``gdop_limit``          GDOP above ``max_gdop`` (position kept; for tls ... wtls their own GDOP,
                         with ``integrity`` check or fde)
-``hpl_limit``           the test passes but the horizontal protection level (of the WLS epoch)
-                        exceeds ``alert_limit_h_m`` (position kept)
+``hpl_limit``           the test passes but the horizontal protection level (of the WLS epoch
+                        for tls ... wtls; a multi-epoch row's own) exceeds ``alert_limit_h_m``
+                        (position kept)
 ``vpl_limit``           the test passes and the HPL is within its limit, but the vertical
                         protection level exceeds ``alert_limit_v_m`` (position kept)
 ``untested``            the fix has no redundancy to test (``dof = n - (3 + k) = 0``; a
-                        multi-epoch row ``n - k = 0``): no test, no protection level; position
-                        kept, not counted as solved
+                        multi-epoch row ``n - k = 0``, or no protection level because its WLS
+                        epoch has none): no test or no level; position kept, not counted as
+                        solved
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
                         model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
@@ -331,7 +333,9 @@ class MethodSolution:
     not computed (NaN, or None) with ``integrity = "off"``."""
     hpl_m: F64 | None = None
     """``(T,)`` horizontal protection level, m (solution separation over single-satellite and
-    constellation faults, :mod:`gnss_cli.pipeline.integrity`; ls/wls; NaN on multi-epoch rows)."""
+    constellation faults, :mod:`gnss_cli.pipeline.integrity`): ls/wls; for the multi-epoch
+    methods the levels of their own positions from the WLS epoch's subsets
+    (:func:`~gnss_cli.pipeline.integrity.estimate_levels`); NaN for tls ... wtls and untested rows."""
     vpl_m: F64 | None = None
     """``(T,)`` vertical protection level, m."""
     robust_weights: F64 | None = None

@@ -304,3 +304,115 @@ def test_a_row_the_others_cannot_do_without_leaves_its_subset_unsolvable():
             for h in range(n_rows):
                 xk, _ = _explicit(A[0], q[0], 1.0 / var[0], var[0], ~removed[0, h], np.zeros(4))
                 np.testing.assert_allclose(sep.delta[0, h], xk - x0, rtol=1e-8, atol=1e-9)
+
+
+def _estimate_levels_by_loop(A, q, var, rot, cfg, d):
+    """The levels of an estimate ``d`` (ENU offset from the linearization point) of one
+    single-system epoch: ``max(|d - x0| + K_ff sigma_0, max_k |d - x_k| + K sigma_k)`` per
+    axis, hypothesis by hypothesis with lstsq, ``K`` from twice the allocation's one-sided tail."""
+    n = A.shape[0]
+    x0, K0 = _explicit(A, q, 1.0 / var, var, np.ones(n), np.zeros(A.shape[1]))
+    p = cfg.prior_fault_satellite
+    budget = (cfg.integrity_risk - (1 - (1 - p) ** n - n * p * (1 - p) ** (n - 1))
+              - cfg.prior_fault_constellation)
+    ir = budget * np.array([0.25, 0.25, 0.5])
+    enu = lambda K: rot @ K[:3]  # noqa: E731
+    s0 = np.sqrt(np.diag(enu(K0) @ np.diag(var) @ enu(K0).T))
+    pl = np.abs(d - rot @ x0[:3]) + norm.isf(ir / (2 * (n + 1))) * s0
+    for i in range(n):
+        keep = np.ones(n)
+        keep[i] = 0
+        xk, Kk = _explicit(A, q, 1.0 / var, var, keep, np.zeros(A.shape[1]))
+        sk = np.sqrt(np.diag(enu(Kk) @ np.diag(var) @ enu(Kk).T))
+        pl = np.maximum(pl, np.abs(d - rot @ xk[:3]) + norm.isf(np.minimum(0.5, ir / (2 * p * (n + 1)))) * sk)
+    return np.hypot(pl[0], pl[1]), pl[2]
+
+
+def test_levels_of_another_estimate_equal_a_loop_over_the_hypotheses(data_0759):
+    """The levels a multi-epoch method gets (:func:`estimate_levels`) for positions offset from
+    the WLS fixes by up to 5 m equal the hypothesis-by-hypothesis bound on rtklib-0759; they
+    grow with the offset, and at the WLS fix itself they use the actual separations."""
+    from gnss_cli.pipeline.integrity import estimate_levels
+
+    cfg = replace(load_config(), max_simultaneous_faults=1, prior_fault_satellite=1e-3)
+    wls = solve_method(data_0759, "wls", cfg)
+    rng = np.random.default_rng(5)
+    rows = np.arange(0, 120, 9)
+    offset = np.zeros_like(wls.x_ecef_m)
+    offset[rows] = rng.uniform(-5.0, 5.0, size=(rows.size, 3))
+    hpl, vpl = estimate_levels(data_0759, wls, wls.x_ecef_m + offset, cfg)
+    assert np.isfinite(hpl).all() and np.isfinite(vpl).all()
+    lin = linearize(data_0759, rows, wls.x_ecef_m[rows], wls.clocks_m[rows], cfg)
+    for j, r in enumerate(rows):
+        u = lin.mask[j]
+        h, v = _estimate_levels_by_loop(lin.A[j, u], lin.q[j, u], lin.var_m2[j, u], lin.rot[j], cfg,
+                                        lin.rot[j] @ offset[r])
+        assert hpl[r] == pytest.approx(h, rel=1e-7) and vpl[r] == pytest.approx(v, rel=1e-7)
+    far_h, far_v = estimate_levels(data_0759, wls, wls.x_ecef_m + 3 * offset, cfg)
+    assert (far_h[rows] > hpl[rows]).all() and (far_v[rows] > vpl[rows]).all()
+
+
+@pytest.mark.parametrize("spread_m", [0.0, 3.0, 30.0])
+def test_the_levels_of_any_estimate_bound_its_error(spread_m):
+    """Whatever the estimate (here the epoch's own faulted fix moved by up to ``spread_m`` in
+    each axis, as a multi-epoch method pulled by other epochs could be), its error exceeds its
+    level only when the fault-free subset of the epoch is beyond ``K sigma_k``: over 12,000 epochs
+    with one satellite biased by 0-12 sigmas, the rate stays within the allocation
+    ``sum_q IR_q / (p_sat (N_h + 1))``. The levels of the fix itself (the threshold form, blind to
+    where the estimate is) do not bound the moved estimates: with 30 m they fail far beyond it."""
+    cfg = replace(load_config(), max_simultaneous_faults=1)
+    rng = np.random.default_rng(17)
+    total, misleading, fix_levels, allowed = 0, 0, 0, 0.0
+    for n_sat in (7, 8, 10):
+        T = 4000
+        A, noise, var = _simulated_epochs(rng, T, n_sat, 0.8)
+        j = rng.integers(0, n_sat, size=T)
+        q = noise.copy()
+        q[np.arange(T), j] += rng.uniform(0.0, 12.0, size=T) * np.sqrt(var[np.arange(T), j]) * rng.choice([-1, 1], size=T)
+        W = 1.0 / var
+        N = np.einsum("tn,tna,tnb->tab", W, A, A)
+        x = np.linalg.solve(N, np.einsum("tn,tna->ta", W * q, A)[..., None])[..., 0]  # the truth is 0
+        estimate = x[:, :3] + rng.uniform(-spread_m, spread_m, size=(T, 3))
+        rot = np.broadcast_to(np.eye(3), (T, 3, 3))
+        mask = np.ones((T, n_sat), bool)
+        hpl, vpl, _ = separation_levels(A, q, mask, var, W, rot, n_sat, cfg, offset=estimate)
+        hpl0, vpl0, _ = separation_levels(A, q, mask, var, W, rot, n_sat, cfg)
+        err_h, err_v = np.hypot(estimate[:, 0], estimate[:, 1]), np.abs(estimate[:, 2])
+        total += T
+        misleading += ((err_h > hpl) | (err_v > vpl)).sum()
+        fix_levels += ((err_h > hpl0) | (err_v > vpl0)).sum()
+        p = cfg.prior_fault_satellite
+        budget = cfg.integrity_risk - (1 - (1 - p) ** n_sat - n_sat * p * (1 - p) ** (n_sat - 1)) - p / 10
+        allowed += T * min(1.0, budget / (p * (n_sat + 1)))
+    assert misleading <= allowed + 3 * np.sqrt(allowed)
+    if spread_m == 0.0:  # the fix itself: both forms hold
+        assert fix_levels <= allowed + 3 * np.sqrt(allowed)
+    if spread_m == 30.0:
+        assert fix_levels > 5 * allowed
+
+
+def test_multi_epoch_rows_carry_their_own_levels_and_none_is_untested(data_0759):
+    """smoother and kf rows get levels of their own positions (equal to :func:`estimate_levels`
+    of them, not the WLS epoch's); an epoch cut to four satellites has no WLS subsets, hence no
+    level, and is ``untested`` for them, never ``ok``."""
+    from gnss_cli.pipeline.integrity import estimate_levels
+    from gnss_cli.pipeline.methods import solve_multi_epoch
+
+    cfg = load_config()
+    used = np.isfinite(solve_method(data_0759, "wls", cfg).residuals_m)
+    rows = np.arange(40, 46)
+    usable = data_0759.usable & used
+    for r in rows:
+        usable[r, np.flatnonzero(usable[r])[4:]] = False
+    cut = replace(data_0759, usable=usable)
+    wls = solve_method(cut, "wls", cfg)
+    for method in ("smoother", "kf"):
+        sol, _ = solve_multi_epoch(method, cut, wls, cfg)
+        hpl, vpl = estimate_levels(cut, wls, sol.x_ecef_m, cfg)
+        np.testing.assert_array_equal(sol.hpl_m, hpl)
+        np.testing.assert_array_equal(sol.vpl_m, vpl)
+        assert (sol.status[rows] == "untested").all() and np.isnan(sol.hpl_m[rows]).all(), method
+        rest = np.setdiff1d(np.arange(sol.status.size), rows)
+        assert np.isfinite(sol.hpl_m[rest]).all() and not np.allclose(sol.hpl_m[rest], wls.hpl_m[rest])
+        limited, _ = solve_multi_epoch(method, cut, wls, replace(cfg, alert_limit_h_m=float(np.median(hpl[rest]))))
+        assert ((limited.status == "hpl_limit") == (sol.status == "ok") & (hpl > np.median(hpl[rest]))).all()
