@@ -379,8 +379,8 @@ def main() -> None:
                       "compares with the same run with --integrity off. 'NLOS / LOS sat-epochs out': the "
                       "share of the drives' NLOS and LOS satellite-epochs WLS excluded or down-weighted "
                       "below 10 %. "
-                      "Multi-epoch methods write no protection levels yet: their ok epochs cannot be judged "
-                      "misleading ('ok without PL')."),
+                      "The multi-epoch methods' levels are those of their own positions from the WLS epoch's "
+                      "fault-free subsets (docs/integrity.md, 'In the multi-epoch methods')."),
             "seeds": n_seeds, "duration_s": duration, "methods": METHODS, "settings": SETTINGS,
             "pooled": summary, "cases": entries, "seconds": time.perf_counter() - t0,
         }, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")

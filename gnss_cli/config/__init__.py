@@ -109,6 +109,9 @@ class ProcessingConfig:
     """Prior probability per epoch that a whole constellation is faulty."""
     max_simultaneous_faults: int = 1
     """Largest number of simultaneously faulty satellites the protection levels monitor (see default.toml)."""
+    nominal_bias_cn0_sigmas: float = 0.0
+    """Nominal bias bound of each pseudorange in the protection levels, in units of the C/N0 part
+    of its sigma (SIGMA-epsilon term; 0: none; see default.toml)."""
     max_exclusions: int = 4
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
@@ -244,6 +247,8 @@ class ProcessingConfig:
         for name in ("integrity_risk", "prior_fault_satellite", "prior_fault_constellation"):
             if not 0.0 < getattr(self, name) < 1.0:
                 raise ConfigError(f"{name}: expected 0 < value < 1; received {getattr(self, name)}")
+        if not 0.0 <= self.nominal_bias_cn0_sigmas < float("inf"):
+            raise ConfigError(f"nominal_bias_cn0_sigmas: expected a finite value >= 0; received {self.nominal_bias_cn0_sigmas}")
         bad = [s for s in self.exclude if len(s) != 3 or s[0] not in SYSTEM_LETTERS or not s[1:].isdigit()]
         if bad:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
@@ -362,7 +367,7 @@ _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_co
 """ProcessingConfig fields that are not ``[processing]`` keys."""
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
-           "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
+           "nominal_bias_cn0_sigmas", "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
            "phase_sigma_m", "phase_slip_m")
 _INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "max_simultaneous_faults", "robust_max_iterations",
          "chunk_epochs", "stream_above_epochs", "processes")

@@ -42,6 +42,17 @@ constellation, hypotheses whose subset cannot solve) and split ``1/4, 1/4, 1/2``
   ``VPL = PL_U``, ``HPL = hypot(PL_E, PL_N)`` (each horizontal axis bounded at half the
   horizontal risk, combined conservatively); infinite when ``P_nm >= integrity_risk``.
 
+Nominal biases (``nominal_bias_cn0_sigmas = beta``; the ARAIM ``b_nom`` of each satellite): a
+reflected or attenuated signal's extra error lasts for seconds, so it is a bias as much as noise,
+and several such signals at once are what single-fault hypotheses cannot cover. Each used row
+gets a bias bound ``b_i = beta sqrt(c (10^(-C/N0_i/10) - 10^(-ref/10)))``, ``beta`` times the C/N0
+part of its sigma (the SIGMA-epsilon term of ``[weights]``; 0 for strong signals, for files without
+C/N0 and with ``cn0_model = "off"``), and every term of a level gains the largest error those
+biases can make through its estimator, ``sum_i |S_q,i| b_i`` (``S = R K``, the ENU rows of the
+full-set gain ``K_0`` or the subset's ``K_k``):
+``PL_q = max(K_ff,q sigma_0,q + B_0,q, max_k (T_k,q + K_md,k,q sigma_k,q + B_k,q))``. The biases
+change the levels only: weights, tests, exclusions and positions stay.
+
 Several faulty satellites (``max_simultaneous_faults = j_max``, default 1: the above): with
 satellite faults independent, each of probability ``p`` (``prior_fault_satellite``), the epoch
 also gets every subset of 2 (and 3) of its ``n`` used satellites as a hypothesis, of prior
@@ -127,7 +138,7 @@ from numpy.typing import NDArray
 from scipy.special import bdtrc, chdtri, ndtri
 
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.gnss.range_model import ISB_CONSTRAINT_VAR_M2, linearize, width_groups
+from gnss_cli.gnss.range_model import ISB_CONSTRAINT_VAR_M2, Linearization, cn0_variance_m2, linearize, width_groups
 from gnss_cli.pipeline.results import EPOCH_AXIS_FIELDS, EpochData, EpochStatus, MethodSolution
 
 __all__ = ["IntegrityCheck", "check_epochs", "monitor", "take_epochs", "merge_epochs", "chi2_threshold",
@@ -206,16 +217,36 @@ def check_epochs(data: EpochData, x: F64, clocks: F64, config: ProcessingConfig,
     thr = np.array([chi2_threshold(int(d), config.integrity_pfa) for d in dof])
     wtest = np.where(sat, np.abs(r[:, :n]) / np.sqrt(np.clip(qr[:, :n], 1e-12, None)), -1.0)
     tested = dof >= 1
+    bias = nominal_bias_m(data, lin, config)
     hpl, vpl = np.full(rows.size, np.nan), np.full(rows.size, np.nan)
     detected = np.zeros(rows.size, dtype=bool)
     if tested.any():
         t = np.flatnonzero(tested)
         hpl[t], vpl[t], detected[t] = separation_levels(A[t], q[t], mask[t], var[t], np.where(mask, we, 0.0)[t],
                                                         lin.rot[t], n, config,
-                                                        None if estimate is None else (estimate - x)[t])
+                                                        None if estimate is None else (estimate - x)[t],
+                                                        None if bias is None else bias[t])
     # the satellite (column of data.sv) of the largest w-test; 0 when no satellite is used
     worst = np.where(sat.any(axis=1), np.take_along_axis(lin.sv_index, np.argmax(wtest, axis=1)[:, None], 1)[:, 0], 0)
     return IntegrityCheck(stat=stat, dof=dof, passed=stat <= thr, worst=worst, hpl_m=hpl, vpl_m=vpl, separated=detected)
+
+
+def nominal_bias_m(data: EpochData, lin: Linearization, config: ProcessingConfig) -> F64 | None:
+    """Each used row's nominal bias bound ``b_i`` (``(t, N)``, m) for the protection levels:
+    ``nominal_bias_cn0_sigmas`` times the C/N0 part of its sigma,
+    ``sqrt(cn0_c_m2hz (10^(-C/N0/10) - 10^(-cn0_ref_dbhz/10)))`` (module docstring, "Nominal
+    biases"); 0 for clock constraint rows and signals without C/N0. None when the term is off
+    (``nominal_bias_cn0_sigmas = 0``, ``cn0_model = "off"``, or a file without C/N0)."""
+    beta = config.nominal_bias_cn0_sigmas
+    w = config.weights
+    if beta <= 0.0 or w.cn0_model != "sigma-epsilon" or data.snr_dbhz is None:
+        return None
+    n = lin.sat_rows
+    cn0 = np.take_along_axis(data.snr_dbhz, np.maximum(lin.sv_index, 0), axis=1)
+    b = beta * np.sqrt(cn0_variance_m2(cn0, w.cn0_c_m2hz, w.cn0_ref_dbhz))
+    out = np.zeros(lin.mask.shape)
+    out[:, :n] = np.where(lin.mask[:, :n], b, 0.0)
+    return out
 
 
 @dataclass
@@ -238,10 +269,14 @@ class Separation:
     cov_full: F64
     solvable: NDArray[np.bool_]
     full: F64
+    gain_full: F64 | None = None
+    """``(t, m, N)`` the full-set estimator ``K_0`` (with ``gains``), else None."""
+    gain_subset: F64 | None = None
+    """``(t, h, m, N)`` each subset's estimator ``K_k`` (0 in the left-out rows; with ``gains``)."""
 
 
 def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,
-                     fixed_weight: float) -> Separation:
+                     fixed_weight: float, gains: bool = False) -> Separation:
     """Linear least-squares solutions of ``t`` stacked systems ``A x = q`` with each of ``h``
     row subsets left out, against the full-set solution, with their covariances.
 
@@ -256,6 +291,8 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
         ``x_j = 0`` of weight ``fixed_weight`` (and variance ``1 / fixed_weight``): an unknown its
         left-out rows alone determined (a receiver clock of a removed constellation).
     fixed_weight : weight of those pseudo-observations.
+    gains : also return the estimators ``K_0`` and ``K_k`` themselves (for the nominal-bias
+        terms of the levels, :func:`_bias_terms`).
 
     Returns
     -------
@@ -302,8 +339,48 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
         cov_subset[ti, hi], solvable[ti, hi] = sub.cov_subset[:, 0], sub.solvable[:, 0]
     bad = ~solvable
     delta[bad], cov_delta[bad], cov_subset[bad] = np.nan, np.nan, np.nan
+    gain_full = gain_subset = None
+    if gains:
+        gain_full = np.einsum("tab,tbn->tan", G0, Aw)
+        gain_subset = _subset_gains(A, we, removed, fixed, fixed_weight, G0, gain_full)
+        gain_subset[bad] = np.nan
     return Separation(delta=delta, cov_delta=cov_delta, cov_subset=cov_subset, cov_full=P0, solvable=solvable,
-                      full=x0)
+                      full=x0, gain_full=gain_full, gain_subset=gain_subset)
+
+
+def _subset_gains(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed_weight: float, G0: F64,
+                  K0: F64) -> F64:
+    """The estimators ``K_k`` ``(t, h, m, N)`` of the subsets of :func:`separate_subsets`: for one
+    left-out row ``a`` (weight ``w``), ``K_k = K_0 - c u (e_i - K_0^T a)^T`` with ``u = G0 a``,
+    ``c = w / (1 - w a^T u)`` (Sherman-Morrison, as :func:`_separate_one_row`); else
+    ``K_k = N_k^-1 A^T W_e,k`` with the subset's normal matrix (and fixed unknowns)."""
+    t, N, m = A.shape
+    h = removed.shape[1]
+    out = np.broadcast_to(K0[:, None], (t, h, m, N)).copy()
+    n_removed = removed.sum(axis=2)
+    one_row = (n_removed == 1) & ~fixed.any(axis=2)
+    ti, hi = np.nonzero(one_row)
+    if ti.size:
+        row = np.argmax(removed[ti, hi], axis=1)
+        a, w = A[ti, row], we[ti, row]
+        u = np.einsum("pab,pb->pa", G0[ti], a)
+        rest = 1.0 - w * np.einsum("pa,pa->p", a, u)
+        c = np.where(rest > 1e-9, w / np.where(rest > 1e-9, rest, 1.0), np.nan)
+        ell = -np.einsum("pan,pa->pn", K0[ti], a)
+        ell[np.arange(ti.size), row] += 1.0
+        out[ti, hi] = K0[ti] - c[:, None, None] * u[:, :, None] * ell[:, None, :]
+    ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
+    if ti.size:
+        wk = we[ti] * ~removed[ti, hi]  # (p, N)
+        AT = np.swapaxes(A[ti], 1, 2)
+        Nk = (AT * wk[:, None, :]) @ A[ti] + fixed[ti, hi][:, :, None] * np.eye(m) * fixed_weight
+        with np.errstate(all="ignore"):
+            try:
+                Gk = np.linalg.inv(Nk)
+            except np.linalg.LinAlgError:
+                Gk = np.linalg.pinv(Nk)
+        out[ti, hi] = Gk @ (AT * wk[:, None, :])
+    return out
 
 
 def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
@@ -420,7 +497,8 @@ def _monitored_order(n: NDArray[np.int64], config: ProcessingConfig) -> NDArray[
 
 
 def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
-                      config: ProcessingConfig, offset: F64 | None = None) -> tuple[F64, F64, NDArray[np.bool_]]:
+                      config: ProcessingConfig, offset: F64 | None = None,
+                      bias: F64 | None = None) -> tuple[F64, F64, NDArray[np.bool_]]:
     """ARAIM-style protection levels by solution separation, and the separation test, of
     ``t`` epochs linearized at their fixes (module docstring, "Solution separation").
 
@@ -434,6 +512,9 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
     same epochs, ``offset = x_hat - x_fix`` (module docstring, "Levels of the multi-epoch
     methods"): ``PL_q = max(|x_hat_q - x_0,q| + K_ff,q sigma_0,q, max_k (|x_hat_q - x_k,q| +
     K_md,k,q sigma_k,q))``.
+
+    ``bias`` (``(t, N)``, m): each row's nominal bias bound ``b_i`` (module docstring, "Nominal
+    biases"); every term of the level gains ``sum_i |S_q,i| b_i`` of its estimator ``S``.
 
     With ``max_simultaneous_faults > 1`` the epochs are grouped by their number of used
     satellites and monitored order (:func:`_monitored_order`) and solved in blocks of at most
@@ -451,7 +532,8 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
             r = slice(b, b + step)
             hpl[r], vpl[r], detected[r] = _levels(lin_A[r], q[r], mask[r], var[r], we[r], rot[r], n_sat, config,
                                                   *(a[r] for a in single), order[r],
-                                                  None if offset is None else offset[r])
+                                                  None if offset is None else offset[r],
+                                                  None if bias is None else bias[r])
         return hpl, vpl, detected
     groups = np.unique(np.stack([n, order], axis=1), axis=0)
     for n_e, o in groups:
@@ -469,7 +551,8 @@ def separation_levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we:
             removed, fixed, candidate, prior = (np.concatenate(z, axis=1) for z in zip(*parts))
             hpl[r], vpl[r], detected[r] = _levels(lin_A[r], q[r], mask[r], var[r], we[r], rot[r], n_sat, config,
                                                   removed, fixed, candidate, prior, order[r],
-                                                  None if offset is None else offset[r])
+                                                  None if offset is None else offset[r],
+                                                  None if bias is None else bias[r])
     return hpl, vpl, detected
 
 
@@ -536,16 +619,19 @@ def _enu_variances(rot: F64, cov: F64) -> F64:
 
 def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot: F64, n_sat: int,
             config: ProcessingConfig, removed: NDArray[np.bool_], fixed: F64, candidate: NDArray[np.bool_],
-            prior: F64, order: NDArray[np.int64], offset: F64 | None = None) -> tuple[F64, F64, NDArray[np.bool_]]:
+            prior: F64, order: NDArray[np.int64], offset: F64 | None = None,
+            bias: F64 | None = None) -> tuple[F64, F64, NDArray[np.bool_]]:
     """The levels and the separation test of ``t`` epochs under the given hypotheses, the
     satellite faults of more than ``order`` satellites unmonitored; with ``offset`` (``(t, 3)``
     ECEF, m: another estimate minus the linearization point) the levels of that estimate
-    (:func:`separation_levels`)."""
+    (:func:`separation_levels`); ``bias`` (``(t, N)``, m): each row's nominal bias bound."""
     t, N, m = lin_A.shape
     k = m - 3
     sat = mask[:, :n_sat]
     unseen_constellation = config.prior_fault_constellation if k == 1 else 0.0
-    sep = separate_subsets(lin_A, np.where(mask, q, 0.0), we, var, removed, fixed, 1.0 / ISB_CONSTRAINT_VAR_M2)
+    biased = bias is not None and bool((bias > 0).any())
+    sep = separate_subsets(lin_A, np.where(mask, q, 0.0), we, var, removed, fixed, 1.0 / ISB_CONSTRAINT_VAR_M2,
+                           gains=biased)
     active = candidate & sep.solvable
     n_h = active.sum(axis=1)
     n = sat.sum(axis=1)
@@ -565,16 +651,21 @@ def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot:
     d_enu = np.einsum("tij,thj->thi", rot, sep.delta[..., pos])
     thr = k_fa[:, None, :] * np.sqrt(np.clip(var_d, 0.0, None))
     detected = (active[..., None] & (np.abs(d_enu) > thr)).any(axis=(1, 2))
+    b_0, b_k = np.zeros((t, 3)), np.zeros((t, 1, 3))
+    if biased:  # the largest error the rows' nominal biases can make, per axis: sum_i |S_q,i| b_i
+        assert sep.gain_full is not None and sep.gain_subset is not None and bias is not None
+        b_0 = np.einsum("tqn,tn->tq", np.abs(np.einsum("tij,tjn->tin", rot, sep.gain_full[:, pos])), bias)
+        b_k = np.einsum("thqn,tn->thq", np.abs(np.einsum("tij,thjn->thin", rot, sep.gain_subset[:, :, pos])), bias)
     if offset is None:  # the full-set fix: its separation from each subset is within the threshold
-        per_k = np.where(active[..., None], thr + k_md * np.sqrt(np.clip(var_k, 0.0, None)), 0.0)
-        pl = np.maximum(k_ff * np.sqrt(var_0), per_k.max(axis=1))  # (t, 3)
+        per_k = np.where(active[..., None], thr + k_md * np.sqrt(np.clip(var_k, 0.0, None)) + b_k, 0.0)
+        pl = np.maximum(k_ff * np.sqrt(var_0) + b_0, per_k.max(axis=1))  # (t, 3)
     else:  # another estimate: its actual distance from the full set and from each subset
         d_est = np.einsum("tij,tj->ti", rot, offset - sep.full[:, pos])  # estimate - full-set fix, ENU
         gap = np.abs(d_est[:, None, :] - d_enu)
         # |x_k - truth| > K sigma_k on either side: twice the one-sided tail of the threshold form
         k_two = _q_inverse(np.minimum(0.5, ir[:, None, :] / (2.0 * prior[:, :, None] * (n_h + 1)[:, None, None])))
-        per_k = np.where(active[..., None], gap + k_two * np.sqrt(np.clip(var_k, 0.0, None)), 0.0)
-        pl = np.maximum(np.abs(d_est) + k_ff * np.sqrt(var_0), per_k.max(axis=1))
+        per_k = np.where(active[..., None], gap + k_two * np.sqrt(np.clip(var_k, 0.0, None)) + b_k, 0.0)
+        pl = np.maximum(np.abs(d_est) + k_ff * np.sqrt(var_0) + b_0, per_k.max(axis=1))
     pl = np.where((budget > 0)[:, None], pl, np.inf)
     return np.hypot(pl[:, 0], pl[:, 1]), pl[:, 2], detected
 
