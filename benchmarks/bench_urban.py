@@ -110,6 +110,8 @@ def nlos_handling(sol, epochs, faults: pd.DataFrame) -> dict[str, object]:  # no
     s_index = {s: j for j, s in enumerate(epochs.sv.astype(str))}
     excluded = sol.excluded if sol.excluded is not None else np.zeros((tow.size, len(s_index)), bool)
     weights = sol.robust_weights if sol.robust_weights is not None else np.ones(excluded.shape)
+    if sol.variance_scale is not None:  # the NLOS detector's down-weighted reflections
+        weights = weights / np.nan_to_num(sol.variance_scale, nan=1.0)
     used = np.isfinite(sol.residuals_m) | excluded
     out: dict[str, object] = {}
     for name, los in (("nlos", 0), ("los", 1)):

@@ -7,8 +7,9 @@ both receiver profiles, 300 s at 1 Hz (against the simulator's truth, and its ``
 labels); tst2 (against its truth); smartloc-berlin (availability only: no reference); ESBC, a
 clean station (24 h at 30 s), which must not change. For each candidate -- ``off``, and ``arcs``
 with a few C/N0 thresholds (enter/exit, dB), redundancies (``min_dof``), ``failed_epochs``
-"keep" or "retry", the delay test of the C/N0 spans and the residual CUSUM
-(``residual_k``/``residual_h``) -- ``wls`` with the default integrity (``fde``) and every other
+"keep" or "retry", the delay test of the C/N0 spans, the residual CUSUM
+(``residual_k``/``residual_h``) and the down-weighting of the spans an epoch's redundancy keeps
+(``variance_factor`` 1, 10, 100) -- ``wls`` with the default integrity (``fde``) and every other
 option at its default. Per case: availability, misleading epochs, 3D RMS of the ``ok`` epochs,
 satellite-epochs excluded; on the drives the share of NLOS and of LOS satellite-epochs excluded
 or down-weighted below 10 % (``bench_urban.nlos_handling``).
@@ -60,6 +61,10 @@ CANDIDATES: dict[str, dict[str, object]] = {
     "C/N0 11/6 dB, dof 1": {**ARCS, "nlos.cn0_enter_db": 11.0, "nlos.cn0_exit_db": 6.0, "nlos.min_dof": 1},
     "C/N0 7/4 dB, dof 2, delay 0 m": {**ARCS, "nlos.cn0_min_delay_m": 0.0},
     "C/N0 7/4 dB, dof 2, CUSUM 2/10": {**ARCS, "nlos.residual_k": 2.0, "nlos.residual_h": 10.0},
+    "C/N0 9/5 dB, dof 1, kept x10": {**ARCS, "nlos.cn0_enter_db": 9.0, "nlos.cn0_exit_db": 5.0, "nlos.min_dof": 1,
+                                     "nlos.variance_factor": 10.0},
+    "C/N0 9/5 dB, dof 1, kept x100": {**ARCS, "nlos.cn0_enter_db": 9.0, "nlos.cn0_exit_db": 5.0, "nlos.min_dof": 1,
+                                      "nlos.variance_factor": 100.0},
 }
 """Every ``arcs`` candidate also keeps the other ``[nlos]`` keys at their packaged values."""
 REAL = ("tst2", "smartloc-berlin")

@@ -338,7 +338,8 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     ``excluded_by_user``, ``snr_mask``, ``excluded_fde``, ``below_mask`` (elevation mask),
     ``no_second_frequency`` (iono-free), or, for a satellite of an epoch that was not solved,
     the epoch's status; for a used satellite ``downweighted`` when its weight is below
-    :data:`~gnss_cli.pipeline.results.DOWNWEIGHTED_BELOW`, else empty.
+    :data:`~gnss_cli.pipeline.results.DOWNWEIGHTED_BELOW` or the NLOS detector multiplied its
+    variance by more than its inverse (``[nlos] variance_factor``; ``sigma_m`` includes it), else empty.
     """
     from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
     from gnss_cli.pipeline.results import DOWNWEIGHTED_BELOW, UNUSED_REASONS
@@ -352,8 +353,9 @@ def satellites_table(result: RunResult, config) -> pd.DataFrame:  # type: ignore
     used = np.isfinite(s.residuals_m)
     excluded = s.excluded if s.excluded is not None else np.zeros((T, n), dtype=bool)
     weight = s.robust_weights if s.robust_weights is not None else np.where(used, 1.0, np.nan)
+    scaled = s.variance_scale if s.variance_scale is not None else np.ones((T, n))
     reason = np.select(
-        [used & (weight < DOWNWEIGHTED_BELOW), used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
+        [used & ((weight < DOWNWEIGHTED_BELOW) | (scaled * DOWNWEIGHTED_BELOW > 1.0)), used, unused > 0, excluded, el < config.elevation_mask_deg, ~data.usable],
         ["downweighted", "", np.asarray(UNUSED_REASONS, dtype=object)[np.clip(unused, 0, None)], "excluded_fde", "below_mask",
          "no_second_frequency"],
         default=np.broadcast_to(s.status[:, None], (T, n)).astype(object))

@@ -195,6 +195,7 @@ class NlosConfig:
     residual_h: float = float("inf")
     min_dof: int = 1
     failed_epochs: str = "retry"
+    variance_factor: float = 1.0
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
@@ -216,6 +217,9 @@ class NlosConfig:
             raise ConfigError(f"nlos.residual_k: expected a positive number (sigmas); received {self.residual_k}")
         if not self.residual_h > 0.0:
             raise ConfigError(f"nlos.residual_h: expected > 0 (sigmas; inf: no residual test); received {self.residual_h}")
+        if not 1.0 <= self.variance_factor < float("inf"):
+            raise ConfigError(f"nlos.variance_factor: expected a finite value >= 1 (1: full weight); "
+                              f"received {self.variance_factor}")
         if self.failed_epochs not in NLOS_FAILED_EPOCHS:
             raise ConfigError(f"nlos.failed_epochs: expected one of {', '.join(NLOS_FAILED_EPOCHS)}; "
                               f"received {self.failed_epochs!r}")

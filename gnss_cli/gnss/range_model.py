@@ -315,6 +315,7 @@ class EpochArrays(Protocol):
     system_index: NDArray[np.int64] | None
     iono_scale: F64 | None
     snr_dbhz: F64 | None
+    variance_scale: F64 | None
 
 
 @dataclass
@@ -467,6 +468,8 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     cn0 = data.snr_dbhz  # C/N0 of each pseudorange's signal, dB-Hz (None: the file has no S code)
     var_u = np.where(near_u, pseudorange_variance_m2(config, el, data.ura_m[tr, si], iono, efact[si],
                                                      None if cn0 is None else cn0[tr, si]), 1.0)
+    if data.variance_scale is not None:  # the NLOS detector's down-weighted reflections
+        var_u = var_u * data.variance_scale[tr, si]
     q_u = data.pr_corrected_m[tr, si] - (rng_u + b[ti, sysidx[si]] + iono + tropo)
     sv_col = None
     if width is not None:  # the used observations only

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
-from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel
+from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, with_weights_of
 
 __all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "snapshot_config",
            "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
@@ -141,6 +141,7 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     which stays in ``cov_m2`` (``sde_m``... columns)."""
     from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
 
+    data = with_weights_of(data, wls)  # the NLOS detector's down-weighted reflections, as WLS had them
     if method == "stls":
         from gnss_cli.pipeline.behavioral import smooth
 

@@ -28,9 +28,13 @@ An epoch keeps its redundancy: satellites are excluded most suspicious first (la
 over ``cn0_enter_db``, or ``u`` over ``residual_k``), and no further once the epoch would keep
 fewer than ``3 + k + min_dof`` satellites (``k`` its clocks) or fewer than ``min_satellites``.
 The excluded satellites are in the WLS solution's ``excluded`` mask (with FDE's); every method
-that starts from the WLS fix leaves them out too. With ``failed_epochs = "retry"`` an epoch that
-is not ``ok`` after the exclusions is solved again with every satellite
-(:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
+that starts from the WLS fix leaves them out too. The C/N0 spans that redundancy keeps in are
+down-weighted instead: their pseudorange variance is multiplied by ``variance_factor`` (100: a
+hundredth of the weight; 1: full weight), in the WLS solution's ``variance_scale``, and every
+method that starts from the WLS fix weighs them alike
+(:func:`~gnss_cli.pipeline.results.with_weights_of`). With ``failed_epochs = "retry"`` an epoch
+that is not ``ok`` after the exclusions is solved again with every satellite, every span
+down-weighted by the same factor (:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
 ``"off"`` is the plain fix. The template is the solved part's (a file of at most
 ``stream_above_epochs`` epochs is one part).
 """
@@ -237,11 +241,13 @@ def prediction_residuals_m(data: EpochData, sol: MethodSolution, which: NDArray[
     return out
 
 
-def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: ProcessingConfig) -> NDArray[np.bool_]:
+def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: ProcessingConfig
+                 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """The satellite-epochs ``(T, n)`` to exclude as persistent reflections (module docstring):
     the C/N0 spans at the fix ``first`` of every satellite (those whose pseudoranges the fix
     without them predicts short by ``cn0_min_delay_m`` or more on average over the span), then the
-    residual spans at the fix ``fit`` gives without them; each stage keeps every epoch's redundancy."""
+    residual spans at the fix ``fit`` gives without them; each stage keeps every epoch's redundancy.
+    Also returns the spans' satellite-epochs that redundancy kept (used, flagged, not excluded)."""
     cfg = config.nlos
     k = len(data.systems)
     system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
@@ -256,6 +262,7 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     used = np.isfinite(first.residuals_m)
     spans, deficit = cn0_spans(data, first, config)
     out = allowed(spans, deficit / cfg.cn0_enter_db, used)
+    kept_by_redundancy = spans & used & ~out
     second: MethodSolution | None = None
     if np.isfinite(cfg.cn0_min_delay_m) and out.any():
         second = without(out)
@@ -263,10 +270,10 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
         kept = out & (np.nan_to_num(delay, nan=np.inf) >= cfg.cn0_min_delay_m)
         second, out = (second if kept.sum() == out.sum() else None), kept
     if not np.isfinite(cfg.residual_h):
-        return out
+        return out, kept_by_redundancy
     second = second if second is not None else without(out)
     spans, u = residual_spans(second, config)
-    return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m))
+    return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m)), kept_by_redundancy
 
 
 def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, config: ProcessingConfig) -> MethodSolution:
@@ -274,17 +281,25 @@ def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, con
     without the reflections :func:`exclude_nlos` finds from the plain fix ``first``; ``fit`` solves a
     subset of epochs from given starting fixes. The excluded satellites join FDE's in ``excluded``.
 
-    With ``[nlos] failed_epochs = "retry"`` an epoch that is not ``ok`` after the exclusions (its
-    test fails and FDE, short of redundancy, cannot repair it) is solved again with every satellite,
-    as without the detector, and takes that solution when it is ``ok``."""
-    reflected = exclude_nlos(data, first, lambda sub: fit(sub, None, None), config)
-    reduced = replace(data, usable=data.usable & ~reflected)
+    The spans redundancy keeps in get ``variance_factor`` times their variance (the solution's
+    ``variance_scale``). With ``[nlos] failed_epochs = "retry"`` an epoch that is not ``ok`` after
+    the exclusions (its test fails and FDE, short of redundancy, cannot repair it) is solved again
+    with every satellite, every span down-weighted alike, and takes that solution when it is ``ok``."""
+    reflected, kept = exclude_nlos(data, first, lambda sub: fit(sub, None, None), config)
+    scale = np.where(kept, config.nlos.variance_factor, 1.0) if config.nlos.variance_factor > 1.0 else None
+    reduced = replace(data, usable=data.usable & ~reflected, variance_scale=scale)
     sol = monitor(reduced, fit(reduced, None, None), config, fit)
-    sol = replace(sol, excluded=reflected if sol.excluded is None else sol.excluded | reflected)
-    retry = np.flatnonzero((sol.status != EpochStatus.OK) & reflected.any(axis=1))
+    sol = replace(sol, excluded=reflected if sol.excluded is None else sol.excluded | reflected,
+                  variance_scale=scale)
+    retry = np.flatnonzero((sol.status != EpochStatus.OK) & (reflected | kept).any(axis=1))
     if config.nlos.failed_epochs != "retry" or not retry.size:
         return sol
-    sub = take_epochs(data, retry)
+    every = None if scale is None else np.where(reflected | kept, config.nlos.variance_factor, 1.0)
+    sub = take_epochs(replace(data, variance_scale=every), retry)
     again = monitor(sub, take_solution(first, retry), config, fit)
     better = np.flatnonzero(again.status == EpochStatus.OK)
-    return merge_epochs(sol, retry[better], take_solution(again, better)) if better.size else sol
+    if not better.size:
+        return sol
+    if every is not None:  # every satellite again, the reflections down-weighted
+        again = replace(again, variance_scale=every[retry])
+    return merge_epochs(sol, retry[better], take_solution(again, better))

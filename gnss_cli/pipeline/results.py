@@ -212,7 +212,8 @@ DOWNWEIGHTED_BELOW = 0.1
 """A used satellite whose robust weight factor is below this is reported (``satellites.csv``
 ``reason`` ``downweighted``): Huber ``|u| > 13.45``, Cauchy ``|u| > 7.2`` a-priori sigmas."""
 EPOCH_AXIS_FIELDS = ("time_gps_s", "pr_corrected_m", "sat_ecef_m", "ura_m", "usable", "iono_scale", "snr_dbhz", "unused",
-                     "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s", "phase_m", "phase_slip")
+                     "range_rate_m_s", "sat_vel_ecef_m_s", "sat_clock_drift_s_s", "phase_m", "phase_slip",
+                     "variance_scale")
 """Fields of :class:`EpochData` with the epoch axis first."""
 
 
@@ -260,6 +261,9 @@ class EpochData:
     unused: NDArray[np.int8] | None = None
     """``(T, n)`` why an observed satellite is not usable (:data:`UNUSED_REASONS` index;
     0 usable, -1 not observed)."""
+    variance_scale: F64 | None = None
+    """``(T, n)`` factor on each pseudorange's variance (>= 1): the NLOS detector's reflections that
+    an epoch's redundancy keeps (``[nlos] variance_factor``, :func:`with_weights_of`); None: 1."""
     range_rate_m_s: F64 | None = None
     """``(T, n)`` range rate from the Doppler of the chosen code's signal, ``-lambda D`` (m/s;
     lambda of that signal, GLONASS per channel); NaN where there is no Doppler or the
@@ -348,6 +352,10 @@ class MethodSolution:
     """``(T,)`` receiver clock drift times c, m/s (one for every system)."""
     gdop_vel: F64 | None = None
     """``(T,)`` velocity DOP ``sqrt(trace)`` of the velocity-and-drift noise gain (unitless)."""
+    variance_scale: F64 | None = None
+    """``(T, n)`` the factor on each pseudorange variance the solution was weighted with (the NLOS
+    detector's kept reflections, ``[nlos] variance_factor``); None: 1 everywhere. Every method
+    that starts from this WLS solution weights its epochs alike (:func:`with_weights_of`)."""
 
     @property
     def clock_m(self) -> F64:
@@ -373,6 +381,14 @@ class RunResult:
     @property
     def warnings(self) -> tuple[str, ...]:
         return self.epochs.warnings
+
+
+def with_weights_of(data: EpochData, wls: MethodSolution) -> EpochData:
+    """``data`` weighted as the WLS solution ``wls`` was (its ``variance_scale``, the NLOS
+    detector's down-weighted reflections), for the methods that start from it."""
+    if wls.variance_scale is None:
+        return data
+    return replace(data, variance_scale=np.nan_to_num(wls.variance_scale, nan=1.0))
 
 
 def take_solution(sol: MethodSolution, rows: NDArray[np.intp] | slice, copy: bool = False) -> MethodSolution:

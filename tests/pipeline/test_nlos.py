@@ -41,6 +41,12 @@ def canyon(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def canyon_single(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _simulate(tmp_path_factory.mktemp("nlos") / "canyon1", "--environment", "urban", "--receiver", "single",
+                     "--seed", "201")
+
+
+@pytest.fixture(scope="module")
 def open_sky(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _simulate(tmp_path_factory.mktemp("nlos") / "open", "--seed", "201")
 
@@ -185,10 +191,42 @@ def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> Non
     assert not solve_method(biased, "wls", replace(cfg, integrity="off")).excluded.any()
 
 
+def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(canyon_single: Path) -> None:
+    """With ``variance_factor`` the C/N0 spans an epoch's redundancy keeps are not left at full
+    weight: their variance is multiplied by it. A single-frequency GPS + BeiDou canyon, with
+    ``min_dof = 3`` so that redundancy binds: against the simulator's labels, NLOS satellite-epochs
+    out or below 10 % of their weight rise, LOS ones stay below 2 %. The WLS sigmas are the plain
+    ones times sqrt(factor) exactly there and nowhere else; the smoother and the kf weigh the same
+    rows alike (their sigma_m: one variance factor per kind, no other change)."""
+    canyon = canyon_single
+    base = load_config(None, {**ARCS, "methods": "wls,smoother,kf", "nlos.min_dof": 3})
+    res1 = process(canyon / "obs.rnx", [canyon / "nav.rnx"], replace(base, nlos=replace(base.nlos, variance_factor=1.0)))
+    res = process(canyon / "obs.rnx", [canyon / "nav.rnx"], replace(base, nlos=replace(base.nlos, variance_factor=100.0)))
+    labels = _labels(res, pd.read_csv(canyon / "faults.csv"))
+    wls = res.solutions["wls"]
+    assert res1.solutions["wls"].variance_scale is None and wls.variance_scale is not None
+    scaled = wls.variance_scale > 1.0
+    used = np.isfinite(wls.residuals_m)
+    cand = used | wls.excluded
+    out = wls.excluded | (scaled & used)
+    assert (scaled & used).any()
+    assert out[cand & (labels == 0)].mean() > 0.9 and out[cand & (labels == 1)].mean() < 0.02
+    assert out[cand & (labels == 0)].mean() > res1.solutions["wls"].excluded[cand & (labels == 0)].mean() + 0.05
+    plain = res1.solutions["wls"].sigma_m  # the model's sigmas, at nearly the same fixes
+    same = used & np.isfinite(plain)
+    np.testing.assert_allclose((wls.sigma_m / plain)[same & scaled], 10.0, rtol=1e-4)  # the fixes differ slightly
+    np.testing.assert_allclose((wls.sigma_m / plain)[same & ~scaled], 1.0, rtol=1e-4)
+    for m in ("smoother", "kf"):
+        sig = res.solutions[m].sigma_m
+        both = np.isfinite(sig) & used
+        ratio = sig[both] / wls.sigma_m[both]
+        np.testing.assert_allclose(ratio, ratio[0], rtol=1e-4)  # one variance factor for the kind, no other change
+
+
 @pytest.mark.parametrize(("key", "value", "match"), [
     ("nlos.detector", "cn0", "nlos.detector"), ("nlos.cn0_exit_db", 12.0, "exit <= enter"),
     ("nlos.residual_k", 0.0, "nlos.residual_k"), ("nlos.min_dof", 0, "nlos.min_dof"),
-    ("nlos.template_quantile", 1.0, "nlos.template_quantile")])
+    ("nlos.template_quantile", 1.0, "nlos.template_quantile"), ("nlos.variance_factor", 0.5, "nlos.variance_factor")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
