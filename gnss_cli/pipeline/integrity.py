@@ -766,13 +766,14 @@ def final_status(status: NDArray[np.str_], failed: NDArray[np.bool_], dof: NDArr
                  hpl_m: F64, vpl_m: F64, config: ProcessingConfig) -> NDArray[np.str_]:
     """The words of the ``ok`` epochs of ``status`` after their test, in this order:
     ``integrity_fail`` (``failed``), ``gdop_limit`` (``gdop > max_gdop``, also NaN), ``untested``
-    (``dof < 1``: no redundancy, no test, no protection level), ``hpl_limit``
+    (``dof < 1``: no redundancy, no test, no protection level; or an infinite level: the faults
+    no hypothesis covers exceed the integrity risk, nothing is protected), ``hpl_limit``
     (``hpl_m > alert_limit_h_m``, or no HPL under a finite limit), ``vpl_limit`` (the same
     vertically); the rest stays ``ok``. Every other word is kept."""
     out = status.copy()
     ok = status == EpochStatus.OK
     wide = ~(gdop <= config.max_gdop)
-    untested = dof < 1
+    untested = (dof < 1) | np.isinf(hpl_m) | np.isinf(vpl_m)
     over_h = ~(hpl_m <= config.alert_limit_h_m)  # NaN (no PL) is over any limit but inf
     over_v = ~(vpl_m <= config.alert_limit_v_m)
     over_h &= np.isfinite(config.alert_limit_h_m) | ~np.isnan(hpl_m)

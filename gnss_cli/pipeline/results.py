@@ -39,8 +39,9 @@ value                   meaning
                         protection level exceeds ``alert_limit_v_m`` (position kept)
 ``untested``            the fix has no redundancy to test (``dof = n - (3 + k) = 0``; a
                         multi-epoch row ``n - k = 0``, or no protection level because its WLS
-                        epoch has none): no test or no level; position kept, not counted as
-                        solved
+                        epoch has none), or its protection levels are infinite (the faults no
+                        hypothesis covers exceed ``integrity_risk``): no test or no level;
+                        position kept, not counted as solved
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
                         model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
