@@ -54,6 +54,29 @@ def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool)
     return cases
 
 
+def training_run(doc: str | None, quick_help: str) -> tuple[list[int], float, bool]:
+    """The command line every choice script takes (``--quick``): the training seeds, the drives'
+    duration (s) and whether it is the quick run (one seed per profile, 120 s)."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    args = parser.parse_args()
+    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    return seeds, duration, bool(args.quick)
+
+
+def report_choice(out: Path, title: str, command: str, columns: list[str], table_rows: list[list[object]],
+                  chosen: str | None, notes: str, quick: bool, **extra: object) -> None:
+    """Print a choice's table and its choice; unless ``quick``, write them with ``extra`` to ``out`` (JSON)."""
+    print("| " + " | ".join(columns) + " |\n|" + "---|" * len(columns))
+    for r in table_rows:
+        print("| " + " | ".join(str(v) for v in r) + " |")
+    print(f"chosen: {chosen}")
+    if not quick:
+        out.write_text(json.dumps({"title": title, "command": command, "table": {"columns": columns, "rows": table_rows},
+                                   "notes": notes, **extra, "chosen": chosen},
+                                  indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+
+
 def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple], prog: str,
                      extra: Callable[[str, RunResult], dict[str, object]] | None = None,
                      ) -> tuple[dict[str, dict[str, object]], dict[str, dict[str, float]]]:
@@ -79,13 +102,10 @@ def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2")
-    args = parser.parse_args()
-    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        results, _ = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, args.quick),
+        results, _ = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, quick),
                                       "choose_cn0_weights")
     names = list(results["off"])
     lines = ["| candidate | " + " | ".join(names) + " | score | misleading |", "|---|" + "---|" * (len(names) + 2)]
@@ -107,7 +127,7 @@ def main() -> None:
     chosen = min(allowed, key=lambda c: scores[c])
     print("\n".join(lines))
     print(f"chosen: {chosen} (score {scores[chosen]:.3f}; off 1.000)")
-    if not args.quick:
+    if not quick:
         OUT.write_text(json.dumps({"title": "Choosing the C/N0 weights on training data",
                                    "command": "python benchmarks/choose_cn0_weights.py",
                                    "table": {"columns": ["candidate", *[f"{n}: ok / RMS" for n in names],

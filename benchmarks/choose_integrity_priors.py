@@ -21,8 +21,6 @@ reference (drives and tst2); ties go to the higher drive availability. Prints a 
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 import time
@@ -32,7 +30,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import RINEX  # noqa: E402
-from choose_cn0_weights import score_candidates, training_cases as cn0_training_cases  # noqa: E402
+from choose_cn0_weights import report_choice, score_candidates, training_run  # noqa: E402
+from choose_cn0_weights import training_cases as cn0_training_cases  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "choose_integrity_priors.json"
@@ -56,13 +55,10 @@ def training_cases(work: Path, seeds: list[int], duration_s: float, quick: bool)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2, rtklib-0759")
-    args = parser.parse_args()
-    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2, rtklib-0759")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, args.quick),
+        results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, quick),
                                             "choose_integrity_priors")
     names = list(next(iter(results.values())))
     drives = [n for n in names if n.startswith("sim-")]
@@ -94,22 +90,14 @@ def main() -> None:
         table_rows.append([cand, round(100 * s["drive_availability"], 1),
                            f"{s['drive_misleading']} ({s['drive_misleading_pct']:.2f})", *cells, s["misleading"],
                            cand in allowed, round(seconds[cand].get("esbc", float("nan")), 1)])
-    print("| " + " | ".join(columns) + " |\n|" + "---|" * len(columns))
-    for r in table_rows:
-        print("| " + " | ".join(str(v) for v in r) + " |")
-    print(f"chosen: {chosen}")
-    if not args.quick:
-        OUT.write_text(json.dumps({
-            "title": "Choosing the multi-fault integrity priors on training data",
-            "command": "python benchmarks/choose_integrity_priors.py",
-            "table": {"columns": columns, "rows": table_rows},
-            "notes": (f"WLS, default integrity (fde); rule: fewest misleading epochs (drives + tst2) among the "
-                      f"candidates with pooled drive availability >= {MIN_DRIVE_AVAILABILITY:.0%} and clean-set "
-                      f"availability >= {MIN_CLEAN_AVAILABILITY:.0%} with finite levels; chosen: {chosen}. "
-                      "Training data only: bench_urban.py reports seeds 1-N."),
-            "seeds": seeds, "duration_s": duration, "candidates": CANDIDATES, "summary": summary,
-            "chosen": chosen, "cases": results, "seconds": seconds, "total_seconds": time.perf_counter() - t0,
-        }, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+    report_choice(OUT, "Choosing the multi-fault integrity priors on training data",
+                  "python benchmarks/choose_integrity_priors.py", columns, table_rows, chosen,
+                  (f"WLS, default integrity (fde); rule: fewest misleading epochs (drives + tst2) among the "
+                   f"candidates with pooled drive availability >= {MIN_DRIVE_AVAILABILITY:.0%} and clean-set "
+                   f"availability >= {MIN_CLEAN_AVAILABILITY:.0%} with finite levels; chosen: {chosen}. "
+                   "Training data only: bench_urban.py reports seeds 1-N."), quick,
+                  seeds=seeds, duration_s=duration, candidates=CANDIDATES, summary=summary, cases=results,
+                  seconds=seconds, total_seconds=time.perf_counter() - t0)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ About 3 minutes on one core.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -41,7 +40,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import nlos_handling  # noqa: E402
-from choose_cn0_weights import score_candidates, training_cases  # noqa: E402
+from choose_cn0_weights import score_candidates, training_cases, training_run  # noqa: E402
 
 from gnss_cli.pipeline import RunResult  # noqa: E402
 
@@ -92,13 +91,10 @@ def _pooled(rows: dict[str, dict[str, object]], key: str) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2")
-    args = parser.parse_args()
-    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        cases = training_cases(Path(tmp), seeds, duration, args.quick)
+        cases = training_cases(Path(tmp), seeds, duration, quick)
         faults = {c[0]: pd.read_csv(Path(c[1]).parent / "faults.csv") for c in cases if str(c[0]).startswith("sim-")}
         results, _ = score_candidates(CANDIDATES, cases, "choose_nlos", extra=_extra(faults))
     off = results["off"]
@@ -133,7 +129,7 @@ def main() -> None:
                            misleading[cand], ok])
     print("\n".join(lines))
     print(f"chosen: {chosen} (NLOS {nlos_pct[chosen]:.1f} %, LOS {los_pct[chosen]:.1f} %, score {scores[chosen]:.3f})")
-    if not args.quick:
+    if not quick:
         OUT.write_text(json.dumps({"title": "Choosing the NLOS detector on training data",
                                    "command": "python benchmarks/choose_nlos.py",
                                    "table": {"columns": ["candidate", *[f"{n}: ok / RMS / excluded" for n in names],

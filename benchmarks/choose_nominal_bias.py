@@ -22,8 +22,6 @@ Prints a table and writes ``benchmarks/results/choose_nominal_bias.json``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 import time
@@ -32,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from choose_cn0_weights import score_candidates  # noqa: E402
+from choose_cn0_weights import report_choice, score_candidates, training_run  # noqa: E402
 from choose_integrity_priors import training_cases  # noqa: E402
 from gnss_cli.pipeline.results import RunResult  # noqa: E402
 
@@ -53,13 +51,10 @@ def _levels(name: str, res: RunResult) -> dict[str, object]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="one seed per profile, 120 s, tst2, rtklib-0759")
-    args = parser.parse_args()
-    seeds, duration = ([101], 120.0) if args.quick else ([101, 102, 103], 300.0)
+    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2, rtklib-0759")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, args.quick),
+        results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, quick),
                                             "choose_nominal_bias", extra=_levels)
     names = list(next(iter(results.values())))
     drives = [n for n in names if n.startswith("sim-")]
@@ -91,21 +86,13 @@ def main() -> None:
             cells.append(f"{r.get('misleading', '–')} / {lv}")
         table_rows.append([cand, f"{s['drive_misleading']} ({s['drive_misleading_pct']:.2f})",
                            round(s["drive_median_vpl_m"], 1), *cells])
-    print("| " + " | ".join(columns) + " |\n|" + "---|" * len(columns))
-    for r in table_rows:
-        print("| " + " | ".join(str(v) for v in r) + " |")
-    print(f"chosen: {chosen}")
-    if not args.quick:
-        OUT.write_text(json.dumps({
-            "title": "Choosing the nominal bias of the protection levels on training data",
-            "command": "python benchmarks/choose_nominal_bias.py",
-            "table": {"columns": columns, "rows": table_rows},
-            "notes": (f"WLS, every other option at its default; rule: the smallest beta with drive misleading "
-                      f"<= {MAX_DRIVE_MISLEADING_PCT} % of ok and none on tst2; chosen: {chosen}. Training data "
-                      "only: bench_urban.py reports seeds 1-N."),
-            "seeds": seeds, "duration_s": duration, "candidates": CANDIDATES, "summary": summary,
-            "chosen": chosen, "cases": results, "seconds": seconds, "total_seconds": time.perf_counter() - t0,
-        }, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+    report_choice(OUT, "Choosing the nominal bias of the protection levels on training data",
+                  "python benchmarks/choose_nominal_bias.py", columns, table_rows, chosen,
+                  (f"WLS, every other option at its default; rule: the smallest beta with drive misleading "
+                   f"<= {MAX_DRIVE_MISLEADING_PCT} % of ok and none on tst2; chosen: {chosen}. Training data "
+                   "only: bench_urban.py reports seeds 1-N."), quick,
+                  seeds=seeds, duration_s=duration, candidates=CANDIDATES, summary=summary, cases=results,
+                  seconds=seconds, total_seconds=time.perf_counter() - t0)
 
 
 if __name__ == "__main__":

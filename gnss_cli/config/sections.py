@@ -195,7 +195,7 @@ class NlosConfig:
     residual_h: float = float("inf")
     min_dof: int = 1
     failed_epochs: str = "retry"
-    variance_factor: float = 1.0
+    variance_factor: float = 100.0
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""

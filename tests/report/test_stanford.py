@@ -79,15 +79,20 @@ def test_summary_counts_equal_the_positions_file(tmp_path: Path, capsys: pytest.
         assert summary.loc[method, "max_3d_m"] == pytest.approx(e["err_3d_m"][ok].max(), abs=1e-3)
 
 
-def test_multi_epoch_rows_claim_no_levels_of_their_own(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The smoother is built from the WLS rows: it must not carry WLS's levels as its own, and the
-    summary leaves its misleading count empty rather than judging it against another fix's level."""
+def test_multi_epoch_rows_carry_levels_of_their_own(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The smoother is built from the WLS rows but does not carry WLS's levels: its rows have the
+    levels of its own positions (from the WLS epochs' subsets), which differ from WLS's, bound its
+    errors, and the summary counts its misleading epochs against them, as the positions say."""
     with pytest.raises(SystemExit) as exc:
         run_app(app, "gnss-solve", [str(SAMPLE / "obs.rnx"), str(SAMPLE / "nav.rnx"), "--method", "wls,smoother",
                                     "--reference-csv", str(SAMPLE / "truth.csv"), "--out-dir", str(tmp_path), "-q"])
     assert exc.value.code == 0, capsys.readouterr().err
     pos = pd.read_csv(tmp_path / "positions.csv")
-    assert pos.loc[pos["method"] == "wls", "hpl_m"].notna().all()
-    assert pos.loc[pos["method"] == "smoother", ["hpl_m", "vpl_m"]].isna().all().all()
+    wls, smo = pos[pos["method"] == "wls"], pos[pos["method"] == "smoother"]
+    assert wls["hpl_m"].notna().all() and smo[["hpl_m", "vpl_m"]].notna().all().all()
+    assert not np.allclose(smo["hpl_m"].to_numpy(), wls["hpl_m"].to_numpy())
+    ok = smo["status"] == "ok"
+    h = np.hypot(smo["e_err_m"], smo["n_err_m"])
+    mis = (ok & ((h > smo["hpl_m"]) | (smo["u_err_m"].abs() > smo["vpl_m"]))).sum()
     summary = pd.read_csv(tmp_path / "summary.csv").set_index("method")
-    assert np.isnan(summary.loc["smoother", "misleading_epochs"]) and summary.loc["wls", "misleading_epochs"] >= 0
+    assert summary.loc["smoother", "misleading_epochs"] == mis and summary.loc["wls", "misleading_epochs"] >= 0
