@@ -269,14 +269,15 @@ class Separation:
     cov_full: F64
     solvable: NDArray[np.bool_]
     full: F64
-    gain_full: F64 | None = None
-    """``(t, m, N)`` the full-set estimator ``K_0`` (with ``gains``), else None."""
-    gain_subset: F64 | None = None
-    """``(t, h, m, N)`` each subset's estimator ``K_k`` (0 in the left-out rows; with ``gains``)."""
+    bias_full: F64 | None = None
+    """``(t, 3)`` the largest ENU position error the rows' nominal biases make through the full-set
+    estimator, ``sum_i |(R K_0)_q,i| b_i`` (with ``bias``), else None."""
+    bias_subset: F64 | None = None
+    """``(t, h, 3)`` the same through each subset's estimator ``K_k`` (with ``bias``)."""
 
 
 def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,
-                     fixed_weight: float, gains: bool = False) -> Separation:
+                     fixed_weight: float, bias: tuple[F64, F64] | None = None) -> Separation:
     """Linear least-squares solutions of ``t`` stacked systems ``A x = q`` with each of ``h``
     row subsets left out, against the full-set solution, with their covariances.
 
@@ -291,8 +292,9 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
         ``x_j = 0`` of weight ``fixed_weight`` (and variance ``1 / fixed_weight``): an unknown its
         left-out rows alone determined (a receiver clock of a removed constellation).
     fixed_weight : weight of those pseudo-observations.
-    gains : also return the estimators ``K_0`` and ``K_k`` themselves (for the nominal-bias
-        terms of the levels, :func:`_bias_terms`).
+    bias : ``(b, R)``: each row's nominal bias bound ``b`` (``(t, N)``, m) and the ECEF -> ENU
+        rotations ``R`` (``(t, 3, 3)``) for the nominal-bias terms of the levels
+        (:func:`_bias_terms`); None: none.
 
     Returns
     -------
@@ -339,24 +341,36 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
         cov_subset[ti, hi], solvable[ti, hi] = sub.cov_subset[:, 0], sub.solvable[:, 0]
     bad = ~solvable
     delta[bad], cov_delta[bad], cov_subset[bad] = np.nan, np.nan, np.nan
-    gain_full = gain_subset = None
-    if gains:
-        gain_full = np.einsum("tab,tbn->tan", G0, Aw)
-        gain_subset = _subset_gains(A, we, removed, fixed, fixed_weight, G0, gain_full)
-        gain_subset[bad] = np.nan
+    bias_full = bias_subset = None
+    if bias is not None:
+        bias_full, bias_subset = _bias_terms(A, we, removed, fixed, fixed_weight, G0, Aw, *bias)
+        bias_subset[bad] = np.nan
     return Separation(delta=delta, cov_delta=cov_delta, cov_subset=cov_subset, cov_full=P0, solvable=solvable,
-                      full=x0, gain_full=gain_full, gain_subset=gain_subset)
+                      full=x0, bias_full=bias_full, bias_subset=bias_subset)
 
 
-def _subset_gains(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed_weight: float, G0: F64,
-                  K0: F64) -> F64:
-    """The estimators ``K_k`` ``(t, h, m, N)`` of the subsets of :func:`separate_subsets`: for one
-    left-out row ``a`` (weight ``w``), ``K_k = K_0 - c u (e_i - K_0^T a)^T`` with ``u = G0 a``,
-    ``c = w / (1 - w a^T u)`` (Sherman-Morrison, as :func:`_separate_one_row`); else
-    ``K_k = N_k^-1 A^T W_e,k`` with the subset's normal matrix (and fixed unknowns)."""
+def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed_weight: float, G0: F64,
+                Aw: F64, b: F64, rot: F64) -> tuple[F64, F64]:
+    """The nominal-bias terms of the levels: ``sum_i |S_q,i| b_i`` with ``S = R K[:3]`` the ENU
+    position rows of the full-set estimator ``K_0 = G0 A^T W_e`` (``(t, 3)``) and of each subset's
+    ``K_k`` (``(t, h, 3)``) of :func:`separate_subsets`.
+
+    For one left-out row ``a`` (row ``i``, weight ``w``), ``K_k = K_0 - c u (e_i - K_0^T a)^T``
+    with ``u = G0 a``, ``c = w / (1 - w a^T u)`` (Sherman-Morrison, as :func:`_separate_one_row`),
+    so ``S_k = S_0 - c (R u) l^T`` is formed from the full set's; the other subsets as
+    ``N_k^-1 A^T W_e,k`` with their normal matrix (and fixed unknowns). Only each epoch's rows
+    with a bias and the position rows are formed (one named function for speed: with every
+    estimator formed whole the terms cost the 24 h ESBC WLS run 45 % of its CPU time, and the
+    whole run missed ``benchmarks/bench_full_run.py``'s target)."""
     t, N, m = A.shape
     h = removed.shape[1]
-    out = np.broadcast_to(K0[:, None], (t, h, m, N)).copy()
+    width = int((b > 0).sum(axis=1).max())
+    cols = np.argsort(~(b > 0), axis=1, kind="stable")[:, :width]  # (t, c): each epoch's biased rows first
+    bc = np.take_along_axis(b, cols, axis=1)
+    K0 = np.einsum("tab,tbn->tan", G0, np.take_along_axis(Aw, cols[:, None, :], axis=2))  # (t, m, c)
+    S0 = np.einsum("tij,tjn->tin", rot, K0[:, :3])  # (t, 3, c)
+    full = np.einsum("tqn,tn->tq", np.abs(S0), bc)
+    subset = np.broadcast_to(full[:, None], (t, h, 3)).copy()
     n_removed = removed.sum(axis=2)
     one_row = (n_removed == 1) & ~fixed.any(axis=2)
     ti, hi = np.nonzero(one_row)
@@ -366,9 +380,9 @@ def _subset_gains(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed
         u = np.einsum("pab,pb->pa", G0[ti], a)
         rest = 1.0 - w * np.einsum("pa,pa->p", a, u)
         c = np.where(rest > 1e-9, w / np.where(rest > 1e-9, rest, 1.0), np.nan)
-        ell = -np.einsum("pan,pa->pn", K0[ti], a)
-        ell[np.arange(ti.size), row] += 1.0
-        out[ti, hi] = K0[ti] - c[:, None, None] * u[:, :, None] * ell[:, None, :]
+        ell = (row[:, None] == cols[ti]) - np.einsum("pan,pa->pn", K0[ti], a)  # (p, c)
+        ru = np.einsum("pij,pj->pi", rot[ti], u[:, :3]) * c[:, None]  # (p, 3)
+        subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(S0[ti] - ru[:, :, None] * ell[:, None, :]), bc[ti])
     ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
     if ti.size:
         wk = we[ti] * ~removed[ti, hi]  # (p, N)
@@ -379,8 +393,10 @@ def _subset_gains(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed
                 Gk = np.linalg.inv(Nk)
             except np.linalg.LinAlgError:
                 Gk = np.linalg.pinv(Nk)
-        out[ti, hi] = Gk @ (AT * wk[:, None, :])
-    return out
+        AWk = np.take_along_axis(AT * wk[:, None, :], cols[ti][:, None, :], axis=2)
+        Sk = np.einsum("pij,pjn->pin", rot[ti], (Gk @ AWk)[:, :3])
+        subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(Sk), bc[ti])
+    return full, subset
 
 
 def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
@@ -631,7 +647,7 @@ def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot:
     unseen_constellation = config.prior_fault_constellation if k == 1 else 0.0
     biased = bias is not None and bool((bias > 0).any())
     sep = separate_subsets(lin_A, np.where(mask, q, 0.0), we, var, removed, fixed, 1.0 / ISB_CONSTRAINT_VAR_M2,
-                           gains=biased)
+                           bias=(bias, rot) if biased and bias is not None else None)
     active = candidate & sep.solvable
     n_h = active.sum(axis=1)
     n = sat.sum(axis=1)
@@ -652,10 +668,8 @@ def _levels(lin_A: F64, q: F64, mask: NDArray[np.bool_], var: F64, we: F64, rot:
     thr = k_fa[:, None, :] * np.sqrt(np.clip(var_d, 0.0, None))
     detected = (active[..., None] & (np.abs(d_enu) > thr)).any(axis=(1, 2))
     b_0, b_k = np.zeros((t, 3)), np.zeros((t, 1, 3))
-    if biased:  # the largest error the rows' nominal biases can make, per axis: sum_i |S_q,i| b_i
-        assert sep.gain_full is not None and sep.gain_subset is not None and bias is not None
-        b_0 = np.einsum("tqn,tn->tq", np.abs(np.einsum("tij,tjn->tin", rot, sep.gain_full[:, pos])), bias)
-        b_k = np.einsum("thqn,tn->thq", np.abs(np.einsum("tij,thjn->thin", rot, sep.gain_subset[:, :, pos])), bias)
+    if sep.bias_full is not None and sep.bias_subset is not None:  # per axis: sum_i |S_q,i| b_i
+        b_0, b_k = sep.bias_full, sep.bias_subset
     if offset is None:  # the full-set fix: its separation from each subset is within the threshold
         per_k = np.where(active[..., None], thr + k_md * np.sqrt(np.clip(var_k, 0.0, None)) + b_k, 0.0)
         pl = np.maximum(k_ff * np.sqrt(var_0) + b_0, per_k.max(axis=1))  # (t, 3)

@@ -48,15 +48,17 @@ def test_subset_solutions_equal_explicit_least_squares(weighted):
     removed[:, N, 6:] = True  # the second system
     fixed = np.zeros((t, N + 1, m))
     fixed[:, N, 4] = 1.0
-    sep = separate_subsets(A, q, we, var, removed, fixed, FIXED_W, gains=True)
+    R = np.linalg.qr(rng.normal(size=(t, 3, 3)))[0]  # any rotations
+    b = np.where(rng.random((t, N)) < 0.5, rng.uniform(0.5, 5.0, size=(t, N)), 0.0)  # biases on some rows
+    sep = separate_subsets(A, q, we, var, removed, fixed, FIXED_W, bias=(b, R))
     assert sep.solvable.all()
     for e in range(t):
         x0, K0 = _explicit(A[e], q[e], we[e], var[e], np.ones(N), np.zeros(m))
-        np.testing.assert_allclose(sep.gain_full[e], K0, rtol=1e-8, atol=1e-10)
+        np.testing.assert_allclose(sep.bias_full[e], np.abs(R[e] @ K0[:3]) @ b[e], rtol=1e-8, atol=1e-10)
         np.testing.assert_allclose(sep.cov_full[e], K0 @ np.diag(var[e]) @ K0.T, rtol=1e-9, atol=1e-12)
         for h in range(N + 1):
             xk, Kk = _explicit(A[e], q[e], we[e], var[e], ~removed[e, h], fixed[e, h])
-            np.testing.assert_allclose(sep.gain_subset[e, h], Kk, rtol=1e-8, atol=1e-10)
+            np.testing.assert_allclose(sep.bias_subset[e, h], np.abs(R[e] @ Kk[:3]) @ b[e], rtol=1e-8, atol=1e-10)
             S = Kk - K0
             np.testing.assert_allclose(sep.delta[e, h, :3], (xk - x0)[:3], rtol=1e-8, atol=1e-9)
             np.testing.assert_allclose(sep.cov_delta[e, h, :3, :3], (S @ np.diag(var[e]) @ S.T)[:3, :3],
