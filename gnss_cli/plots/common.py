@@ -24,6 +24,8 @@ METHOD_STYLES: dict[str, dict[str, object]] = {
     "mtls": {"color": "tab:brown", "linestyle": "-"},
     "stls": {"color": "tab:green", "linestyle": "--"},
     "wtls": {"color": "tab:cyan", "linestyle": ":"},
+    "smoother": {"color": "tab:pink", "linestyle": "-."},
+    "kf": {"color": "tab:olive", "linestyle": "-."},
 }
 
 WIDE_FACTOR = 10.0

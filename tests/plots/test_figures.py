@@ -162,3 +162,13 @@ def test_html_report_embeds_figures_and_summary(static_run, figures):
     assert key[:7] == ["method", "epochs", "ok_%", "rms_3d_m", "rms_horizontal_m", "rms_vertical_m", "mean_gdop"]
     assert table[: len(summary.columns)] == list(summary.columns) and "wls" in table
     assert "<title>run &lt;1&gt;</title>" in page
+
+
+def test_every_method_has_a_colour_of_its_own():
+    """Every method a run can plot, the multi-epoch ones included, is told apart by its colour
+    (smoother and kf had none and were both grey in the Stanford diagram)."""
+    from gnss_cli.constants import METHOD_KEYS, MULTI_EPOCH_METHOD_KEYS
+    from gnss_cli.plots.common import method_style
+
+    keys = METHOD_KEYS + MULTI_EPOCH_METHOD_KEYS
+    assert len({str(method_style(m)["color"]) for m in keys}) == len(keys)
