@@ -327,43 +327,46 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
     solvable = np.ones((t, h), dtype=bool)
     n_removed = removed.sum(axis=2)
     one_row = (n_removed == 1) & ~fixed.any(axis=2)
+    one = several = None
     ti, hi = np.nonzero(one_row)
     if ti.size:
         row = np.argmax(removed[ti, hi], axis=1)
-        d, cd, ck, ok = _separate_one_row(A[ti, row], q[ti, row], we[ti, row], var[ti, row], G0[ti], x0[ti], V0[ti],
-                                          P0[ti])
+        d, cd, ck, ok, u, c = _separate_one_row(A[ti, row], q[ti, row], we[ti, row], var[ti, row], G0[ti], x0[ti],
+                                                V0[ti], P0[ti])
         delta[ti, hi], cov_delta[ti, hi], cov_subset[ti, hi], solvable[ti, hi] = d, cd, ck, ok
+        one = (ti, hi, row, u, c)
     ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
     if ti.size:
-        sub = _separate_batched(A[ti], q[ti], we[ti], var[ti], removed[ti, hi][:, None], fixed[ti, hi][:, None],
-                                fixed_weight)
+        sub, Gk = _separate_batched(A[ti], q[ti], we[ti], var[ti], removed[ti, hi][:, None], fixed[ti, hi][:, None],
+                                    fixed_weight)
         delta[ti, hi], cov_delta[ti, hi] = sub.delta[:, 0], sub.cov_delta[:, 0]
         cov_subset[ti, hi], solvable[ti, hi] = sub.cov_subset[:, 0], sub.solvable[:, 0]
+        several = (ti, hi, Gk[:, 0])
     bad = ~solvable
     delta[bad], cov_delta[bad], cov_subset[bad] = np.nan, np.nan, np.nan
     bias_full = bias_subset = None
     if bias is not None:
-        bias_full, bias_subset = _bias_terms(A, we, removed, fixed, fixed_weight, G0, Aw, *bias)
+        bias_full, bias_subset = _bias_terms(A, we, removed, G0, Aw, *bias, one, several)
         bias_subset[bad] = np.nan
     return Separation(delta=delta, cov_delta=cov_delta, cov_subset=cov_subset, cov_full=P0, solvable=solvable,
                       full=x0, bias_full=bias_full, bias_subset=bias_subset)
 
 
-def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed_weight: float, G0: F64,
-                Aw: F64, b: F64, rot: F64) -> tuple[F64, F64]:
+def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], G0: F64, Aw: F64, b: F64, rot: F64,
+                one: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], F64, F64] | None,
+                several: tuple[NDArray[np.intp], NDArray[np.intp], F64] | None) -> tuple[F64, F64]:
     """The nominal-bias terms of the levels: ``sum_i |S_q,i| b_i`` with ``S = R K[:3]`` the ENU
     position rows of the full-set estimator ``K_0 = G0 A^T W_e`` (``(t, 3)``) and of each subset's
-    ``K_k`` (``(t, h, 3)``) of :func:`separate_subsets`.
+    ``K_k`` (``(t, h, 3)``) of :func:`separate_subsets`, from what it already computed.
 
-    For one left-out row ``a`` (row ``i``, weight ``w``), ``K_k = K_0 - c u (e_i - K_0^T a)^T``
-    with ``u = G0 a``, ``c = w / (1 - w a^T u)`` (Sherman-Morrison, as :func:`_separate_one_row`),
-    so ``S_k = S_0 - c (R u) l^T`` is formed from the full set's; the other subsets as
-    ``N_k^-1 A^T W_e,k`` with their normal matrix (and fixed unknowns). Only each epoch's rows
-    with a bias and the position rows are formed (one named function for speed: with every
-    estimator formed whole the terms cost the 24 h ESBC WLS run 45 % of its CPU time, and the
-    whole run missed ``benchmarks/bench_full_run.py``'s target)."""
-    t, N, m = A.shape
-    h = removed.shape[1]
+    ``one``: the one-row subsets ``(epochs, hypotheses, left-out rows, u, c)`` of
+    :func:`_separate_one_row`, whose estimator is ``K_k = K_0 - c u (e_i - K_0^T a)^T``
+    (Sherman-Morrison), so ``S_k = S_0 - c (R u) l^T``; ``several``: the other subsets
+    ``(epochs, hypotheses, N_k^-1)`` of :func:`_separate_batched`, ``K_k = N_k^-1 A^T W_e,k``.
+    Only each epoch's rows with a bias and the position rows are formed (one named function for
+    speed: with every estimator formed whole the terms cost the 24 h ESBC WLS run 45 % of its CPU
+    time, and the whole run missed ``benchmarks/bench_full_run.py``'s target)."""
+    t, h = removed.shape[:2]
     width = int((b > 0).sum(axis=1).max())
     cols = np.argsort(~(b > 0), axis=1, kind="stable")[:, :width]  # (t, c): each epoch's biased rows first
     bc = np.take_along_axis(b, cols, axis=1)
@@ -371,36 +374,21 @@ def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], fixed: F64, fixed_w
     S0 = np.einsum("tij,tjn->tin", rot, K0[:, :3])  # (t, 3, c)
     full = np.einsum("tqn,tn->tq", np.abs(S0), bc)
     subset = np.broadcast_to(full[:, None], (t, h, 3)).copy()
-    n_removed = removed.sum(axis=2)
-    one_row = (n_removed == 1) & ~fixed.any(axis=2)
-    ti, hi = np.nonzero(one_row)
-    if ti.size:
-        row = np.argmax(removed[ti, hi], axis=1)
-        a, w = A[ti, row], we[ti, row]
-        u = np.einsum("pab,pb->pa", G0[ti], a)
-        rest = 1.0 - w * np.einsum("pa,pa->p", a, u)
-        c = np.where(rest > 1e-9, w / np.where(rest > 1e-9, rest, 1.0), np.nan)
-        ell = (row[:, None] == cols[ti]) - np.einsum("pan,pa->pn", K0[ti], a)  # (p, c)
+    if one is not None:
+        ti, hi, row, u, c = one
+        ell = (row[:, None] == cols[ti]) - np.einsum("pan,pa->pn", K0[ti], A[ti, row])  # (p, c)
         ru = np.einsum("pij,pj->pi", rot[ti], u[:, :3]) * c[:, None]  # (p, 3)
         subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(S0[ti] - ru[:, :, None] * ell[:, None, :]), bc[ti])
-    ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
-    if ti.size:
-        wk = we[ti] * ~removed[ti, hi]  # (p, N)
-        AT = np.swapaxes(A[ti], 1, 2)
-        Nk = (AT * wk[:, None, :]) @ A[ti] + fixed[ti, hi][:, :, None] * np.eye(m) * fixed_weight
-        with np.errstate(all="ignore"):
-            try:
-                Gk = np.linalg.inv(Nk)
-            except np.linalg.LinAlgError:
-                Gk = np.linalg.pinv(Nk)
-        AWk = np.take_along_axis(AT * wk[:, None, :], cols[ti][:, None, :], axis=2)
+    if several is not None:
+        ti, hi, Gk = several
+        AWk = np.take_along_axis(Aw[ti] * ~removed[ti, hi][:, None, :], cols[ti][:, None, :], axis=2)
         Sk = np.einsum("pij,pjn->pin", rot[ti], (Gk @ AWk)[:, :3])
         subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(Sk), bc[ti])
     return full, subset
 
 
 def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
-                      ) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
+                      ) -> tuple[F64, F64, F64, NDArray[np.bool_], F64, F64]:
     """Subsets that leave out one row each, in closed form: ``p`` cases of the row ``a``
     (``(p, m)``), its right-hand side ``q``, estimator weight ``w`` and variance ``var``
     (``(p,)``), and the full set's ``G0 = N0^-1``, solution ``x0``, ``V0 = A^T W_e Sigma W_e A``
@@ -413,7 +401,8 @@ def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F6
     the subset's covariance ``P_k = P0 + cov(Delta) - c (g u^T + u g^T)`` with
     ``g = w var u - G0 V0 u`` (``cov(x0, Delta) = -c g u^T``). For ``W_e = Sigma^-1``, ``g = 0``
     and ``cov(Delta) = c u u^T = P_k - P0``. A row the others cannot do without (``1 - w s``
-    below 1e-9) leaves a singular subset: not solvable.
+    below 1e-9) leaves a singular subset: not solvable. Also returns ``u`` and ``c`` (for the
+    subsets' estimators in :func:`_bias_terms`).
     """
     u = np.einsum("pab,pb->pa", G0, a)
     s = np.einsum("pa,pa->p", a, u)
@@ -429,15 +418,15 @@ def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F6
     g = (w * var)[:, None] * u - np.einsum("pab,pb->pa", G0, V0u)
     gu = g[:, :, None] * u[:, None, :]
     cov_subset = P0 + cov_delta - c[:, None, None] * (gu + np.swapaxes(gu, 1, 2))
-    return delta, cov_delta, cov_subset, solvable
+    return delta, cov_delta, cov_subset, solvable, u, c
 
 
 def _separate_batched(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,
-                      fixed_weight: float) -> Separation:
+                      fixed_weight: float) -> tuple[Separation, F64]:
     """:func:`separate_subsets` by forming every subset's normal matrix
     ``N_k = A^T W_e,k A (+ fixed_weight e_j e_j^T)``, ``W_e,k`` the estimator weights with the
     left-out rows at 0, by batched ``(m, N) x (N, m)`` products, and inverting it (``m`` at most
-    3 + clocks)."""
+    3 + clocks). Also returns the inverses ``N_k^-1`` ``(t, h, m, m)`` (identity where not solvable)."""
     t, N, m = A.shape
     keep = ~removed
     wv = we * we * var
@@ -469,7 +458,7 @@ def _separate_batched(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.boo
     delta = np.where(bad[..., None], np.nan, xk - x0[:, None])
     return Separation(delta=delta, cov_delta=np.where(bad[..., None, None], np.nan, cov_delta),
                       cov_subset=np.where(bad[..., None, None], np.nan, Pk), cov_full=P0, solvable=solvable,
-                      full=x0)
+                      full=x0), Gk
 
 
 def _q_inverse(p: F64) -> F64:
