@@ -391,10 +391,16 @@ def run_settings(cfg: Any, reference: str, systems: tuple[str, ...] = ()) -> dic
     column; each method's own settings have columns of their own)."""
     from gnss_cli import __version__
 
+    levels = "none" if cfg.integrity == "off" else (
+        f"risk {cfg.integrity_risk:g}, prior satellite {cfg.prior_fault_satellite:g}, prior constellation "
+        f"{cfg.prior_fault_constellation:g}, faults at once {cfg.max_simultaneous_faults}, nominal bias "
+        f"{cfg.nominal_bias_cn0_sigmas:g} C/N0 sigmas, alert limits {cfg.alert_limit_h_m:g}/{cfg.alert_limit_v_m:g} m")
+    nlos = cfg.nlos.detector if cfg.nlos.detector == "off" or cfg.integrity == "off" else (
+        f"{cfg.nlos.detector}, kept spans variance x{cfg.nlos.variance_factor:g}")
     return {"methods": ",".join(cfg.methods), "systems": ",".join(systems or cfg.systems), "iono": cfg.iono,
             "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.describe(),
-            "integrity": cfg.integrity, "robust": cfg.robust, "time_system": cfg.time_system,
-            "reference": reference, "version": __version__}
+            "integrity": cfg.integrity, "levels": levels, "nlos": "off" if cfg.integrity == "off" else nlos,
+            "robust": cfg.robust, "time_system": cfg.time_system, "reference": reference, "version": __version__}
 
 
 RUN_COLUMNS = ("command", "settings")
