@@ -349,7 +349,15 @@ class Run:
         if self.processes == 1 or self.config.multi_epoch_methods or not can_fork():
             return 1
         wanted = self.processes if self.processes > 0 else cores()
-        return max(1, min(wanted, n_epochs // PART_MIN_EPOCHS))
+        workers = max(1, min(wanted, n_epochs // PART_MIN_EPOCHS))
+        if workers > 1 and self.config.integrity != "off" and self.config.nlos.detector != "off":
+            # the detector's line-of-sight C/N0 template is estimated from the epochs it is given: cut
+            # in parts, each would have its own and flag other spans than the whole file's
+            if self.processes > 1 and not any("NLOS detector" in n for n in self._notes):
+                self._notes.append("--processes: solved in one process: the NLOS detector estimates its "
+                                   "C/N0 template from the whole file")
+            return 1
+        return workers
 
     def _axes(self, setup: EpochSetup, survey: _Survey) -> tuple[list[str], np.ndarray]:
         """The systems and the satellite axis of the whole file."""

@@ -230,3 +230,37 @@ def test_a_refused_process_leaves_the_run_to_this_one(flight: Path, prefetch: bo
     assert exc.value.code == 0, err
     assert "no process could be started" in err and "solved in one process" in err
     same_outputs({p.name: p.read_bytes() for p in sorted((tmp_path / "many").iterdir())}, one, "a refused fork")
+
+
+@pytest.mark.skipif(not parallel.can_fork(), reason="forked processes: Linux only")
+def test_with_the_nlos_detector_a_canyon_is_solved_in_one_process(tmp_path: Path, capsys, forks: list[int],
+                                                                  small_parts: None,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """The NLOS detector estimates its line-of-sight C/N0 template from the epochs it is given: two
+    halves of a simulated canyon drive, each with its own template, flag other spans than the whole
+    file (checked last), so with the detector on ``--processes 2`` solves in one process, says so,
+    and writes the bytes of ``--processes 1``."""
+    from gnss_cli.cli.simulate import app as simulate
+
+    drive = tmp_path / "drive"
+    with pytest.raises(SystemExit) as exc:
+        run_app(simulate, "gnss-simulate", ["--environment", "urban", "--trajectory", "drive", "--duration", "400",
+                                            "--interval", "1", "--seed", "7", "--out-dir", str(drive), "-q"])
+    assert exc.value.code == 0
+    config = tmp_path / "nlos.toml"
+    config.write_text('[nlos]\ndetector = "arcs"\n')
+    args = [drive / "obs.rnx", drive / "nav.rnx", "--method", "wls", "--config", config]
+    code, err, one = _run(args, tmp_path / "one", 1, capsys)
+    assert code == 0, err
+    with pytest.raises(SystemExit) as exc:  # not quiet: the run says why it kept to one process
+        run_app(app, "gnss-solve", [str(a) for a in [*args, "--out-dir", tmp_path / "many", "--processes", 2]])
+    _, err = capsys.readouterr()
+    assert exc.value.code == 0, err
+    many = {p.name: p.read_bytes() for p in sorted((tmp_path / "many").iterdir())}
+    assert not forks and "solved in one process: the NLOS detector" in err
+    same_outputs(many, one, "--processes 2 with the NLOS detector")
+    # what the guard prevents: in two processes, the halves' own templates change the fixes
+    monkeypatch.setattr(stream.Run, "_workers", lambda self, n_epochs: 2)
+    code, err, split = _run(args, tmp_path / "split", 2, capsys)
+    assert code == 0, err
+    assert len(forks) == 1 and split["positions.csv"] != one["positions.csv"]
