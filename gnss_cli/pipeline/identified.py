@@ -259,8 +259,7 @@ def _gate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...],
                         np.zeros((n_b * n_t, 6)), flat(run.mult[2])) if "P6" in rows else none
     used = (flat(rows["w"]) > 0, flat(rows["wd"]) > 0 if "H" in rows else none > 0,
             flat(rows["pw"]) > 0 if "P6" in rows else none > 0)
-    before = run.gated.reshape(3, n_b * n_t, -1)
-    mult, gated = gate_rows((u_pr, u_rr, u_ph), used, gate, config, before)
+    mult, gated = gate_rows((u_pr, u_rr, u_ph), used, gate, config)
     return mult.reshape(3, n_b, n_t, -1), gated.reshape(3, n_b, n_t, -1)
 
 

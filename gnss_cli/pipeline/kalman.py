@@ -49,8 +49,8 @@ quantile of ``integrity_pfa``, off with ``integrity = "off"``), on the filter's 
 exceeds it, in sigmas of the predicted innovation, is not used at that epoch, unless more than
 half of the epoch's rows of its kind exceed it (the motion model failed, not the data). A phase
 difference: the largest whose innovation predicted from the prior and the epoch's other phase
-differences exceeds it is not used, one at a time (:func:`~gnss_cli.solvers.kalman.free_update`:
-the smoother's "largest of each pair"). ``n_sat`` and the residuals count only the pseudoranges
+differences exceeds it is not used, one at a time (:func:`~gnss_cli.solvers.kalman.free_update`).
+``n_sat`` and the residuals count only the pseudoranges
 used. What differs from the smoother: a filter tests each row against what the data before it
 (and the motion model) predict, with the variance of that prediction -- the smoother's residuals
 come from a fit to every epoch, the row itself included, and are not divided by their

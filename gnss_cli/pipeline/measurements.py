@@ -163,15 +163,18 @@ def pairs_alone(phr: dict[str, F64] | None, mult: F64) -> EpochNormals | None:
 
 
 def gate_rows(u: tuple[F64, ...], used: tuple[NDArray[np.bool_], ...], gate: float,
-              config: ProcessingConfig, before: NDArray[np.bool_] | None = None) -> tuple[F64, NDArray[np.bool_]]:
+              config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
     """Robust weights (``config.robust``) times the residual gate, from standardized residuals ``u``.
 
     Pseudoranges and range rates: a row whose ``|u|`` exceeds ``gate`` is excluded, unless more
     than half of its epoch's rows do (then the fit, not the rows, failed there: all are kept).
-    Phase pairs (``u[2]``): one row per pair and pass, the largest above the gate, joins the rows
-    excluded ``before`` that are still above it. A slip of one cycle among differences good to
-    millimetres leaves most of its pair's rows above the gate (the pair's displacement and clock
-    change absorb part of it), so the rule of the half would keep it; its own row stays the largest.
+    Phase pairs (``u[2]``): every row above the gate is excluded, however many of its pair are. A
+    slip among differences good to millimetres leaves most of its pair's rows above the gate (the
+    pair's displacement and clock change absorb part of it), so the rule of the half would keep
+    it; with the pair's rows out, the next pass fits the trajectory without it and the good rows,
+    below the gate again, come back. (The rule before, one row per pair and pass, left the urban
+    slips of a simulated canyon drive pulling the smoother: 8.4 m 3D RMS against 5.3 m, and 2.2
+    against 0.9 m past its first minute.)
     """
     mult = np.ones((len(u), *u[0].shape))
     gated = np.zeros((len(u), *u[0].shape), dtype=bool)
@@ -181,11 +184,7 @@ def gate_rows(u: tuple[F64, ...], used: tuple[NDArray[np.bool_], ...], gate: flo
             mult[j] = m_estimator_weights(u[j], config.robust, tuning)
         out = used[j] & (np.abs(u[j]) > gate)
         if j == 2:
-            kept = out & (before[j] if before is not None else False)
-            rest = np.where(out & ~kept, np.abs(u[j]), 0.0)
-            worst = np.zeros_like(out)
-            worst[np.arange(out.shape[0]), np.argmax(rest, axis=1)] = True
-            gated[j] = kept | (worst & (rest > 0))
+            gated[j] = out
         else:
             most = out.sum(axis=1) * 2 > used[j].sum(axis=1)
             gated[j] = out & ~most[:, None]

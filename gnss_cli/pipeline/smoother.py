@@ -39,7 +39,7 @@ motion -- so the balance between the kinds is not tuned per data set.
 Fault exclusion, as the snapshot solution's (``integrity`` not ``"off"``): a pseudorange or range
 rate whose standardized residual exceeds the two-sided normal quantile of ``integrity_pfa``
 (3.29 for 1e-3) is excluded -- unless more than half of its epoch's rows do; of the phase pairs
-(:mod:`gnss_cli.pipeline.phase_rows`) the largest of each pair, one more per pass -- and the segment
+(:mod:`gnss_cli.pipeline.phase_rows`) every row above it -- and the segment
 solved again, until the excluded set no longer changes (an excluded row comes back when the
 new solution fits it). The variance factors stay those of the first pass (estimated again on
 the kept rows, the gate would tighten itself pass after pass). Excluded pseudoranges are added
@@ -279,7 +279,7 @@ def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         nominal[have] = x[have]
         none = np.zeros_like(rows["w"], dtype=bool)
         used = (rows["w"] > 0, none if rr is None else rows["wd"] > 0, none if phr is None else phr["w"] > 0)
-        new_mult, new_gated = gate_rows(u, used, gate, config, gated)
+        new_mult, new_gated = gate_rows(u, used, gate, config)
         changed = float(np.abs(new_mult - mult).max())
         same_gate = bool(np.array_equal(new_gated, gated))
         mult, gated = new_mult, new_gated
