@@ -190,7 +190,7 @@ class NlosConfig:
     cn0_enter_db: float = 9.0
     cn0_exit_db: float = 5.0
     cn0_min_epochs: int = 2
-    cn0_min_delay_m: float = float("-inf")
+    cn0_min_delay_m: float = -2.0
     residual_k: float = 1.0
     residual_h: float = float("inf")
     min_dof: int = 1
