@@ -12,7 +12,7 @@ from gnss_cli.errors import ConfigError
 
 __all__ = [
     "WeightConfig", "CN0_MODELS", "StlsConfig", "SmootherConfig", "KalmanConfig", "STLS_KERNELS", "SMOOTHER_MOTIONS",
-    "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "NlosConfig", "NLOS_DETECTORS", "NLOS_FAILED_EPOCHS",
+    "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "NlosConfig", "NLOS_DETECTORS", "NLOS_FAILED_EPOCHS", "NLOS_MULTI_EPOCH",
 ]
 
 
@@ -173,6 +173,8 @@ class KalmanConfig:
 
 
 NLOS_DETECTORS = ("off", "arcs")
+NLOS_MULTI_EPOCH = ("off", "cusum")
+"""``[nlos] multi_epoch``: none, or the CUSUM spans of the multi-epoch methods' residuals."""
 NLOS_FAILED_EPOCHS = ("keep", "retry")
 """``[nlos] failed_epochs``: an epoch that fails after the exclusions stays so, or is solved again with every satellite."""
 """``[nlos] detector``: none, or the per-satellite spans of :mod:`gnss_cli.pipeline.nlos`."""
@@ -196,6 +198,10 @@ class NlosConfig:
     min_dof: int = 1
     failed_epochs: str = "retry"
     variance_factor: float = 100.0
+    multi_epoch: str = "cusum"
+    multi_epoch_k: float = 1.5
+    multi_epoch_h: float = 5.0
+    multi_epoch_rounds: int = 3
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
@@ -225,6 +231,15 @@ class NlosConfig:
                               f"received {self.failed_epochs!r}")
         if self.cn0_min_delay_m != self.cn0_min_delay_m:
             raise ConfigError("nlos.cn0_min_delay_m: expected a number (m; -inf: no delay test); received nan")
+        if self.multi_epoch not in NLOS_MULTI_EPOCH:
+            raise ConfigError(f"nlos.multi_epoch: expected one of {', '.join(NLOS_MULTI_EPOCH)}; "
+                              f"received {self.multi_epoch!r}")
+        if not 0.0 <= self.multi_epoch_k < float("inf"):
+            raise ConfigError(f"nlos.multi_epoch_k: expected a number >= 0 (sigmas); received {self.multi_epoch_k}")
+        if not 0.0 < self.multi_epoch_h < float("inf"):
+            raise ConfigError(f"nlos.multi_epoch_h: expected a positive number (sigmas); received {self.multi_epoch_h}")
+        if self.multi_epoch_rounds < 1:
+            raise ConfigError(f"nlos.multi_epoch_rounds: expected >= 1; received {self.multi_epoch_rounds}")
         if self.min_dof < 1:
             raise ConfigError(f"nlos.min_dof: expected >= 1 (an epoch keeps a test); received {self.min_dof}")
         return self

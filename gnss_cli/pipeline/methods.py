@@ -84,6 +84,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
     if config.integrity != "off" and config.nlos.detector != "off":  # the reflections left out first
         snapshot_integrity += f", nlos {config.nlos.detector}"
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
+    spans = (", reflection spans" if config.integrity != "off" and config.nlos.multi_epoch != "off" else "")
+    tested += spans
     out: dict[str, MethodSettings] = {}
     for m in config.methods:
         if m == "stls" and config.stls.lag > 0:
@@ -100,12 +102,12 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             motion = config.smoother.motion
             lag = str(config.smoother.lag) if motion == "quadrature" else ""
             out[m] = MethodSettings(m, "fixed-model batch smoother", f"motion {motion}", lag, "whole segments", kinds,
-                                    "off" if config.integrity == "off" else "residual gate, check")
+                                    "off" if config.integrity == "off" else "residual gate, check" + spans)
         elif m == "kf":
             k = config.kalman
             estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
             out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds,
-                                    "off" if config.integrity == "off" else "innovation gate, check")
+                                    "off" if config.integrity == "off" else "innovation gate, check" + spans)
         else:
             integrity = snapshot_integrity if m in ("ls", "wls") else tested
             out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
@@ -139,32 +141,48 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
     for ``stls`` the window's identified kernel), never the covariance of all the measurements,
     which stays in ``cov_m2`` (``sde_m``... columns)."""
-    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
 
     data = with_weights_of(data, wls)  # the NLOS detector's down-weighted reflections, as WLS had them
+    if method not in ("stls", "smoother", "kf"):
+        raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
+    sol, models = _solve_one(method, data, wls, config, factors)
+    if config.integrity != "off" and config.nlos.multi_epoch != "off" and wls.sigma_m is not None:
+        from gnss_cli.pipeline.nlos import multi_epoch_spans
+
+        spans = np.zeros(data.usable.shape, dtype=bool)
+        for _ in range(config.nlos.multi_epoch_rounds):
+            new = multi_epoch_spans(replace(data, usable=data.usable & ~spans), sol, wls.sigma_m, config)
+            if not new.any():
+                break
+            spans |= new
+            sol, models = _solve_one(method, replace(data, usable=data.usable & ~spans), wls, config, factors)
+        if spans.any():
+            sol = replace(sol, excluded=spans if sol.excluded is None else sol.excluded | spans)
+    no_levels = np.full(sol.status.size, np.nan)  # built from the WLS rows: their levels are WLS's, not this method's
+    return tested(data, replace(sol, hpl_m=no_levels, vpl_m=no_levels.copy()), wls, config), models
+
+
+def _solve_one(method: str, data: EpochData, wls: MethodSolution, config: ProcessingConfig,
+               factors: tuple[float, ...] | None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+    """The rows and window models of ``method`` on ``data`` (its ``usable`` satellites), before the test."""
+    from gnss_cli.pipeline.multi_epoch_dop import with_geometry_dops
+
+    kinds = resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None)
     if method == "stls":
         from gnss_cli.pipeline.behavioral import smooth
 
-        kinds = resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None)
-        sol, models = smooth(data, wls, config, measurements=frozenset(kinds) if config.stls.kernel == "shared" else None,
-                             factors=factors)
-    elif method == "smoother":
+        return smooth(data, wls, config, measurements=frozenset(kinds) if config.stls.kernel == "shared" else None,
+                      factors=factors)
+    if method == "smoother":
         from gnss_cli.pipeline.smoother import smooth_segments  # scipy: imported when it runs
 
-        kinds = resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None)
         sol, models = smooth_segments(data, wls, config, motion=config.smoother.motion, lag=config.smoother.lag,
                                       measurements=kinds, factors=factors)
-        sol = with_geometry_dops(data, sol, config, config.smoother.motion)
-    elif method == "kf":
-        from gnss_cli.pipeline.kalman import run_kalman
+        return with_geometry_dops(data, sol, config, config.smoother.motion), models
+    from gnss_cli.pipeline.kalman import run_kalman
 
-        kinds = frozenset(resolved_measurements(config, data.range_rate_m_s is not None, data.phase_m is not None))
-        sol = run_kalman(data, wls, config, measurements=kinds, factors=factors)
-        sol, models = with_geometry_dops(data, sol, config, config.kalman.model), ()
-    else:
-        raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
-    no_levels = np.full(sol.status.size, np.nan)  # built from the WLS rows: their levels are WLS's, not this method's
-    return tested(data, replace(sol, hpl_m=no_levels, vpl_m=no_levels.copy()), wls, config), models
+    sol = run_kalman(data, wls, config, measurements=frozenset(kinds), factors=factors)
+    return with_geometry_dops(data, sol, config, config.kalman.model), ()
 
 
 def tested(data: EpochData, sol: MethodSolution, wls: MethodSolution, config: ProcessingConfig) -> MethodSolution:

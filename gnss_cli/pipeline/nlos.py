@@ -52,7 +52,7 @@ from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
 from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
-__all__ = ["los_cn0_template_dbhz", "persistent_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans",
+__all__ = ["los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans",
            "prediction_residuals_m", "exclude_nlos", "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
@@ -139,6 +139,58 @@ def persistent_spans(active: NDArray[np.bool_], score: F64, threshold: float) ->
     a = run >= 0
     total = np.bincount(run[a], weights=score.T[a], minlength=count)
     return (a & (total >= threshold)[np.maximum(run, 0)]).T
+
+
+def cusum_spans(u: F64, k: float, h: float) -> NDArray[np.bool_]:
+    """The spans ``(T, n)`` of a one-sided CUSUM of each satellite's ``u`` (along axis 0).
+
+    ``S_t = max(0, S_{t-1} + u_t - k)``, back to 0 where ``u`` is NaN (the satellite not used); an
+    excursion of ``S`` above 0 whose largest value reaches ``h`` is a span, from its first epoch to
+    the epoch of that largest value (after it ``S`` only falls: the bias has ended). Unlike a run of
+    ``u > k`` (:func:`persistent_spans`), one epoch whose noise takes ``u`` below ``k`` does not end it.
+
+    >>> u = np.array([[3.0], [0.0], [3.0], [-9.0], [0.2]])
+    >>> cusum_spans(u, 0.5, 4.0)[:, 0].tolist()
+    [True, True, True, False, False]
+    """
+    T, n = u.shape
+    step = np.nan_to_num(u - k, nan=-np.inf)
+    S, peak = np.zeros(n), np.zeros(n)
+    start, peak_t = np.zeros(n, dtype=np.intp), np.zeros(n, dtype=np.intp)
+    found: list[tuple[int, int, int]] = []
+    for t in range(T):
+        new = np.maximum(S + step[t], 0.0)
+        begin = (S == 0.0) & (new > 0.0)
+        start[begin], peak[begin] = t, 0.0
+        higher = new > peak
+        peak[higher], peak_t[higher] = new[higher], t
+        for j in np.flatnonzero((S > 0.0) & (new == 0.0) & (peak >= h)):
+            found.append((int(j), int(start[j]), int(peak_t[j])))
+        S = new
+    for j in np.flatnonzero((S > 0.0) & (peak >= h)):
+        found.append((int(j), int(start[j]), int(peak_t[j])))
+    out = np.zeros((T, n), dtype=bool)
+    for j, a, b in found:
+        out[a:b + 1, j] = True
+    return out
+
+
+def multi_epoch_spans(data: EpochData, sol: MethodSolution, sigma_m: F64, config: ProcessingConfig
+                      ) -> NDArray[np.bool_]:
+    """The satellite-epochs ``(T, n)`` a multi-epoch method leaves out as persistent reflections:
+    the :func:`cusum_spans` (``[nlos] multi_epoch_k``, ``multi_epoch_h``) of ``u = r / sigma``, with
+    ``r`` each usable pseudorange's residual (m) at the method's positions and clocks ``sol``
+    (:func:`prediction_residuals_m`) and ``sigma_m`` the a-priori sigmas of the WLS solution
+    (NaN: not a candidate); every epoch keeps its redundancy (:func:`keep_redundancy`, largest
+    ``u`` first). Several epochs pin a trajectory, so a reflection's delay shows in its residuals
+    where a single epoch's fix absorbs much of it."""
+    cfg = config.nlos
+    cand = data.usable & np.isfinite(sigma_m)
+    u = prediction_residuals_m(data, sol, cand, config) / sigma_m
+    spans = cusum_spans(u, cfg.multi_epoch_k, cfg.multi_epoch_h)
+    system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    return keep_redundancy(spans, np.nan_to_num(u), cand, system_index, len(data.systems), cfg.min_dof,
+                           config.min_satellites)
 
 
 def span_means(spans: NDArray[np.bool_], values: F64) -> F64:
