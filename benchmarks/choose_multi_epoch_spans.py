@@ -47,23 +47,27 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "choose_multi_epoch_spans.json"
 METHODS = ("smoother", "kf")
 GRID = ((0.5, 5.0, 3), (0.5, 10.0, 3), (1.0, 5.0, 1), (1.0, 5.0, 3), (1.0, 10.0, 3), (1.5, 5.0, 3), (1.5, 10.0, 3))
-CANDIDATES: dict[str, dict[str, object]] = {"off": {"nlos.multi_epoch": "off"}} | {
+UNTESTED = {"max_segment_misfit": float("inf")}
+"""The segments' misfit test was chosen after the spans (choose_segment_misfit.py), so not here."""
+CANDIDATES: dict[str, dict[str, object]] = {"off": {"nlos.multi_epoch": "off", **UNTESTED}} | {
     f"k {k:g}, h {h:g}, {r} round{'s' * (r > 1)}": {"nlos.multi_epoch": "cusum", "nlos.multi_epoch_k": k,
-                                                   "nlos.multi_epoch_h": h, "nlos.multi_epoch_rounds": r}
+                                                   "nlos.multi_epoch_h": h, "nlos.multi_epoch_rounds": r, **UNTESTED}
     for k, h, r in GRID}
 REAL = ("tst2", "smartloc-berlin")
 MAX_LOS_PCT = 5.0
 MAX_AVAILABILITY_LOSS = 0.02
 
 
-def main() -> None:
-    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
+def run_candidates(candidates: dict[str, dict[str, object]], seeds: list[int], duration: float, quick: bool,
+                   prog: str) -> dict[str, dict[str, dict[str, dict[str, object]]]]:
+    """``smoother`` and ``kf`` with each candidate's settings on the training cases: per candidate,
+    case and method ``bench_urban.method_row`` (with the drives' NLOS handling); ``seconds`` per case."""
     t0 = time.perf_counter()
-    results: dict[str, dict[str, dict[str, dict[str, object]]]] = {c: {} for c in CANDIDATES}
+    results: dict[str, dict[str, dict[str, dict[str, object]]]] = {c: {} for c in candidates}
     with tempfile.TemporaryDirectory() as tmp:
         cases = simulated_cases(seeds, duration, Path(tmp)) + real_cases(quick)
         for name, obs, navs, systems, ref_at, keep_at, faults in cases:
-            for cand, over in CANDIDATES.items():
+            for cand, over in candidates.items():
                 cfg = load_config(None, {"methods": ",".join(METHODS), **({"systems": systems} if systems else {}), **over})
                 t1 = time.perf_counter()
                 res = process(obs, navs, cfg)
@@ -76,47 +80,70 @@ def main() -> None:
                         rows[m]["nlos"] = nlos_handling(res.solutions[m], res.epochs, faults)
                 rows["seconds"] = time.perf_counter() - t1  # type: ignore[assignment]
                 results[cand][name] = rows
-            print(f"choose_multi_epoch_spans: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
-    off = results["off"]
+            print(f"{prog}: {name} ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    return results
+
+
+def summarize(results: dict[str, dict[str, dict[str, dict[str, object]]]]) -> dict[str, dict[str, object]]:
+    """Per candidate: ``score`` (mean over cases with a reference and both methods of the 3D RMS
+    over every epoch against the first candidate's), ``misleading`` (summed), the drives' pooled
+    ``nlos`` and ``los`` shares left out (%), and ``allowed`` (no more misleading epochs than the
+    first candidate, at most 5 % of the LOS out, the real sets' availability within 2 points)."""
+    first = next(iter(results))
+    off = results[first]
     names = list(off)
     scored = [(n, m) for n in names for m in METHODS if off[n][m].get("rms_3d_all_m")]
 
     def pooled(cand: str, kind: str) -> float:
         nl = [results[cand][n][m]["nlos"] for n in names for m in METHODS if "nlos" in results[cand][n][m]]
-        total = sum(x[f"{kind}_candidates"] for x in nl)
-        return float(sum(x[f"{kind}_dropped_pct"] * x[f"{kind}_candidates"] for x in nl) / max(total, 1))
+        total = sum(x[f"{kind}_candidates"] for x in nl)  # type: ignore[index]
+        return float(sum(x[f"{kind}_dropped_pct"] * x[f"{kind}_candidates"] for x in nl) / max(total, 1))  # type: ignore[index]
 
-    scores = {c: float(np.mean([results[c][n][m]["rms_3d_all_m"] / off[n][m]["rms_3d_all_m"] for n, m in scored]))
-              for c in CANDIDATES}
-    misleading = {c: int(sum(results[c][n][m].get("misleading", 0) for n in names for m in METHODS)) for c in CANDIDATES}
-    nlos_pct = {c: pooled(c, "nlos") for c in CANDIDATES}
-    los_pct = {c: pooled(c, "los") for c in CANDIDATES}
+    out: dict[str, dict[str, object]] = {}
+    for c, rows in results.items():
+        misleading = int(sum(rows[n][m].get("misleading", 0) for n in names for m in METHODS))  # type: ignore[arg-type]
+        out[c] = {"score": float(np.mean([rows[n][m]["rms_3d_all_m"] / off[n][m]["rms_3d_all_m"] for n, m in scored])),
+                  "misleading": misleading, "nlos": pooled(c, "nlos"), "los": pooled(c, "los")}
+    for c, rows in results.items():
+        out[c]["allowed"] = (out[c]["misleading"] <= out[first]["misleading"] and out[c]["los"] <= MAX_LOS_PCT
+                             and all(rows[n][m]["availability"] >= off[n][m]["availability"] - MAX_AVAILABILITY_LOSS
+                                     for n in REAL if n in off for m in METHODS))
+    return out
 
-    def allowed(c: str) -> bool:
-        return (misleading[c] <= misleading["off"] and los_pct[c] <= MAX_LOS_PCT
-                and all(results[c][n][m]["availability"] >= off[n][m]["availability"] - MAX_AVAILABILITY_LOSS
-                        for n in REAL if n in off for m in METHODS))
 
-    chosen = min([c for c in CANDIDATES if allowed(c)], key=lambda c: scores[c])
+def table(results: dict[str, dict[str, dict[str, dict[str, object]]]], summary: dict[str, dict[str, object]]
+          ) -> tuple[list[str], list[list[object]]]:
+    """The columns and rows of the choice's table."""
+    names = list(next(iter(results.values())))
     columns = ["candidate", *[f"{n} {m}: ok / RMS all / RMS ok" for n in names for m in METHODS],
-               "NLOS / LOS out % (drives)", "score (RMS all / off's, mean)", "misleading", "allowed", "seconds"]
-    table_rows: list[list[object]] = []
-    for c in CANDIDATES:
+               "NLOS / LOS out % (drives)", "score (RMS all / first's, mean)", "misleading", "allowed", "seconds"]
+    rows: list[list[object]] = []
+    for c, res in results.items():
         cells = []
         for n in names:
             for m in METHODS:
-                r = results[c][n][m]
-                cells.append(f"{100 * r['availability']:.0f} % / " + " / ".join(
+                r = res[n][m]
+                cells.append(f"{100 * r['availability']:.0f} % / " + " / ".join(  # type: ignore[operator]
                     f"{r[k]:.2f}" if r.get(k) else "–" for k in ("rms_3d_all_m", "rms_3d_m")))
-        table_rows.append([c, *cells, f"{nlos_pct[c]:.1f} / {los_pct[c]:.1f}", round(scores[c], 3), misleading[c],
-                           "yes" if allowed(c) else "no", round(sum(float(results[c][n]["seconds"]) for n in names), 1)])  # type: ignore[arg-type]
+        s = summary[c]
+        rows.append([c, *cells, f"{s['nlos']:.1f} / {s['los']:.1f}", round(float(s["score"]), 3), s["misleading"],  # type: ignore[arg-type]
+                     "yes" if s["allowed"] else "no", round(sum(float(res[n]["seconds"]) for n in names), 1)])  # type: ignore[arg-type]
+    return columns, rows
+
+
+def main() -> None:
+    seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
+    t0 = time.perf_counter()
+    results = run_candidates(CANDIDATES, seeds, duration, quick, "choose_multi_epoch_spans")
+    summary = summarize(results)
+    scores = {c: s["score"] for c, s in summary.items()}
+    chosen = min([c for c in CANDIDATES if summary[c]["allowed"]], key=lambda c: scores[c])  # type: ignore[arg-type, return-value]
+    columns, table_rows = table(results, summary)
     report_choice(OUT, "Choosing the multi-epoch methods' reflection spans on training data",
                   "python benchmarks/choose_multi_epoch_spans.py", columns, table_rows, chosen,
                   f"smoother and kf, defaults otherwise; chosen: {chosen}. Training data only: bench_urban.py "
                   "reports other seeds.", quick, seeds=seeds, duration_s=duration, candidates=CANDIDATES,
-                  scores=scores, misleading=misleading, nlos_out_pct=nlos_pct, los_out_pct=los_pct, cases=results,
-                  seconds=time.perf_counter() - t0)
-
+                  summary=summary, cases=results, seconds=time.perf_counter() - t0)
 
 if __name__ == "__main__":
     main()

@@ -113,6 +113,9 @@ class ProcessingConfig:
     """Nominal bias bound of each pseudorange in the protection levels, in units of the C/N0 part
     of its sigma (SIGMA-epsilon term; 0: none; see default.toml)."""
     max_exclusions: int = 4
+    max_segment_misfit: float = 10.0
+    """Misfit per degree of freedom above which a smoother or kf segment is solved again in halves
+    (``inf``: no test; :mod:`gnss_cli.pipeline.segment_test`, see default.toml)."""
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
     exclude: tuple[str, ...] = ()
@@ -241,6 +244,8 @@ class ProcessingConfig:
                               f"received {self.fde_min_dof}")
         if not self.max_gdop > 0:
             raise ConfigError(f"max_gdop: expected > 0; received {self.max_gdop}")
+        if not self.max_segment_misfit > 0:
+            raise ConfigError(f"max_segment_misfit: expected > 0 (inf: no test); received {self.max_segment_misfit}")
         for name in ("alert_limit_h_m", "alert_limit_v_m"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name}: expected > 0 (inf: no limit); received {getattr(self, name)}")
@@ -368,7 +373,7 @@ _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_co
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "nominal_bias_cn0_sigmas", "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
-           "phase_sigma_m", "phase_slip_m")
+           "phase_sigma_m", "phase_slip_m", "max_segment_misfit")
 _INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "max_simultaneous_faults", "robust_max_iterations",
          "chunk_epochs", "stream_above_epochs", "processes")
 

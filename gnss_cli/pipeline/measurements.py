@@ -160,8 +160,6 @@ def pairs_alone(phr: dict[str, F64] | None, mult: F64) -> EpochNormals | None:
     return None if phr is None else reduce_epochs(phr["P3"], phr["w"] * mult, phr["y"], phr["C"])
 
 
-
-
 def gate_rows(u: tuple[F64, ...], used: tuple[NDArray[np.bool_], ...], gate: float,
               config: ProcessingConfig) -> tuple[F64, NDArray[np.bool_]]:
     """Robust weights (``config.robust``) times the residual gate, from standardized residuals ``u``.

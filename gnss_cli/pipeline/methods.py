@@ -86,6 +86,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
     spans = (", reflection spans" if config.integrity != "off" and config.nlos.multi_epoch != "off" else "")
     tested += spans
+    if config.integrity != "off" and np.isfinite(config.max_segment_misfit):  # smoother and kf only
+        spans += f", segment misfit {config.max_segment_misfit:g}"
     out: dict[str, MethodSettings] = {}
     for m in config.methods:
         if m == "stls" and config.stls.lag > 0:
@@ -146,6 +148,7 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     if method not in ("stls", "smoother", "kf"):
         raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
     sol, models = _solve_one(method, data, wls, config, factors)
+    solved = data  # the satellites the method was given: less the reflection spans, once found
     if config.integrity != "off" and config.nlos.multi_epoch != "off" and wls.sigma_m is not None:
         from gnss_cli.pipeline.nlos import multi_epoch_spans
 
@@ -158,6 +161,12 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
             sol, models = _solve_one(method, replace(data, usable=data.usable & ~spans), wls, config, factors)
         if spans.any():
             sol = replace(sol, excluded=spans if sol.excluded is None else sol.excluded | spans)
+            solved = replace(data, usable=data.usable & ~spans)
+    if method in ("smoother", "kf"):  # stls tests each window's behavior itself (pipeline.spans)
+        from gnss_cli.pipeline.segment_test import tested_segments
+
+        sol, models = tested_segments(method, solved, wls, config, sol, models,
+                                      lambda sub, sub_wls: _solve_one(method, sub, sub_wls, config, factors))
     no_levels = np.full(sol.status.size, np.nan)  # built from the WLS rows: their levels are WLS's, not this method's
     return tested(data, replace(sol, hpl_m=no_levels, vpl_m=no_levels.copy()), wls, config), models
 
