@@ -113,7 +113,7 @@ class ProcessingConfig:
     """Nominal bias bound of each pseudorange in the protection levels, in units of the C/N0 part
     of its sigma (SIGMA-epsilon term; 0: none; see default.toml)."""
     max_exclusions: int = 4
-    max_segment_misfit: float = 10.0
+    max_segment_misfit: float = 5.0
     """Misfit per degree of freedom above which a smoother or kf segment is solved again in halves
     (``inf``: no test; :mod:`gnss_cli.pipeline.segment_test`, see default.toml)."""
     fde_min_dof: int = 3

@@ -331,7 +331,7 @@ def test_settings_name_the_reflection_spans_where_they_run() -> None:
     def integrity(m: str, **over: object) -> str:
         return method_settings(load_config(None, {"methods": m, **over}), True, False)[m].integrity
 
-    assert integrity("smoother") == "residual gate, check, reflection spans, segment misfit 10"
+    assert integrity("smoother") == "residual gate, check, reflection spans, segment misfit 5"
     assert integrity("kf", **{"nlos.multi_epoch": "off", "max_segment_misfit": float("inf")}) == "innovation gate, check"
     assert integrity("stls", **{"stls.lag": 3}) == "check, reflection spans"
     assert integrity("smoother", integrity="off") == "off"
