@@ -397,8 +397,8 @@ def run_settings(cfg: Any, reference: str, systems: tuple[str, ...] = ()) -> dic
         f"{cfg.nominal_bias_cn0_sigmas:g} C/N0 sigmas, alert limits {cfg.alert_limit_h_m:g}/{cfg.alert_limit_v_m:g} m")
     nlos = cfg.nlos.detector if cfg.nlos.detector == "off" or cfg.integrity == "off" else (
         f"{cfg.nlos.detector}, kept spans variance x{cfg.nlos.variance_factor:g}")
-    if cfg.nlos.multi_epoch != "off":
-        nlos += (f"; multi-epoch spans {cfg.nlos.multi_epoch} k {cfg.nlos.multi_epoch_k:g} h {cfg.nlos.multi_epoch_h:g}"
+    if cfg.nlos.multi_epoch != "off" and cfg.multi_epoch_methods:
+        nlos += (f", multi-epoch spans {cfg.nlos.multi_epoch} k {cfg.nlos.multi_epoch_k:g} h {cfg.nlos.multi_epoch_h:g}"
                  f" x{cfg.nlos.multi_epoch_rounds}")
     return {"methods": ",".join(cfg.methods), "systems": ",".join(systems or cfg.systems), "iono": cfg.iono,
             "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.describe(),

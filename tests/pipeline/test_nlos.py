@@ -335,3 +335,18 @@ def test_settings_name_the_reflection_spans_where_they_run() -> None:
     assert integrity("kf", **{"nlos.multi_epoch": "off", "max_segment_misfit": float("inf")}) == "innovation gate, check"
     assert integrity("stls", **{"stls.lag": 3}) == "check, reflection spans"
     assert integrity("smoother", integrity="off") == "off"
+
+
+def test_summary_settings_record_the_spans_with_a_multi_epoch_method() -> None:
+    """``summary.csv``'s ``nlos`` setting: the detector, and the multi-epoch spans where a method
+    has them (no ``;``: the settings column is ``key=value`` pairs joined by ``; ``)."""
+    from gnss_cli.cli.tables import run_settings
+
+    def nlos(**over: object) -> str:
+        return run_settings(load_config(None, over), "")["nlos"]
+
+    assert nlos(methods="wls") == "off"
+    assert nlos(methods="wls,kf") == "off, multi-epoch spans cusum k 1.5 h 5 x3"
+    assert nlos(methods="wls,kf", **{"nlos.multi_epoch": "off"}) == "off"
+    assert nlos(methods="smoother", integrity="off") == "off"
+    assert ";" not in nlos(methods="smoother", **{"nlos.detector": "arcs"})
