@@ -137,7 +137,8 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
                       factors: tuple[float, ...] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """One multi-epoch method over the epochs ``data``, from their ``wls`` solution: its rows and
     its window models. ``factors``: the variance factors of the measurement kinds when they were
-    estimated on the whole file (a file solved in pieces), else they are estimated on ``data``.
+    estimated on the whole file (a file solved in pieces), else they are estimated on ``data``;
+    once reflection spans are left out, they are estimated again on ``data`` without them.
 
     The DOP columns of every multi-epoch row are geometry: the unit-weight pseudorange geometry
     over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
@@ -158,7 +159,9 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
             if not new.any():
                 break
             spans |= new
-            sol, models = _solve_one(method, replace(data, usable=data.usable & ~spans), wls, config, factors)
+            # the factors again without the spans (a reflection is no noise): a piece of a long file
+            # estimates its own, as the whole file would after its spans
+            sol, models = _solve_one(method, replace(data, usable=data.usable & ~spans), wls, config, None)
         if spans.any():
             sol = replace(sol, excluded=spans if sol.excluded is None else sol.excluded | spans)
             solved = replace(data, usable=data.usable & ~spans)
