@@ -7,8 +7,8 @@ part of its sigma (docs/integrity.md, "Nominal biases"): reflections last, so a 
 extra error is a bias as much as noise, and several of them at once are what the single-fault
 hypotheses miss. ``beta`` changes the levels only (positions, tests and exclusions stay).
 
-Training data (as ``choose_integrity_priors.py``): simulated urban drives with seeds 101-103 (``bench_urban.py``
-reports seeds 1-N), both receiver profiles, 300 s at 1 Hz; tst2 (against its truth);
+Training data (as ``choose_integrity_priors.py``, with more drives): simulated urban drives with
+seeds 101-110 (``bench_urban.py`` reports seeds 1-10), both receiver profiles, 300 s at 1 Hz; tst2 (against its truth);
 smartloc-berlin, ESBC and rtklib-0759 (levels only). Candidates ``beta`` in {0, 0.5, 1, 1.5, 2,
 3, 4}: ``wls`` with every other option at its default. Per case: availability, misleading epochs
 (``ok`` with the horizontal error above HPL or the vertical above VPL) and the median HPL / VPL of
@@ -17,6 +17,12 @@ the ``ok`` epochs.
 Rule: the smallest ``beta`` whose misleading epochs on the drives are at most 0.1 % of their ``ok``
 epochs and none on tst2; if none reaches it, the one with the fewest misleading epochs (drives
 and tst2), ties to the smaller ``beta``. The price is the levels' size, reported beside it.
+
+Why ten seeds: the first choice was made on seeds 101-103, about 1,750 ``ok`` epochs, in which
+0.1 % is under two epochs -- a rate three seeds cannot measure. It chose 3 (one misleading
+epoch), which left 0.83 % of the WLS ``ok`` epochs misleading on the dual-profile evaluation
+drives. Ten seeds per profile (about 5,800 ``ok`` epochs) make the 0.1 % measurable; the
+evaluation seeds stay unseen.
 Prints a table and writes ``benchmarks/results/choose_nominal_bias.json``.
 """
 
@@ -39,6 +45,8 @@ OUT = ROOT / "benchmarks" / "results" / "choose_nominal_bias.json"
 BETAS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
 CANDIDATES: dict[str, dict[str, object]] = {f"beta {b:g}": {"nominal_bias_cn0_sigmas": b} for b in BETAS}
 MAX_DRIVE_MISLEADING_PCT = 0.1
+TRAINING_SEEDS = list(range(101, 111))
+"""Ten drives per profile (module docstring: why not three)."""
 
 
 def _levels(name: str, res: RunResult) -> dict[str, object]:
@@ -52,6 +60,7 @@ def _levels(name: str, res: RunResult) -> dict[str, object]:
 
 def main() -> None:
     seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2, rtklib-0759")
+    seeds = seeds if quick else TRAINING_SEEDS
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         results, seconds = score_candidates(CANDIDATES, training_cases(Path(tmp), seeds, duration, quick),

@@ -109,7 +109,7 @@ class ProcessingConfig:
     """Prior probability per epoch that a whole constellation is faulty."""
     max_simultaneous_faults: int = 1
     """Largest number of simultaneously faulty satellites the protection levels monitor (see default.toml)."""
-    nominal_bias_cn0_sigmas: float = 3.0
+    nominal_bias_cn0_sigmas: float = 4.0
     """Nominal bias bound of each pseudorange in the protection levels, in units of the C/N0 part
     of its sigma (SIGMA-epsilon term; 0: none; see default.toml)."""
     max_exclusions: int = 4

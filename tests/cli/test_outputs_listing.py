@@ -80,7 +80,7 @@ def test_summary_starts_with_the_command_and_the_settings(tmp_path, capsys) -> N
     assert settings["methods"] == "ls,wls" and settings["elevation_mask_deg"] == "12.5"
     assert settings["reference"] == "geodetic:55.5,8.5,50" and settings["systems"] == "G,E"
     assert settings["levels"] == ("risk 0.001, prior satellite 0.001, prior constellation 0.0001, faults at once 1, "
-                                  "nominal bias 3 C/N0 sigmas, alert limits inf/inf m")
+                                  "nominal bias 4 C/N0 sigmas, alert limits inf/inf m")
     assert settings["nlos"] == "off"
     assert list(summary["method"]) == ["ls", "wls"]
 
