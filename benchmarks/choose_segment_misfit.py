@@ -4,7 +4,7 @@
 
 A segment of ``smoother`` or ``kf`` whose pseudoranges' misfit per degree of freedom, at the
 method's own trajectory and in units of the file's own noise, exceeds the limit is solved again
-as two halves, and at the shortest keeps the WLS fixes (:mod:`gnss_cli.pipeline.segment_test`).
+as two halves, and at the shortest keeps the WLS fixes (:mod:`gnss_cli.pipeline.segment_misfit`).
 
 Training data and measures as ``choose_multi_epoch_spans.py`` (the drives of seeds 101-103, both
 profiles, tst2, smartloc-berlin; ``smoother`` and ``kf`` with the packaged defaults, the

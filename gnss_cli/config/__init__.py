@@ -115,7 +115,7 @@ class ProcessingConfig:
     max_exclusions: int = 4
     max_segment_misfit: float = 5.0
     """Misfit per degree of freedom above which a smoother or kf segment is solved again in halves
-    (``inf``: no test; :mod:`gnss_cli.pipeline.segment_test`, see default.toml)."""
+    (``inf``: no test; :mod:`gnss_cli.pipeline.segment_misfit`, see default.toml)."""
     fde_min_dof: int = 3
     """Degrees of freedom an epoch needs before FDE may exclude a satellite (see default.toml)."""
     exclude: tuple[str, ...] = ()

@@ -166,7 +166,7 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
             sol = replace(sol, excluded=spans if sol.excluded is None else sol.excluded | spans)
             solved = replace(data, usable=data.usable & ~spans)
     if method in ("smoother", "kf"):  # stls tests each window's behavior itself (pipeline.spans)
-        from gnss_cli.pipeline.segment_test import tested_segments
+        from gnss_cli.pipeline.segment_misfit import tested_segments
 
         sol, models = tested_segments(method, solved, wls, config, sol, models,
                                       lambda sub, sub_wls: _solve_one(method, sub, sub_wls, config, factors))

@@ -1,4 +1,4 @@
-"""The misfit test of the smoother's and the kf's segments (:mod:`gnss_cli.pipeline.segment_test`):
+"""The misfit test of the smoother's and the kf's segments (:mod:`gnss_cli.pipeline.segment_misfit`):
 its statistic against a loop, and what it does where a motion model holds and where it does not."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from gnss_cli.config import load_config
 from gnss_cli.pipeline import process
-from gnss_cli.pipeline.segment_test import MIN_EPOCHS, segment_misfit
+from gnss_cli.pipeline.segment_misfit import MIN_EPOCHS, segment_misfit
 
 INF = float("inf")
 
