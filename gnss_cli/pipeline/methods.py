@@ -86,8 +86,9 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
     spans = (", reflection spans" if config.integrity != "off" and config.nlos.multi_epoch != "off" else "")
     tested += spans
-    if config.integrity != "off" and np.isfinite(config.max_segment_misfit):  # smoother and kf only
-        spans += f", segment misfit {config.max_segment_misfit:g}"
+    segment_tests = spans  # smoother and kf: the spans, then the segments' misfit test
+    if config.integrity != "off" and np.isfinite(config.max_segment_misfit):
+        segment_tests += f", segment misfit {config.max_segment_misfit:g}"
     out: dict[str, MethodSettings] = {}
     for m in config.methods:
         if m == "stls" and config.stls.lag > 0:
@@ -104,12 +105,12 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             motion = config.smoother.motion
             lag = str(config.smoother.lag) if motion == "quadrature" else ""
             out[m] = MethodSettings(m, "fixed-model batch smoother", f"motion {motion}", lag, "whole segments", kinds,
-                                    "off" if config.integrity == "off" else "residual gate, check" + spans)
+                                    "off" if config.integrity == "off" else "residual gate, check" + segment_tests)
         elif m == "kf":
             k = config.kalman
             estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
             out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds,
-                                    "off" if config.integrity == "off" else "innovation gate, check" + spans)
+                                    "off" if config.integrity == "off" else "innovation gate, check" + segment_tests)
         else:
             integrity = snapshot_integrity if m in ("ls", "wls") else tested
             out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
@@ -144,7 +145,6 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
     for ``stls`` the window's identified kernel), never the covariance of all the measurements,
     which stays in ``cov_m2`` (``sde_m``... columns)."""
-
     data = with_weights_of(data, wls)  # the NLOS detector's down-weighted reflections, as WLS had them
     if method not in ("stls", "smoother", "kf"):
         raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")

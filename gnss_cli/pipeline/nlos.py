@@ -52,8 +52,9 @@ from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
 from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
-__all__ = ["los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans",
-           "prediction_residuals_m", "exclude_nlos", "monitor_without_nlos"]
+__all__ = ["los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means",
+           "keep_redundancy", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
+           "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
 Fit = Callable[[EpochData], MethodSolution]

@@ -19,7 +19,8 @@ freedom, far beyond any chi-square limit), while a model that does not hold sits
 above it is solved again as two halves, each tested in turn; a segment shorter than
 :data:`MIN_EPOCHS` that still fails keeps the WLS fixes, status ``fallback_wls`` (``ok`` WLS
 epochs; the others keep their WLS status). Each rejected segment adds a model record (status
-``rejected``) that says what became of its epochs. Not run with ``integrity = "off"``.
+``rejected``) that says what became of its epochs, in place of the records of the solution it
+rejected. Not run with ``integrity = "off"``.
 """
 
 from __future__ import annotations
@@ -80,6 +81,9 @@ def tested_segments(method: str, data: EpochData, wls: MethodSolution, config: P
         if not m > limit:
             continue
         why = f"misfit per degree of freedom {m:.4g} > {limit:g} ({dof} degrees of freedom)"
+        t0, t1 = float(t[seg[0]]), float(t[seg[-1]])
+        records = [r for r in records  # the records of the rejected solution give way to the halves'
+                   if r.status == "rejected" or not t0 <= r.start_time_gps_s <= r.end_time_gps_s <= t1]
         if seg.size >= 2 * MIN_EPOCHS:
             halves = [seg[: seg.size // 2], seg[seg.size // 2:]]
             for half in halves:
@@ -93,8 +97,8 @@ def tested_segments(method: str, data: EpochData, wls: MethodSolution, config: P
             status = np.where(fixed.status == EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value, fixed.status)
             sol = merge_epochs(sol, seg, _as_fallback(sol, fixed, status))
             what = "its epochs keep the WLS fix"
-        records.append(WindowModel(segment=number, window=0, start_time_gps_s=float(t[seg[0]]),
-                                   end_time_gps_s=float(t[seg[-1]]), n_epochs=int(seg.size),
+        records.append(WindowModel(segment=number, window=0, start_time_gps_s=t0,
+                                   end_time_gps_s=t1, n_epochs=int(seg.size),
                                    model=f"{method} segment", structure="full", kernel=None, misfit=m,
                                    status="rejected", message=f"{why}; {what}", method=method))
     return sol, tuple(records)
