@@ -59,6 +59,7 @@ from gnss_cli.pipeline.results import (
     WindowModel,
     window_epoch_status,
     window_status_word,
+    as_wls_used,
 )
 from gnss_cli.solvers.dop import dop_from_cov
 
@@ -279,6 +280,7 @@ def smooth(
     opts = config.stls.validated()
     if opts.lag < 1:
         raise UsageError(f"stls.lag: expected an integer >= 1 for the identified Hankel STLS, received {opts.lag}")
+    data = as_wls_used(data, wls)  # its satellites and weights: the clocks and residuals are re-estimated from them
     T = data.time_gps_s.size
     if wls.x_ecef_m.shape != (T, 3):
         raise UsageError(f"wls: expected positions of shape ({T}, 3), received {wls.x_ecef_m.shape}")

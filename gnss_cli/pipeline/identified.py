@@ -96,7 +96,7 @@ from gnss_cli.pipeline.measurements import (
     standardized,
 )
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, as_wls_used
 
 __all__ = ["alternate_windows", "behavior_tests", "WindowRun", "window_rows", "RTOL", "MAX_ALTERNATIONS", "GATE_PASSES"]
 
@@ -514,8 +514,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
     runs : the alternation state of each group of equal-length windows.
     factors : the variance factors used.
     """
-    if wls.excluded is not None:
-        data = replace(data, usable=data.usable & ~wls.excluded)
+    data = as_wls_used(data, wls)  # its satellites and weights
     if factors is None:
         factors = factors_from_totals(free_misfit_totals(data, wls, config, kinds))
     factors = (*factors, 1.0, 1.0, 1.0)[:3]

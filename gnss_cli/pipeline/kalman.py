@@ -80,7 +80,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.range_model import linearize
 from gnss_cli.pipeline.kalman_rows import (PhaseRows, filter_phase_rows, gate_threshold, kinds_config,
                                            measurement_kinds, variance_factors)
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, as_wls_used
 from gnss_cli.pipeline.velocity import doppler_sigma_m_s, solve_velocity
 from gnss_cli.solvers.dop import dop_from_cov
 from gnss_cli.solvers.kalman import FreeRows, clone_prior, clone_transition, kalman_filter, rts_smooth
@@ -344,8 +344,7 @@ def run_kalman(data: EpochData, wls: MethodSolution, config: ProcessingConfig, *
         ``measurements`` has an unknown kind or lacks ``"pseudorange"``.
     """
     kinds = measurement_kinds(data, config, measurements)
-    if wls.excluded is not None:
-        data = replace(data, usable=data.usable & ~wls.excluded)
+    data = as_wls_used(data, wls)  # its satellites and weights
     factors = variance_factors(data, wls, config) if factors is None else factors
     rows_config = kinds_config(config, kinds)
     T, k = data.time_gps_s.size, len(data.systems)

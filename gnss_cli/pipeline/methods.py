@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
-from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, with_weights_of
+from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, as_wls_used
 
 __all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "snapshot_config",
            "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
@@ -145,7 +145,7 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
     over a window under the method's motion model (:mod:`gnss_cli.pipeline.multi_epoch_dop`;
     for ``stls`` the window's identified kernel), never the covariance of all the measurements,
     which stays in ``cov_m2`` (``sde_m``... columns)."""
-    data = with_weights_of(data, wls)  # the NLOS detector's down-weighted reflections, as WLS had them
+    data = as_wls_used(data, wls)  # WLS's satellites (FDE and NLOS exclusions out) and weights
     if method not in ("stls", "smoother", "kf"):
         raise ValueError(f"solve_multi_epoch: {method!r} is not a multi-epoch method")
     sol, models = _solve_one(method, data, wls, config, factors)

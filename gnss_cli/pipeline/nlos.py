@@ -32,7 +32,7 @@ that starts from the WLS fix leaves them out too. The C/N0 spans that redundancy
 down-weighted instead: their pseudorange variance is multiplied by ``variance_factor`` (100: a
 hundredth of the weight; 1: full weight), in the WLS solution's ``variance_scale``, and every
 method that starts from the WLS fix weighs them alike
-(:func:`~gnss_cli.pipeline.results.with_weights_of`). With ``failed_epochs = "retry"`` an epoch
+(:func:`~gnss_cli.pipeline.results.as_wls_used`). With ``failed_epochs = "retry"`` an epoch
 that is not ``ok`` after the exclusions is solved again with every satellite, every span
 down-weighted by the same factor (:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
 ``"off"`` is the plain fix. The template is the solved part's (a file of at most

@@ -264,7 +264,7 @@ class EpochData:
     0 usable, -1 not observed)."""
     variance_scale: F64 | None = None
     """``(T, n)`` factor on each pseudorange's variance (>= 1): the NLOS detector's reflections that
-    an epoch's redundancy keeps (``[nlos] variance_factor``, :func:`with_weights_of`); None: 1."""
+    an epoch's redundancy keeps (``[nlos] variance_factor``, :func:`as_wls_used`); None: 1."""
     range_rate_m_s: F64 | None = None
     """``(T, n)`` range rate from the Doppler of the chosen code's signal, ``-lambda D`` (m/s;
     lambda of that signal, GLONASS per channel); NaN where there is no Doppler or the
@@ -356,7 +356,7 @@ class MethodSolution:
     variance_scale: F64 | None = None
     """``(T, n)`` the factor on each pseudorange variance the solution was weighted with (the NLOS
     detector's kept reflections, ``[nlos] variance_factor``); None: 1 everywhere. Every method
-    that starts from this WLS solution weights its epochs alike (:func:`with_weights_of`)."""
+    that starts from this WLS solution weights its epochs alike (:func:`as_wls_used`)."""
 
     @property
     def clock_m(self) -> F64:
@@ -384,12 +384,16 @@ class RunResult:
         return self.epochs.warnings
 
 
-def with_weights_of(data: EpochData, wls: MethodSolution) -> EpochData:
-    """``data`` weighted as the WLS solution ``wls`` was (its ``variance_scale``, the NLOS
-    detector's down-weighted reflections), for the methods that start from it."""
-    if wls.variance_scale is None:
-        return data
-    return replace(data, variance_scale=np.nan_to_num(wls.variance_scale, nan=1.0))
+def as_wls_used(data: EpochData, wls: MethodSolution) -> EpochData:
+    """``data`` as the WLS solution ``wls`` used it, for the methods that start from it: without
+    the satellites it excluded (FDE, the NLOS detector) and weighted as it was (its
+    ``variance_scale``, the NLOS detector's down-weighted reflections). Applying it twice changes
+    nothing."""
+    if wls.excluded is not None:
+        data = replace(data, usable=data.usable & ~wls.excluded)
+    if wls.variance_scale is not None:
+        data = replace(data, variance_scale=np.nan_to_num(wls.variance_scale, nan=1.0))
+    return data
 
 
 def take_solution(sol: MethodSolution, rows: NDArray[np.intp] | slice, copy: bool = False) -> MethodSolution:

@@ -105,7 +105,7 @@ from gnss_cli.pipeline.measurements import (
     standardized,
 )
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, WindowModel
+from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, WindowModel, as_wls_used
 from gnss_cli.pipeline.behavioral import finish_smoothing
 from gnss_cli.solvers.dop import dop_from_cov
 
@@ -335,8 +335,7 @@ def smooth_segments(data: EpochData, wls: MethodSolution, config: ProcessingConf
     """
     mot = Motion(motion, lag, config.kalman.accel_psd_m2_s3, config.kalman.jerk_psd_m2_s5).validated()
     kinds = checked_measurements(data, measurements)
-    if wls.excluded is not None:
-        data = replace(data, usable=data.usable & ~wls.excluded)
+    data = as_wls_used(data, wls)  # its satellites and weights
     run = solve_segments(data, wls, config, mot, kinds, gap_factor=gap_factor, factors=factors)
     if run is None:
         return replace(wls, method=method), ()

@@ -32,7 +32,7 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.range_model import EARTH_SURFACE_BAND_M, Linearization, linearize, stls_row_cov, width_groups, wtls_column_scale
 from gnss_cli.pipeline.integrity import merge_epochs, monitor, monitor_fixes, take_epochs
 from gnss_cli.pipeline.nlos import monitor_without_nlos
-from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status, with_weights_of
+from gnss_cli.pipeline.results import KEEPS_POSITION, EpochData, EpochStatus, MethodSolution, Progress, solver_epoch_status, as_wls_used
 from gnss_cli.solvers import solve_batch
 from gnss_cli.solvers.dop import dop_from_cov, tls_paper_cov
 from gnss_cli.solvers.robust import IrlsResult, irls_batch
@@ -225,9 +225,7 @@ def _solve_once(data: EpochData, method: str, config: ProcessingConfig, base: Me
     (:func:`~gnss_cli.pipeline.integrity.monitor_fixes`: chi-square test of its pseudorange
     residuals with the WLS weights, GDOP limit); with ``off`` it keeps the WLS epoch's word.
     """
-    data = with_weights_of(data, base)
-    if base.excluded is not None:
-        data = replace(data, usable=data.usable & ~base.excluded)
+    data = as_wls_used(data, base)
     T, n, k = data.time_gps_s.size, data.sv.size, len(data.systems)
     x = base.x_ecef_m.copy()
     b = base.clocks_m.copy()

@@ -195,3 +195,28 @@ def test_lag_one_is_the_static_kernel_without_an_identification(noisy: Path, mon
     assert models and all(np.array_equal(np.asarray(m.kernel.shared_coefficients), [-1.0, 1.0]) for m in models
                           if m.kernel is not None)
     assert np.isfinite(sol.x_ecef_m[sol.status == "ok"]).all() and (sol.status == "ok").sum() > 0
+
+
+def test_clocks_and_residuals_are_of_the_satellites_wls_kept(noisy: Path) -> None:
+    """``stls`` re-estimates each epoch's clocks at its own positions from the pseudoranges WLS
+    used: a satellite FDE excluded (+200 m at one epoch) has no residual there, and every system's
+    residuals have a zero weighted mean (the clock's least-squares condition). With the excluded
+    row in the clock, every residual of its system would move by its share of the 200 m."""
+    cfg = load_config(None, {**BASE, "measurements": "pseudorange"})
+    data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
+    t = 60
+    j = int(np.flatnonzero(data.usable[t])[0])
+    pr = data.pr_corrected_m.copy()
+    pr[t, j] += 200.0
+    biased = replace(data, pr_corrected_m=pr)
+    wls = solve_method(biased, "wls", cfg)
+    assert wls.excluded[t, j]
+    sol, _ = solve_multi_epoch("stls", biased, wls, cfg)
+    assert np.isnan(sol.residuals_m[t, j])
+    used = np.isfinite(sol.residuals_m)
+    w = np.where(used, 1.0 / np.where(used, wls.sigma_m, 1.0) ** 2, 0.0)
+    for k in range(len(data.systems)):
+        cols = data.system_index == k
+        mean = (w[:, cols] * np.nan_to_num(sol.residuals_m[:, cols])).sum(axis=1) / np.maximum(w[:, cols].sum(axis=1), 1e-300)
+        assert np.abs(mean[used[:, cols].any(axis=1)]).max() < 1e-6
+    assert np.nanmax(np.abs(sol.residuals_m[t])) < 10.0
