@@ -2,7 +2,9 @@
 
 The per-epoch WLS fixes ``x_t`` and their position covariances ``Sigma_t`` are rotated to a
 local ENU frame (origin: the first solved fix of each segment), split into segments of
-uniformly sampled, solved epochs, cut into sliding windows (:mod:`gnss_cli.behavior.windows`)
+uniformly sampled epochs with a WLS fix (every status that keeps a position, ``integrity_fail``
+included: ``smoother`` and ``kf`` take those epochs too, through their gates, and a segment cut at
+each of them held tst2's 986 epochs in 79 pieces of at most 65), cut into sliding windows (:mod:`gnss_cli.behavior.windows`)
 and, in each window, a kernel ``R(z)`` of lag ``L`` is identified by weighted Hankel STLS and the
 fixes are projected onto its behavior (DESIGN.md section 5), as configured in ``[stls]``
 (:class:`~gnss_cli.config.StlsConfig`): ``stls(..., structure=kernel)``; the shared kernel keeps a
@@ -52,6 +54,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.range_model import linearize
 from gnss_cli.pipeline.multi_epoch_dop import with_paper_gdop
 from gnss_cli.pipeline.results import (
+    KEEPS_POSITION,
     EpochData,
     EpochStatus,
     MethodSolution,
@@ -244,7 +247,7 @@ def smooth(
         whose centre is nearest to it (the centre-most estimate).
     gap_factor : float
         Segments split where the time step exceeds ``gap_factor`` times the median step,
-        and at unsolved epochs.
+        and at epochs without a WLS fix (no position or covariance).
     method : str
         Method key written into the result.
     measurements : set of str, optional
@@ -284,7 +287,7 @@ def smooth(
     T = data.time_gps_s.size
     if wls.x_ecef_m.shape != (T, 3):
         raise UsageError(f"wls: expected positions of shape ({T}, 3), received {wls.x_ecef_m.shape}")
-    solved = (wls.status == _OK) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
+    solved = np.isin(wls.status, KEEPS_POSITION) & np.all(np.isfinite(wls.x_ecef_m), axis=1) \
         & np.all(np.isfinite(wls.cov_m2[:, :3, :3].reshape(T, 9)), axis=1)
     status = wls.status.astype("<U24").copy()
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)

@@ -197,6 +197,27 @@ def test_lag_one_is_the_static_kernel_without_an_identification(noisy: Path, mon
     assert np.isfinite(sol.x_ecef_m[sol.status == "ok"]).all() and (sol.status == "ok").sum() > 0
 
 
+def test_an_epoch_whose_wls_fix_fails_its_test_does_not_cut_the_segment(noisy: Path) -> None:
+    """``smoother`` and ``kf`` take an epoch whose WLS fix failed its test (through their gates);
+    so does ``stls``: +200 m on one pseudorange at one epoch (``check``: WLS keeps the pulled fix,
+    ``integrity_fail``) leaves one segment of windows, and the identified trajectory there, its
+    gate leaving the faulty row out, is as close to the truth as at the other epochs."""
+    cfg = load_config(None, {**BASE, "measurements": "pseudorange", "integrity": "check"})
+    data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
+    truth = np.asarray(reference_from_csv(noisy / "truth.csv", data.time_gps_s))
+    t = 60
+    j = int(np.flatnonzero(data.usable[t])[0])
+    pr = data.pr_corrected_m.copy()
+    pr[t, j] += 200.0
+    biased = replace(data, pr_corrected_m=pr)
+    wls = solve_method(biased, "wls", cfg)
+    assert wls.status[t] == "integrity_fail" and np.linalg.norm(wls.x_ecef_m[t] - truth[t]) > 20.0
+    sol, models = solve_multi_epoch("stls", biased, wls, cfg)
+    assert {m.segment for m in models} == {0}
+    err = np.linalg.norm(sol.x_ecef_m - truth, axis=1)
+    assert sol.status[t] == "ok" and err[t] < 3.0 * _rms(np.delete(sol.x_ecef_m, t, axis=0), np.delete(truth, t, axis=0))
+
+
 def test_clocks_and_residuals_are_of_the_satellites_wls_kept(noisy: Path) -> None:
     """``stls`` re-estimates each epoch's clocks at its own positions from the pseudoranges WLS
     used: a satellite FDE excluded (+200 m at one epoch) has no residual there, and every system's
