@@ -197,19 +197,24 @@ def test_lag_one_is_the_static_kernel_without_an_identification(noisy: Path, mon
     assert np.isfinite(sol.x_ecef_m[sol.status == "ok"]).all() and (sol.status == "ok").sum() > 0
 
 
+def _one_pseudorange_off(d: Path, cfg):  # type: ignore[no-untyped-def]
+    """The flight's epochs, and the same with +200 m on the first usable pseudorange of epoch 60."""
+    data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    t = 60
+    j = int(np.flatnonzero(data.usable[t])[0])
+    pr = data.pr_corrected_m.copy()
+    pr[t, j] += 200.0
+    return data, replace(data, pr_corrected_m=pr), t, j
+
+
 def test_an_epoch_whose_wls_fix_fails_its_test_does_not_cut_the_segment(noisy: Path) -> None:
     """``smoother`` and ``kf`` take an epoch whose WLS fix failed its test (through their gates);
     so does ``stls``: +200 m on one pseudorange at one epoch (``check``: WLS keeps the pulled fix,
     ``integrity_fail``) leaves one segment of windows, and the identified trajectory there, its
     gate leaving the faulty row out, is as close to the truth as at the other epochs."""
     cfg = load_config(None, {**BASE, "measurements": "pseudorange", "integrity": "check"})
-    data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
+    data, biased, t, j = _one_pseudorange_off(noisy, cfg)
     truth = np.asarray(reference_from_csv(noisy / "truth.csv", data.time_gps_s))
-    t = 60
-    j = int(np.flatnonzero(data.usable[t])[0])
-    pr = data.pr_corrected_m.copy()
-    pr[t, j] += 200.0
-    biased = replace(data, pr_corrected_m=pr)
     wls = solve_method(biased, "wls", cfg)
     assert wls.status[t] == "integrity_fail" and np.linalg.norm(wls.x_ecef_m[t] - truth[t]) > 20.0
     sol, models = solve_multi_epoch("stls", biased, wls, cfg)
@@ -224,12 +229,7 @@ def test_clocks_and_residuals_are_of_the_satellites_wls_kept(noisy: Path) -> Non
     residuals have a zero weighted mean (the clock's least-squares condition). With the excluded
     row in the clock, every residual of its system would move by its share of the 200 m."""
     cfg = load_config(None, {**BASE, "measurements": "pseudorange"})
-    data = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
-    t = 60
-    j = int(np.flatnonzero(data.usable[t])[0])
-    pr = data.pr_corrected_m.copy()
-    pr[t, j] += 200.0
-    biased = replace(data, pr_corrected_m=pr)
+    data, biased, t, j = _one_pseudorange_off(noisy, cfg)
     wls = solve_method(biased, "wls", cfg)
     assert wls.excluded[t, j]
     sol, _ = solve_multi_epoch("stls", biased, wls, cfg)
