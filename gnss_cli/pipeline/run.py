@@ -55,7 +55,6 @@ from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_s
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.results import (
     EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
-    as_wls_used,
 )
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts, status_summary
 from gnss_cli.pipeline.velocity import with_velocity
@@ -464,7 +463,7 @@ class Run:
             if self.progress:
                 self.progress(f"part {k + 1}: weighing the measurements", done / max(n_epochs, 1))
             wls = solve_methods(data, wls_only)["wls"]
-            totals += free_misfit_totals(as_wls_used(data, wls), wls, config)
+            totals += free_misfit_totals(data, wls, config)  # as WLS used them (its exclusions and weights)
             done += data.time_gps_s.size
             del data
         return factors_from_totals(tuple(float(v) for v in totals))  # type: ignore[arg-type]
