@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.window_solve import EpochNormals
 
-__all__ = ["shared_modes", "solve_in_behavior", "behavior_misfit", "MIN_RCOND"]
+__all__ = ["shared_modes", "sampled_motion_kernels", "solve_in_behavior", "behavior_misfit", "MIN_RCOND"]
 
 F64 = NDArray[np.float64]
 
@@ -69,7 +69,8 @@ def _log_companion(a: F64) -> tuple[F64, NDArray[np.bool_]]:
     """
     n_b, lag, _ = a.shape
     finite = np.all(np.isfinite(a), axis=(1, 2))
-    ev = np.linalg.eigvals(np.where(finite[:, None, None], a, np.eye(lag)))
+    ev = np.linalg.eigvals(np.where(finite[:, None, None], a, np.eye(lag))).astype(np.complex128)  # complex even when
+    # the first batch's roots are all real: a later square root's are stored into it
     real = finite & np.all((np.abs(ev.imag) > 1e-12) | (ev.real > 0.0), axis=1)  # no root on (-inf, 0]
     out = np.full_like(a, np.nan)
     m = np.where(real[:, None, None], a, np.eye(lag))
@@ -152,6 +153,37 @@ def shared_modes(r: F64, n_t: int, dt_s: F64,
     rq_safe = np.where(ok[:, None, None], rq, np.eye(lag))
     yv = np.linalg.solve(np.swapaxes(rq_safe, 1, 2), np.swapaxes(scalar @ f, 1, 2)).swapaxes(1, 2)  # scalar F R^-1
     return q, np.where(has_v[:, None, None], yv, np.nan), ok, has_v
+
+
+def sampled_motion_kernels(r: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """Shared kernels ``r (B, l+1)`` (ascending coefficients) with every real root on ``(-inf, 0]``
+    moved to ``z = 1``, and where a root moved.
+
+    Such a root is a mode that changes sign from one epoch to the next (or a zero mode): no sampled
+    continuous motion has one, and its kernel has no velocity (module docstring), so range rates
+    cannot be used with it. An identified kernel gets one where its window's noise is fitted
+    better by an alternation than by a motion (on the simulated training flights and drives with
+    range rates, 41 of a flight's 109 windows). Moving the root to 1 keeps the kernel's other
+    roots and puts one more polynomial degree in its place (``(z - 1)^2 (z - z_2)`` for ``(z - 1)
+    (z + a) (z - z_2)``; ``(z - 1)^3`` when both free roots are negative), which has a velocity.
+    Kernels without such a root are returned unchanged; NaN rows stay NaN.
+
+    >>> from gnss_cli.behavior.kernel import shared_kernel_coefficients as coefficients
+    >>> r, moved = sampled_motion_kernels(np.stack([coefficients((1.0, -0.5, 0.9)), coefficients((1.0, 0.8, 0.9))]))
+    >>> np.allclose(r[0], coefficients((1.0, 1.0, 0.9))), moved.tolist()
+    (True, [True, False])
+    """
+    out = np.array(r, dtype=np.float64, copy=True)
+    moved = np.zeros(out.shape[0], dtype=bool)
+    for b in np.flatnonzero(np.all(np.isfinite(out), axis=1) & (np.abs(out[:, -1]) > 0)):
+        roots = np.roots(out[b, ::-1])
+        bad = (np.abs(roots.imag) <= 1e-9 * np.maximum(1.0, np.abs(roots))) & (roots.real <= 0.0)
+        if bad.any():
+            roots = np.where(bad, 1.0, roots)
+            monic = np.real(np.poly(roots))[::-1]
+            out[b] = monic * out[b, -1]
+            moved[b] = True
+    return out, moved
 
 
 def _pair_blocks(y: F64) -> F64:

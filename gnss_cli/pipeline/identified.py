@@ -21,7 +21,13 @@ Each iteration, for every window at once:
    clock-reduced pseudorange normals give, with their inverse as covariance, and with Doppler the
    velocity each epoch's range rates give as three more channels (the velocity of a behavior of
    ``r(z) I_3`` is in the same behavior). These free fixes ``x + M^-1 r`` do not depend on the
-   iterate (to the linearization), so the kernel is identified once per residual gate;
+   iterate (to the linearization), so the kernel is identified once per residual gate. With
+   range rates a root the identification puts on the negative real axis (an alternating mode:
+   no velocity, so the range rates could not be used) is moved to ``z = 1``
+   (:func:`~gnss_cli.behavior.behavior_solve.sampled_motion_kernels`): before, such windows kept
+   their position-domain result without the range rates -- 41 of 109 on a simulated training
+   flight, whose 3D RMS this took from 1.07 to 0.93 m (whole segments; six training tracks
+   12-19 % lower);
 3. (b) with the kernel fixed, solve for the window's trajectory in its behavior from all the
    rows (:func:`~gnss_cli.behavior.behavior_solve.solve_in_behavior`; velocities from the modes
    ``s_i = log(z_i) / dt``, :func:`~gnss_cli.behavior.behavior_solve.shared_modes`), once with
@@ -79,7 +85,7 @@ from scipy.stats import norm
 from gnss_cli.behavior import StlsStatus
 from gnss_cli.behavior.batch import identify_windows
 from gnss_cli.behavior.kernel import shared_kernel_coefficients
-from gnss_cli.behavior.behavior_solve import behavior_misfit, shared_modes, solve_in_behavior
+from gnss_cli.behavior.behavior_solve import behavior_misfit, sampled_motion_kernels, shared_modes, solve_in_behavior
 from gnss_cli.behavior.multi_epoch import shared_behavior_bases
 from gnss_cli.behavior.records import shared_kernel_records
 from gnss_cli.behavior.window_solve import EpochNormals, reduce_epochs
@@ -131,6 +137,8 @@ class WindowRun:
         ``stale`` where they are to be identified again (module docstring).
     test_stat, test_dof : the behavior test of the result (:func:`behavior_tests`; NaN and 0
         where it was not evaluated).
+    roots_moved : the kernel of step (a) under the current gate had a root on the negative real
+        axis, moved to ``z = 1`` (:func:`~gnss_cli.behavior.behavior_solve.sampled_motion_kernels`).
     """
 
     jobs: NDArray[np.intp]
@@ -157,6 +165,7 @@ class WindowRun:
     stale: NDArray[np.bool_]
     test_stat: F64
     test_dof: NDArray[np.int64]
+    roots_moved: NDArray[np.bool_]
 
 
 def _colors(spans: list[tuple[int, int]]) -> list[int]:
@@ -270,8 +279,10 @@ def _take(nrm: EpochNormals, sel: NDArray[np.intp], n_t: int) -> EpochNormals:
 
 
 def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: int, tol: float,
-              max_iter: int) -> F64:
-    """Step (a): kernels identified on the free per-epoch corrections of the current iterate (NaN: none)."""
+              max_iter: int) -> tuple[F64, NDArray[np.bool_]]:
+    """Step (a): kernels identified on the free per-epoch corrections of the current iterate (NaN:
+    none) and, with range rates, where a root on the negative real axis was moved to ``z = 1``
+    (:func:`~gnss_cli.behavior.behavior_solve.sampled_motion_kernels`: such a kernel has no velocity)."""
     n_b, n_t = run.epochs.shape
     M = pr.M.reshape(n_b, n_t, 3, 3)
     scale = np.einsum("btii->b", M) / (3 * n_t)
@@ -298,7 +309,9 @@ def _identify(run: WindowRun, pr: EpochNormals, rr: EpochNormals | None, lag: in
     elif good.any():
         fits = identify_windows(w[good], lag, sig[good], fixed_roots=(1.0,), tol=tol, max_iter=max_iter)
         out[good] = np.where((fits.status >= 0)[:, None], fits.r, np.nan)
-    return out
+    if rr is None:
+        return out, np.zeros(n_b, dtype=bool)
+    return sampled_motion_kernels(out)
 
 
 _Modes = dict[tuple[bytes, float, int, bool], tuple[F64, F64, bool, bool]]
@@ -365,7 +378,8 @@ def _start(jobs: NDArray[np.intp], segs: list[Segment], all_jobs: list[WindowJob
                      np.full(n_b, np.inf), [[] for _ in range(n_b)], np.zeros(n_b, np.int64), np.zeros(n_b, bool),
                      np.zeros(n_b, bool), np.zeros(n_b, bool), [""] * n_b, np.ones((3, n_b, n_t, n_sv)),
                      np.zeros((3, n_b, n_t, n_sv), bool), np.zeros(n_b, np.int64), np.zeros(n_b, bool),
-                     np.full_like(r, np.nan), np.ones(n_b, bool), np.full(n_b, np.nan), np.zeros(n_b, np.int64))
+                     np.full_like(r, np.nan), np.ones(n_b, bool), np.full(n_b, np.nan), np.zeros(n_b, np.int64),
+                     np.zeros(n_b, bool))
 
 
 def _project_start(run: WindowRun, velocity: bool) -> None:
@@ -427,8 +441,9 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
     fresh = np.flatnonzero(act & run.stale)
     if fresh.size:
         sub = replace(run, epochs=run.epochs[fresh], rot=run.rot[fresh], x=run.x[fresh])
-        run.r_identified[fresh] = _identify(sub, *(None if n is None else _take(n, fresh, n_t) for n in normals[:2]),
-                                            opts.lag, opts.tolerance, opts.max_iterations)
+        run.r_identified[fresh], run.roots_moved[fresh] = _identify(
+            sub, *(None if n is None else _take(n, fresh, n_t) for n in normals[:2]), opts.lag, opts.tolerance,
+            opts.max_iterations)
         run.stale[fresh] = False
     r_new = np.where(act[:, None], run.r_identified, np.nan)
     sel = np.flatnonzero(act)
@@ -593,9 +608,11 @@ def _finish(run: WindowRun, out: list[Fit], kinds: frozenset[str]) -> None:
                              converged=False, domain="position")
             continue
         w_hat = np.einsum("ij,btj->bti", run.rot[b], run.x[b][None])[0]
+        moved = ("; the kernel identified under the last gate had a root on the negative real axis, moved to z = 1"
+                 if run.roots_moved[b] else "")
         out[k] = Fit(w_hat, recs[b], float(run.misfit[b]), StlsStatus.CONVERGED,
                      f"measurement domain ({used}), alternation: {run.message[b]} after {run.iterations[b]} "
-                     f"iterations under the last of {int(run.gates[b])} residual gates", bases[b],
+                     f"iterations under the last of {int(run.gates[b])} residual gates{moved}", bases[b],
                      iterations=int(run.iterations[b]), converged=True, domain="measurement",
                      test_stat=float(run.test_stat[b]) if run.test_dof[b] > 0 else None,
                      test_dof=int(run.test_dof[b]) if run.test_dof[b] > 0 else None)

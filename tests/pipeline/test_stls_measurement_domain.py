@@ -241,3 +241,24 @@ def test_clocks_and_residuals_are_of_the_satellites_wls_kept(noisy: Path) -> Non
         mean = (w[:, cols] * np.nan_to_num(sol.residuals_m[:, cols])).sum(axis=1) / np.maximum(w[:, cols].sum(axis=1), 1e-300)
         assert np.abs(mean[used[:, cols].any(axis=1)]).max() < 1e-6
     assert np.nanmax(np.abs(sol.residuals_m[t])) < 10.0
+
+
+def test_with_range_rates_no_window_loses_them_to_a_kernel_without_velocity(noisy: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """An identified kernel with a root on the negative real axis has no velocity: its window could
+    not use the range rates and kept its position-domain result. With the root moved to ``z = 1``
+    (:func:`~gnss_cli.behavior.behavior_solve.sampled_motion_kernels`) no window is left so, and the
+    track is closer to the truth than with those windows left out of the measurement domain."""
+    import gnss_cli.pipeline.identified as identified
+
+    cfg, data, wls, truth = _load(noisy, "pseudorange,doppler")
+
+    def lost(models) -> int:  # type: ignore[no-untyped-def]
+        return sum("no kernel with a velocity" in m.message for m in models)
+
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    assert lost(models) == 0 and any("moved to z = 1" in m.message for m in models)
+    monkeypatch.setattr(identified, "sampled_motion_kernels", lambda r: (r, np.zeros(r.shape[0], dtype=bool)))
+    before, models_before = solve_multi_epoch("stls", data, wls, cfg)
+    assert lost(models_before) > 0
+    assert _rms(sol.x_ecef_m, truth) < _rms(before.x_ecef_m, truth)
