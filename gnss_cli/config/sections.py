@@ -175,6 +175,8 @@ class KalmanConfig:
 NLOS_DETECTORS = ("off", "arcs")
 NLOS_MULTI_EPOCH = ("off", "cusum")
 """``[nlos] multi_epoch``: none, or the CUSUM spans of the multi-epoch methods' residuals."""
+NLOS_DELAY_SOURCES = ("fix", "doppler")
+"""``[nlos] cn0_delay_source``: what measures a C/N0 span's delay (:func:`gnss_cli.pipeline.nlos.exclude_nlos`)."""
 NLOS_FAILED_EPOCHS = ("keep", "retry")
 """``[nlos] failed_epochs``: an epoch that fails after the exclusions stays so, or is solved again with every satellite."""
 """``[nlos] detector``: none, or the per-satellite spans of :mod:`gnss_cli.pipeline.nlos`."""
@@ -189,19 +191,21 @@ class NlosConfig:
     template_quantile: float = 0.9
     template_bin_deg: float = 5.0
     template_min_count: int = 10
-    cn0_enter_db: float = 9.0
-    cn0_exit_db: float = 5.0
+    cn0_enter_db: float = 7.0
+    cn0_exit_db: float = 4.0
     cn0_min_epochs: int = 2
-    cn0_min_delay_m: float = -2.0
+    cn0_min_delay_m: float = 0.0
+    cn0_delay_source: str = "fix"
     residual_k: float = 1.0
     residual_h: float = float("inf")
-    min_dof: int = 1
+    min_dof: int = 2
     failed_epochs: str = "retry"
     variance_factor: float = 100.0
     multi_epoch: str = "cusum"
     multi_epoch_k: float = 1.5
     multi_epoch_h: float = 5.0
     multi_epoch_rounds: int = 3
+    multi_epoch_min_dof: int = 1
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
@@ -231,6 +235,9 @@ class NlosConfig:
                               f"received {self.failed_epochs!r}")
         if self.cn0_min_delay_m != self.cn0_min_delay_m:
             raise ConfigError("nlos.cn0_min_delay_m: expected a number (m; -inf: no delay test); received nan")
+        if self.cn0_delay_source not in NLOS_DELAY_SOURCES:
+            raise ConfigError(f"nlos.cn0_delay_source: expected one of {', '.join(NLOS_DELAY_SOURCES)}; "
+                              f"received {self.cn0_delay_source!r}")
         if self.multi_epoch not in NLOS_MULTI_EPOCH:
             raise ConfigError(f"nlos.multi_epoch: expected one of {', '.join(NLOS_MULTI_EPOCH)}; "
                               f"received {self.multi_epoch!r}")
@@ -240,6 +247,7 @@ class NlosConfig:
             raise ConfigError(f"nlos.multi_epoch_h: expected a positive number (sigmas); received {self.multi_epoch_h}")
         if self.multi_epoch_rounds < 1:
             raise ConfigError(f"nlos.multi_epoch_rounds: expected >= 1; received {self.multi_epoch_rounds}")
-        if self.min_dof < 1:
-            raise ConfigError(f"nlos.min_dof: expected >= 1 (an epoch keeps a test); received {self.min_dof}")
+        for name in ("min_dof", "multi_epoch_min_dof"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"nlos.{name}: expected >= 1 (an epoch keeps a test); received {getattr(self, name)}")
         return self

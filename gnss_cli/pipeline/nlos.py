@@ -15,9 +15,14 @@ from the first to the last epoch of the span:
    deficit ``d = C/N0_los(el) - C/N0`` (dB) is large over a reflection; a span is a run of
    epochs with ``d > cn0_exit_db`` that holds at least ``cn0_min_epochs`` epochs with
    ``d > cn0_enter_db`` (a hysteresis: one weak epoch neither starts nor ends a reflection).
-   With a finite ``cn0_min_delay_m`` a span stays only when the fix without it predicts the
-   satellite's pseudoranges short by at least that much on average over the span (a reflection
-   lengthens the path; an attenuated direct signal does not).
+   With a finite ``cn0_min_delay_m`` a span stays only when its pseudoranges are longer by at
+   least that much on average over the span (a reflection lengthens the path; an attenuated
+   direct signal does not), as the fix without the span predicts them (``cn0_delay_source =
+   "fix"``) or, with ``"doppler"``, against the satellite's own range rates
+   (:func:`code_minus_doppler_m`, :func:`doppler_span_delays_m`): a reflection's pseudoranges
+   step up at its start against the range the Doppler integrates and step down at its end, so
+   their mean over the span less that over the direct epochs beside it is the delay, free of the
+   fix (which the epoch's other reflections pull).
 2. **Persistent positive residuals.** At the WLS fix without the C/N0 spans, the standardized
    post-fit residual ``u = r / sigma`` (``sigma`` the a-priori pseudorange sigma) of each
    satellite; a one-sided CUSUM over runs of ``u > residual_k``: a run is a span when
@@ -48,15 +53,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.config import ProcessingConfig
+from gnss_cli.constants import C_M_S
 from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
 from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
-__all__ = ["los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means",
+__all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means",
            "keep_redundancy", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
            "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
+#: The direct epochs that give a C/N0 span's code-minus-Doppler level are at most this far (s)
+#: before its first and after its last epoch: the Doppler's white noise (0.05-0.1 m/s) integrates
+#: to 0.3-0.5 m over it, the ionosphere's code-carrier divergence to millimetres.
+NEIGHBOUR_S = 30.0
 Fit = Callable[[EpochData], MethodSolution]
 """Gauss-Newton of the ls/wls method on the given epochs (no exclusion)."""
 Refit = Callable[..., MethodSolution]
@@ -182,15 +192,15 @@ def multi_epoch_spans(data: EpochData, sol: MethodSolution, sigma_m: F64, config
     the :func:`cusum_spans` (``[nlos] multi_epoch_k``, ``multi_epoch_h``) of ``u = r / sigma``, with
     ``r`` each usable pseudorange's residual (m) at the method's positions and clocks ``sol``
     (:func:`prediction_residuals_m`) and ``sigma_m`` the a-priori sigmas of the WLS solution
-    (NaN: not a candidate); every epoch keeps its redundancy (:func:`keep_redundancy`, largest
-    ``u`` first). Several epochs pin a trajectory, so a reflection's delay shows in its residuals
+    (NaN: not a candidate); every epoch keeps its redundancy (:func:`keep_redundancy` with
+    ``multi_epoch_min_dof``, largest ``u`` first). Several epochs pin a trajectory, so a reflection's delay shows in its residuals
     where a single epoch's fix absorbs much of it."""
     cfg = config.nlos
     cand = data.usable & np.isfinite(sigma_m)
     u = prediction_residuals_m(data, sol, cand, config) / sigma_m
     spans = cusum_spans(u, cfg.multi_epoch_k, cfg.multi_epoch_h)
     system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
-    return keep_redundancy(spans, np.nan_to_num(u), cand, system_index, len(data.systems), cfg.min_dof,
+    return keep_redundancy(spans, np.nan_to_num(u), cand, system_index, len(data.systems), cfg.multi_epoch_min_dof,
                            config.min_satellites)
 
 
@@ -294,6 +304,75 @@ def prediction_residuals_m(data: EpochData, sol: MethodSolution, which: NDArray[
     return out
 
 
+def code_minus_doppler_m(data: EpochData) -> tuple[F64, NDArray[np.int64]] | None:
+    """``(T, n)`` each satellite's pseudorange less the range its Doppler integrates since the
+    first epoch of its unbroken run (m), and ``(T, n)`` the index of that run (along each column);
+    None without Doppler.
+
+    The step from epoch ``t-1`` to ``t`` is ``p_t - p_{t-1} - dt (d_{t-1} + d_t) / 2`` with ``p`` the
+    pseudorange with its satellite clock applied and ``d`` the range rate with its satellite
+    clock drift applied (both then hold the receiver clock alike); the median step of the epoch's
+    satellites is taken off every step where at least three have one (what is common to them: a
+    receiver clock jump). A run is
+    unbroken while both epochs have a pseudorange and a range rate and are at most 1.5 sampling
+    intervals apart. What is left is a reflection's delay (a step up where it starts, down where
+    it ends), code noise and the Doppler's noise integrated. NaN where either is missing."""
+    if data.range_rate_m_s is None or data.time_gps_s.size < 2:
+        return None
+    rate = data.range_rate_m_s
+    if data.sat_clock_drift_s_s is not None:
+        rate = rate + C_M_S * data.sat_clock_drift_s_s
+    have = np.isfinite(data.pr_corrected_m) & np.isfinite(rate)
+    dt = np.diff(data.time_gps_s)[:, None]
+    step = np.diff(data.pr_corrected_m, axis=0) - 0.5 * dt * (rate[1:] + rate[:-1])
+    linked = have[1:] & have[:-1] & (dt <= 1.5 * np.median(dt))
+    common = np.zeros(step.shape[0])
+    rows = linked.sum(axis=1) >= 3  # fewer satellites cannot tell which one stepped
+    common[rows] = np.nanmedian(np.where(linked[rows], step[rows], np.nan), axis=1)
+    step = np.where(linked, step - common[:, None], 0.0)
+    total = np.vstack([np.zeros((1, step.shape[1])), np.cumsum(step, axis=0)])
+    starts = np.vstack([np.ones((1, step.shape[1]), dtype=bool), ~linked])
+    first = np.maximum.accumulate(np.where(starts, np.arange(total.shape[0])[:, None], 0), axis=0)
+    return np.where(have, total - np.take_along_axis(total, first, axis=0), np.nan), np.cumsum(starts, axis=0)
+
+
+def doppler_span_delays_m(data: EpochData, runs: NDArray[np.bool_], spans: NDArray[np.bool_]) -> F64 | None:
+    """``(T, n)``: over each run of ``runs``, the mean of :func:`code_minus_doppler_m` less its mean
+    over the satellite's epochs outside ``spans`` within :data:`NEIGHBOUR_S` before the run's first
+    and after its last epoch, in the same unbroken run of code and Doppler (m). NaN outside the
+    runs and for a run without such neighbours; None without Doppler.
+
+    >>> import numpy as np
+    >>> from types import SimpleNamespace as NS
+    >>> t = np.arange(8.0)
+    >>> pr = np.c_[1e7 + 100 * t + [0, 0, 0, 9, 9, 9, 0, 0], 2e7 - 50 * t, 2e7 + 0 * t]  # 9 m for 3 s
+    >>> d = NS(time_gps_s=t, pr_corrected_m=pr + 3 * t[:, None],    # a receiver clock drifting 3 m/s ...
+    ...        range_rate_m_s=np.tile([100.0, -50.0, 0.0], (8, 1)) + 3,    # ... in the range rates too
+    ...        sat_clock_drift_s_s=None)
+    >>> run = np.zeros((8, 3), bool); run[3:6, 0] = True
+    >>> doppler_span_delays_m(d, run, run)[3:6, 0].round(6).tolist()
+    [9.0, 9.0, 9.0]
+    """
+    got = code_minus_doppler_m(data)
+    if got is None:
+        return None
+    level, unbroken = got
+    out = np.full(runs.shape, np.nan)
+    t = data.time_gps_s
+    direct = np.isfinite(level) & ~spans
+    for j in np.flatnonzero(runs.any(axis=0)):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], runs[:, j].astype(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            inside = np.isfinite(level[a:b, j])
+            if not inside.any():
+                continue
+            near = direct[:, j] & (t >= t[a] - NEIGHBOUR_S) & (t <= t[b - 1] + NEIGHBOUR_S)
+            near &= np.isin(unbroken[:, j], unbroken[a:b, j][inside])
+            if near.any():
+                out[a:b, j] = level[a:b, j][inside].mean() - level[near, j].mean()
+    return out
+
+
 def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: ProcessingConfig
                  ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """The satellite-epochs ``(T, n)`` to exclude as persistent reflections (module docstring):
@@ -318,8 +397,11 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     kept_by_redundancy = spans & used & ~out
     second: MethodSolution | None = None
     if np.isfinite(cfg.cn0_min_delay_m) and out.any():
-        second = without(out)
-        delay = span_means(out, prediction_residuals_m(data, second, out, config))
+        delay = doppler_span_delays_m(data, out, spans) if cfg.cn0_delay_source == "doppler" else None
+        if delay is None or np.isnan(delay[out]).any():  # the fix measures the spans the Doppler cannot
+            second = without(out)
+            by_fix = span_means(out, prediction_residuals_m(data, second, out, config))
+            delay = by_fix if delay is None else np.where(np.isfinite(delay), delay, by_fix)
         kept = out & (np.nan_to_num(delay, nan=np.inf) >= cfg.cn0_min_delay_m)
         second, out = (second if kept.sum() == out.sum() else None), kept
     if not np.isfinite(cfg.residual_h):

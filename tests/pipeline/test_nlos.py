@@ -17,7 +17,8 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.methods import method_settings, solve_multi_epoch
-from gnss_cli.pipeline.nlos import cusum_spans, keep_redundancy, los_cn0_template_dbhz, persistent_spans, span_means
+from gnss_cli.pipeline.nlos import (code_minus_doppler_m, cusum_spans, doppler_span_delays_m, keep_redundancy,
+                                    los_cn0_template_dbhz, persistent_spans, span_means)
 
 ROOT = Path(__file__).resolve().parents[2]
 ARCS = {"methods": "wls", "nlos.detector": "arcs"}
@@ -192,6 +193,36 @@ def test_a_persistent_bias_is_excluded_over_its_span_only(open_sky: Path) -> Non
     assert not solve_method(biased, "wls", replace(cfg, integrity="off")).excluded.any()
 
 
+def test_the_doppler_tells_a_reflection_from_an_attenuated_direct_signal(open_sky: Path) -> None:
+    """``cn0_delay_source = "doppler"``: two satellites 15 dB weak for 15 s, one of them 8 m late
+    (a reflection), the other not (a direct signal through foliage), and a receiver clock jump of
+    300 m inside the span. The code-minus-Doppler delays are 8 m and 0 (to the code noise averaged
+    over the span), the late one is excluded over exactly its span and the weak direct one kept."""
+    cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.cn0_delay_source": "doppler",
+                             "nlos.cn0_min_delay_m": 2.0})
+    data = load_epochs(open_sky / "obs.rnx", [open_sky / "nav.rnx"], cfg)
+    assert data.range_rate_m_s is not None and data.snr_dbhz is not None
+    span = np.zeros(data.usable.shape[0], dtype=bool)
+    span[40:55] = True
+    sigma = solve_method(data, "wls", cfg).sigma_m
+    j, k = np.argsort(np.where(np.isfinite(sigma[span]).all(axis=0), np.nan_to_num(sigma[span]).max(axis=0), np.inf))[:2]
+    late, weak = (np.outer(span, np.arange(data.sv.size) == i) for i in (j, k))
+    jump = np.arange(span.size)[:, None] >= 47
+    faulty = replace(data, pr_corrected_m=data.pr_corrected_m + 8.0 * late + 300.0 * jump,
+                     snr_dbhz=data.snr_dbhz - 15.0 * (late | weak))
+    got = doppler_span_delays_m(faulty, late | weak, late | weak)
+    assert abs(got[span, j][0] - 8.0) < 0.5 and abs(got[span, k][0]) < 0.5
+    assert np.isnan(got[~(late | weak)]).all()
+    level, _ = code_minus_doppler_m(faulty)
+    np.testing.assert_allclose(level, code_minus_doppler_m(replace(faulty, pr_corrected_m=faulty.pr_corrected_m
+                                                                   - 300.0 * jump))[0], atol=1e-6)
+    sol = solve_method(faulty, "wls", cfg)
+    assert sol.excluded[:, j].tolist() == span.tolist()
+    assert not np.delete(sol.excluded, j, axis=1).any()
+    by_fix = solve_method(faulty, "wls", replace(cfg, nlos=replace(cfg.nlos, cn0_delay_source="fix")))
+    assert by_fix.excluded[span, j].all()  # the fix sees the lone reflection too: a canyon's many pull it
+
+
 def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(canyon_single: Path) -> None:
     """With ``variance_factor`` the C/N0 spans an epoch's redundancy keeps are not left at full
     weight: their variance is multiplied by it. A single-frequency GPS + BeiDou canyon, with
@@ -229,7 +260,8 @@ def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(ca
     ("nlos.residual_k", 0.0, "nlos.residual_k"), ("nlos.min_dof", 0, "nlos.min_dof"),
     ("nlos.template_quantile", 1.0, "nlos.template_quantile"), ("nlos.variance_factor", 0.5, "nlos.variance_factor"),
     ("nlos.multi_epoch", "cn0", "nlos.multi_epoch"), ("nlos.multi_epoch_h", 0.0, "nlos.multi_epoch_h"),
-    ("nlos.multi_epoch_k", -1.0, "nlos.multi_epoch_k"), ("nlos.multi_epoch_rounds", 0, "nlos.multi_epoch_rounds")])
+    ("nlos.multi_epoch_k", -1.0, "nlos.multi_epoch_k"), ("nlos.multi_epoch_rounds", 0, "nlos.multi_epoch_rounds"),
+    ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
