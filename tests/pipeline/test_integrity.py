@@ -119,10 +119,10 @@ def test_gps_alone_in_the_urban_canyon_is_mostly_unprotected(rinex_dir):
     be seen: every epoch passes, 120 of them 100-200 m off. The default (3) keeps the test
     two degrees of freedom: fewer ``ok`` epochs, and those much closer to the truth. With a
     556 m alert limit the ``ok`` epochs are the protected ones. The NLOS detector (off by
-    default), which takes the weak signals out first, makes more epochs ``ok``, and with the spans
-    redundancy keeps at full weight (``variance_factor = 1``) closer: 72 % at 24 m instead of 57 %
-    at 29 m; with them down-weighted (the packaged 100, chosen on the multi-GNSS training sets)
-    74 % at 30 m."""
+    default), which takes the weak signals out first and down-weights those an epoch's redundancy
+    keeps, makes more epochs ``ok`` (78 % instead of 57 %), each inside its levels -- though not
+    closer (40 m against 29 m; with the settings chosen before, 9/5 dB and ``min_dof`` 1, 74 % at
+    30 m: with ``min_dof`` 2 it takes fewer satellites out of these 5-8-satellite epochs)."""
     d = rinex_dir / "tst2-2020155-urban-static"
     def solve(**overrides):
         res = process(d / "2020_06_03_TST_03.obs.gz", [d / "hksc155d.20n"], load_config(None, {"methods": "wls", **overrides}))
@@ -132,11 +132,10 @@ def test_gps_alone_in_the_urban_canyon_is_mostly_unprotected(rinex_dir):
     classic, err_classic = solve(fde_min_dof=2)
     default, err = solve()
     ok_classic, ok = classic.status == "ok", default.status == "ok"
-    detector, err_detector = solve(**{"nlos.detector": "arcs", "nlos.variance_factor": 1.0})
+    detector, err_detector = solve(**{"nlos.detector": "arcs"})
     ok_detector = detector.status == "ok"
-    assert ok_detector.mean() > ok.mean() + 0.1 and _rms(err_detector[ok_detector]) < _rms(err[ok])
-    weighted, _ = solve(**{"nlos.detector": "arcs"})
-    assert (weighted.status == "ok").mean() > ok.mean() + 0.1
+    assert ok_detector.mean() > ok.mean() + 0.1
+    assert (err_detector[ok_detector] <= np.hypot(detector.hpl_m, detector.vpl_m)[ok_detector]).all()
     assert ok_classic.mean() > 0.95 and (err_classic[ok_classic] > 100.0).sum() > 50
     assert 0.2 < ok.mean() < 0.7 and (default.status[~ok] == "integrity_fail").all()
     assert _rms(err[ok]) < 0.7 * _rms(err_classic[ok_classic])
