@@ -25,9 +25,9 @@ Each iteration, for every window at once:
    range rates a root the identification puts on the negative real axis (an alternating mode:
    no velocity, so the range rates could not be used) is moved to ``z = 1``
    (:func:`~gnss_cli.behavior.behavior_solve.sampled_motion_kernels`): before, such windows kept
-   their position-domain result without the range rates -- 41 of 109 on a simulated training
-   flight, whose 3D RMS this took from 1.07 to 0.93 m (whole segments; six training tracks
-   12-19 % lower);
+   their position-domain result without the range rates -- 41 of the 109 windows of a simulated
+   training flight in 15-epoch windows; in whole segments this took that flight's 3D RMS from
+   1.07 to 0.93 m and the six training flights and drives 3-21 % lower;
 3. (b) with the kernel fixed, solve for the window's trajectory in its behavior from all the
    rows (:func:`~gnss_cli.behavior.behavior_solve.solve_in_behavior`; velocities from the modes
    ``s_i = log(z_i) / dt``, :func:`~gnss_cli.behavior.behavior_solve.shared_modes`), once with
