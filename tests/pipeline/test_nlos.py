@@ -269,12 +269,16 @@ def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -
 
 def test_summary_names_the_detector_only_when_it_runs() -> None:
     """summary.csv's integrity column: off by default, so the defaults write ``fde`` alone; on, the
-    ls/wls rows say so; with integrity off the detector does not run and is not named."""
-    def integrity(**over: object) -> str:
-        return method_settings(load_config(None, {"methods": "wls", **over}), False, False)["wls"].integrity
+    ls/wls rows say so (and whether the spans' delays came from the Doppler); with integrity off
+    the detector does not run and is not named."""
+    def integrity(doppler: bool = False, **over: object) -> str:
+        return method_settings(load_config(None, {"methods": "wls", **over}), doppler, False)["wls"].integrity
 
     assert integrity() == "fde"
     assert integrity(**{"nlos.detector": "arcs"}) == "fde, nlos arcs"
+    by_doppler = {"nlos.detector": "arcs", "nlos.cn0_delay_source": "doppler"}
+    assert integrity(True, **by_doppler) == "fde, nlos arcs (span delays from the Doppler)"
+    assert integrity(False, **by_doppler) == "fde, nlos arcs"  # a file without Doppler: the fix's delays
     assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
 
 
