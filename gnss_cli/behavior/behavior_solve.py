@@ -163,8 +163,8 @@ def sampled_motion_kernels(r: F64) -> tuple[F64, NDArray[np.bool_]]:
     continuous motion has one, and its kernel has no velocity (module docstring), so range rates
     cannot be used with it. An identified kernel gets one where its window's noise is fitted
     better by an alternation than by a motion (on the simulated training flights and drives with
-    range rates, 41 of a flight's 109 windows of 15 epochs). Moving the root to 1 keeps the kernel's other
-    roots and puts one more polynomial degree in its place (``(z - 1)^2 (z - z_2)`` for ``(z - 1)
+    range rates, 41 of a flight's 109 windows of 15 epochs). Moving the root to 1 keeps the
+    kernel's other roots and puts one more polynomial degree in its place (``(z - 1)^2 (z - z_2)`` for ``(z - 1)
     (z + a) (z - z_2)``; ``(z - 1)^3`` when both free roots are negative), which has a velocity.
     Kernels without such a root are returned unchanged; NaN rows stay NaN.
 

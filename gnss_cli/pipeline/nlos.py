@@ -58,8 +58,8 @@ from gnss_cli.gnss.frames import satellite_azimuth_elevation_deg
 from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take_epochs
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
-__all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz", "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means",
-           "keep_redundancy", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
+__all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz",
+           "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
            "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
@@ -193,8 +193,8 @@ def multi_epoch_spans(data: EpochData, sol: MethodSolution, sigma_m: F64, config
     ``r`` each usable pseudorange's residual (m) at the method's positions and clocks ``sol``
     (:func:`prediction_residuals_m`) and ``sigma_m`` the a-priori sigmas of the WLS solution
     (NaN: not a candidate); every epoch keeps its redundancy (:func:`keep_redundancy` with
-    ``multi_epoch_min_dof``, largest ``u`` first). Several epochs pin a trajectory, so a reflection's delay shows in its residuals
-    where a single epoch's fix absorbs much of it."""
+    ``multi_epoch_min_dof``, largest ``u`` first). Several epochs pin a trajectory, so a
+    reflection's delay shows in its residuals where a single epoch's fix absorbs much of it."""
     cfg = config.nlos
     cand = data.usable & np.isfinite(sigma_m)
     u = prediction_residuals_m(data, sol, cand, config) / sigma_m
@@ -313,9 +313,8 @@ def code_minus_doppler_m(data: EpochData) -> tuple[F64, NDArray[np.int64]] | Non
     pseudorange with its satellite clock applied and ``d`` the range rate with its satellite
     clock drift applied (both then hold the receiver clock alike); the median step of the epoch's
     satellites is taken off every step where at least three have one (what is common to them: a
-    receiver clock jump). A run is
-    unbroken while both epochs have a pseudorange and a range rate and are at most 1.5 sampling
-    intervals apart. What is left is a reflection's delay (a step up where it starts, down where
+    receiver clock jump). A run is unbroken while both epochs have a pseudorange and a range rate
+    and are at most 1.5 sampling intervals apart. What is left is a reflection's delay (a step up where it starts, down where
     it ends), code noise and the Doppler's noise integrated. NaN where either is missing."""
     if data.range_rate_m_s is None or data.time_gps_s.size < 2:
         return None
@@ -376,8 +375,10 @@ def doppler_span_delays_m(data: EpochData, runs: NDArray[np.bool_], spans: NDArr
 def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: ProcessingConfig
                  ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """The satellite-epochs ``(T, n)`` to exclude as persistent reflections (module docstring):
-    the C/N0 spans at the fix ``first`` of every satellite (those whose pseudoranges the fix
-    without them predicts short by ``cn0_min_delay_m`` or more on average over the span), then the
+    the C/N0 spans at the fix ``first`` of every satellite (those whose pseudoranges are late by
+    ``cn0_min_delay_m`` or more on average over the span, as the fix without them predicts them
+    or, with ``cn0_delay_source = "doppler"``, :func:`doppler_span_delays_m` where it has a
+    value), then the
     residual spans at the fix ``fit`` gives without them; each stage keeps every epoch's redundancy.
     Also returns the spans' satellite-epochs that redundancy kept (used, flagged, not excluded)."""
     cfg = config.nlos

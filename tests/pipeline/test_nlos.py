@@ -261,7 +261,7 @@ def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(ca
     ("nlos.template_quantile", 1.0, "nlos.template_quantile"), ("nlos.variance_factor", 0.5, "nlos.variance_factor"),
     ("nlos.multi_epoch", "cn0", "nlos.multi_epoch"), ("nlos.multi_epoch_h", 0.0, "nlos.multi_epoch_h"),
     ("nlos.multi_epoch_k", -1.0, "nlos.multi_epoch_k"), ("nlos.multi_epoch_rounds", 0, "nlos.multi_epoch_rounds"),
-    ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source")])
+    ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source"), ("nlos.multi_epoch_min_dof", 0, "nlos.multi_epoch_min_dof")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
