@@ -6,7 +6,7 @@ urban drives (both receiver profiles, fixed seeds), on tst2 and on smartloc-berl
 Cases:
 
 - **Simulated urban drives** (``gnss-simulate --environment urban --trajectory drive``), ``--seeds``
-  seeds (default 10, so 20 drives) for each receiver profile: ``single`` (single-frequency
+  seeds (default 20, so 40 drives) for each receiver profile: ``single`` (single-frequency
   GPS + BeiDou) and ``dual`` (dual-frequency multi-GNSS), ``--duration`` s at 1 Hz (default 300).
   The truth is the simulator's ``truth.csv``; ``faults.csv`` labels every satellite-epoch LOS or
   NLOS, which gives the share of NLOS (and LOS) satellite-epochs that WLS excluded or down-weighted
@@ -24,11 +24,13 @@ and the 3D RMS / 95th percentile / max of the ``ok`` epochs. rnx2rtkp (``../shar
 rnx2rtkp-spp.conf`` with the file's systems) writes no protection levels: availability and errors.
 
 Nothing here chooses a setting: every run uses the packaged defaults but for the settings above.
-Prints a table and writes ``benchmarks/results/urban.json``. The full run (20 drives of 300 s, tst2,
-Berlin) takes about 15 minutes on one core; ``--quick`` (2 drives of 120 s, tst2) about 1 minute.
+Prints a table and writes ``benchmarks/results/urban.json``. The full run (40 drives of 300 s, tst2,
+Berlin) takes about 25 minutes on one core; ``--quick`` (2 drives of 120 s, tst2) about 1 minute.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import argparse
 import json
@@ -47,7 +49,7 @@ from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.io.compression import open_bytes
 from gnss_cli.io.reference import reference_from_csv
-from gnss_cli.pipeline import process
+from gnss_cli.pipeline import load_epochs, process, solve_method
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -127,6 +129,26 @@ def nlos_handling(sol, epochs, faults: pd.DataFrame) -> dict[str, object]:  # no
     return out
 
 
+def los_only_rows(obs: Path, navs: list[Path], faults: pd.DataFrame, ref_at) -> dict[str, object]:  # noqa: ANN001
+    """WLS with every NLOS satellite-epoch of the simulator's labels removed before the fix, with
+    integrity off and at the defaults: what a perfect detector would leave (a bound, not a method)."""
+    out: dict[str, object] = {}
+    for label, over in (("off", {"integrity": "off"}), ("default", {})):
+        cfg = load_config(None, {"methods": "wls", **over})
+        data = load_epochs(obs, navs, cfg)
+        tow = np.round(gps_s2week_tow(data.time_gps_s)[1], 3)
+        t_index = {t: i for i, t in enumerate(tow)}
+        s_index = {s: j for j, s in enumerate(data.sv.astype(str))}
+        f = faults[faults["los"] == 0]
+        ti = np.array([t_index.get(round(t, 3), -1) for t in f["tow_s"].to_numpy()])
+        si = np.array([s_index.get(s, -1) for s in f["sv"].astype(str)])
+        nlos = np.zeros(data.usable.shape, dtype=bool)
+        nlos[ti[(ti >= 0) & (si >= 0)], si[(ti >= 0) & (si >= 0)]] = True
+        sol = solve_method(replace(data, usable=data.usable & ~nlos), "wls", cfg)
+        out[label] = method_row(sol, ref_at(data.time_gps_s), np.ones(tow.size, dtype=bool))
+    return out
+
+
 def _plain_copy(src: Path, folder: Path) -> Path:
     target = folder / src.name.removesuffix(".gz").replace(".crx", ".rnx")
     target.write_bytes(open_bytes(src))
@@ -198,6 +220,8 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
             wls_of[label] = res.solutions["wls"]
         entry["resolved"] = {m: s.to_dict() for m, s in res.settings.items()} if res.settings else {}
     assert t_all is not None and keep is not None
+    if faults is not None:
+        entry["wls_los_only"] = los_only_rows(obs, navs, faults, ref_at)
     sys_list = systems or ",".join(sorted({s[0] for s in res.epochs.sv.astype(str)}))
     pr = peer_row(obs, navs, sys_list, t_all, keep, ref_at)
     if pr is not None:
@@ -299,6 +323,15 @@ def aggregate(entries: list[dict[str, object]], prefix: str, label: str) -> dict
                   "misleading": mis, "misleading_pct_of_ok_with_pl": 100 * mis / max(with_pl, 1),
                   "ok_without_pl": ok - with_pl, "rms_3d_ok_m": rms, "rms_3d_ok_integrity_off_m": rms_o,
                   "rms_ratio_to_off": (rms / rms_o) if rms and rms_o else None}
+    bound = [e["wls_los_only"] for e in chosen if "wls_los_only" in e]
+    if bound:  # WLS without the labelled NLOS, against the full data's integrity-off run
+        b = [x["default"] for x in bound]
+        n_b = sum(x["ok"] for x in b)
+        rms_b = float(np.sqrt(sum(x["rms_3d_m"] ** 2 * x["ok"] for x in b if x.get("rms_3d_m") is not None) / max(n_b, 1)))
+        off = out["wls"]["rms_3d_ok_integrity_off_m"]  # type: ignore[index]
+        out["wls_los_only"] = {"ok": n_b, "epochs": sum(x["epochs"] for x in b), "rms_3d_ok_m": rms_b,
+                               "misleading": sum(x.get("misleading", 0) for x in b),
+                               "rms_ratio_to_off": rms_b / off if off else None}
     nl = [e["settings"][label]["wls"].get("nlos") for e in chosen]  # type: ignore[index]
     nl = [x for x in nl if x]
     if nl:
@@ -327,6 +360,12 @@ def summary_table(entries: list[dict[str, object]], pooled: dict[str, dict[str, 
                              round(a["misleading_pct_of_ok_with_pl"], 2), a["ok_without_pl"],
                              None if a["rms_3d_ok_m"] is None else round(a["rms_3d_ok_m"], 2),
                              None if a["rms_ratio_to_off"] is None else round(a["rms_ratio_to_off"], 2), out])
+        bound = pooled["default"].get(profile, {}).get("wls_los_only")
+        if bound:
+            rows.append([f"simulated drives, {profile} profile", "wls", "defaults, NLOS removed by the labels (bound)",
+                         round(100 * bound["ok"] / max(bound["epochs"], 1), 1), bound["misleading"], None, None,
+                         round(bound["rms_3d_ok_m"], 2),
+                         None if bound["rms_ratio_to_off"] is None else round(bound["rms_ratio_to_off"], 2), "100 / 0"])
     for e in entries:
         if str(e["case"]).startswith("sim-"):
             continue
@@ -350,7 +389,7 @@ def summary_table(entries: list[dict[str, object]], pooled: dict[str, dict[str, 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="2 drives of 120 s and tst2 only")
-    parser.add_argument("--seeds", type=int, default=10, help="simulated drives per receiver profile (seeds 1..N)")
+    parser.add_argument("--seeds", type=int, default=20, help="simulated drives per receiver profile (seeds 1..N)")
     parser.add_argument("--duration", type=float, default=300.0, help="length of each drive, s")
     parser.add_argument("--out", type=Path, default=OUT, help="JSON to write (default benchmarks/results/urban.json)")
     args = parser.parse_args()
@@ -380,7 +419,9 @@ def main() -> None:
                       "with [nlos] detector = \"arcs\" (as configs/urban.toml). 'RMS / RMS integrity off' "
                       "compares with the same run with --integrity off. 'NLOS / LOS sat-epochs out': the "
                       "share of the drives' NLOS and LOS satellite-epochs WLS excluded or down-weighted "
-                      "below 10 %. "
+                      "below 10 %. 'NLOS removed by the labels (bound)': WLS at the defaults after the "
+                      "simulator's NLOS satellite-epochs are taken out before the fix, against the full data's "
+                      "integrity-off run: what a perfect detector would leave. "
                       "The multi-epoch methods' levels are those of their own positions from the WLS epoch's "
                       "fault-free subsets (docs/integrity.md, 'In the multi-epoch methods')."),
             "seeds": n_seeds, "duration_s": duration, "methods": METHODS, "settings": SETTINGS,

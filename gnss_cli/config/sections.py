@@ -196,6 +196,7 @@ class NlosConfig:
     cn0_min_epochs: int = 2
     cn0_min_delay_m: float = 0.0
     cn0_delay_source: str = "fix"
+    cn0_delay_sigmas: float = 0.0
     residual_k: float = 1.0
     residual_h: float = float("inf")
     min_dof: int = 2
@@ -235,6 +236,9 @@ class NlosConfig:
                               f"received {self.failed_epochs!r}")
         if self.cn0_min_delay_m != self.cn0_min_delay_m:
             raise ConfigError("nlos.cn0_min_delay_m: expected a number (m; -inf: no delay test); received nan")
+        if not 0.0 <= self.cn0_delay_sigmas < float("inf"):
+            raise ConfigError(f"nlos.cn0_delay_sigmas: expected a finite number >= 0 (sigmas); "
+                              f"received {self.cn0_delay_sigmas}")
         if self.cn0_delay_source not in NLOS_DELAY_SOURCES:
             raise ConfigError(f"nlos.cn0_delay_source: expected one of {', '.join(NLOS_DELAY_SOURCES)}; "
                               f"received {self.cn0_delay_source!r}")

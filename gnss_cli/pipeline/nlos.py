@@ -59,7 +59,7 @@ from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
 __all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz",
-           "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
+           "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "span_sigma_m", "prediction_sigma_m", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
            "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
@@ -220,6 +220,29 @@ def span_means(spans: NDArray[np.bool_], values: F64) -> F64:
     return out
 
 
+def span_sigma_m(spans: NDArray[np.bool_], prediction_sigma_m: F64, sigma_m: F64 | None) -> F64:
+    """``(T, n)``: the standard deviation (m) of a span's mean delay as a fix predicts it, over each
+    run of ``spans``: ``sqrt(mean(s_p^2) + mean(s^2) / m)`` with ``s_p`` the prediction's sigma
+    (its errors follow the fix's geometry, which changes slowly: they do not average out over the
+    run), ``s`` the pseudoranges' own sigma (white: divided by the run's ``m`` epochs) and ``m``
+    the epochs with both (NaN outside the runs).
+
+    >>> s = np.array([[True], [True], [False]])
+    >>> span_sigma_m(s, np.array([[3.0], [4.0], [np.nan]]), np.array([[2.0], [2.0], [1.0]]))[:, 0].round(6).tolist()
+    [3.807887, 3.807887, nan]
+    """
+    own = np.full(spans.shape, np.nan) if sigma_m is None else sigma_m
+    both = spans & np.isfinite(prediction_sigma_m) & np.isfinite(own)
+    m = np.full(spans.shape, np.nan)
+    if spans.any():
+        run, count = _span_ids(spans)
+        per = np.bincount(run[both.T], minlength=count)
+        m.T[run >= 0] = per[run[run >= 0]]
+    var = (span_means(spans, np.where(both, prediction_sigma_m**2, np.nan))
+           + span_means(spans, np.where(both, own**2, np.nan)) / np.where(m > 0, m, np.nan))
+    return np.sqrt(var)
+
+
 def keep_redundancy(flagged: NDArray[np.bool_], suspicion: F64, used: NDArray[np.bool_],
                     system_index: NDArray[np.int64], n_systems: int, min_dof: int,
                     min_satellites: int) -> NDArray[np.bool_]:
@@ -301,6 +324,26 @@ def prediction_residuals_m(data: EpochData, sol: MethodSolution, which: NDArray[
     if rows.size:
         sigma = np.where(which[rows], 1.0, np.nan)
         out[rows] = check_fixes(take_epochs(data, rows), sol.x_ecef_m[rows], sol.clocks_m[rows], sigma, config).residuals_m
+    return out
+
+
+def prediction_sigma_m(data: EpochData, sol: MethodSolution, which: NDArray[np.bool_]) -> F64:
+    """``(T, n)`` standard deviation (m) of the range that the fix ``sol`` predicts for the satellites
+    ``which`` it left out: ``sqrt(g P g^T)`` with ``P`` the fix's position-and-clock covariance
+    (``cov_m2``) and ``g = [-e, 1_clock]`` the satellite's line of sight ``e`` (unit, receiver to
+    satellite) and its system's clock column. NaN elsewhere, where ``sol`` has no fix and where the
+    satellite's clock is not among the fix's unknowns."""
+    out = np.full(which.shape, np.nan)
+    rows = np.flatnonzero(np.isfinite(sol.x_ecef_m).all(axis=1) & which.any(axis=1))
+    if not rows.size:
+        return out
+    los = data.sat_ecef_m[rows] - sol.x_ecef_m[rows, None, :]
+    los /= np.linalg.norm(los, axis=2, keepdims=True)
+    k = sol.cov_m2.shape[1] - 3
+    clock = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    g = np.concatenate([-los, np.broadcast_to(np.eye(k)[clock], (rows.size, data.sv.size, k))], axis=2)
+    var = np.einsum("tni,tij,tnj->tn", g, sol.cov_m2[rows], g)
+    out[rows] = np.where(which[rows], np.sqrt(np.maximum(var, 0.0)), np.nan)
     return out
 
 
@@ -389,8 +432,9 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
         return keep_redundancy(flagged, np.nan_to_num(suspicion), used, system_index, k, cfg.min_dof,
                                config.min_satellites)
 
-    def without(out: NDArray[np.bool_]) -> MethodSolution:
-        return fit(replace(data, usable=data.usable & ~out))
+    def without(out: NDArray[np.bool_], kept: NDArray[np.bool_] | None = None) -> MethodSolution:
+        scale = None if kept is None or cfg.variance_factor <= 1.0 else np.where(kept, cfg.variance_factor, 1.0)
+        return fit(replace(data, usable=data.usable & ~out, variance_scale=scale))
 
     used = np.isfinite(first.residuals_m)
     spans, deficit = cn0_spans(data, first, config)
@@ -399,12 +443,23 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     second: MethodSolution | None = None
     if np.isfinite(cfg.cn0_min_delay_m) and out.any():
         delay = doppler_span_delays_m(data, out, spans) if cfg.cn0_delay_source == "doppler" else None
+        margin = np.zeros(out.shape)
         if delay is None or np.isnan(delay[out]).any():  # the fix measures the spans the Doppler cannot
-            second = without(out)
+            second = without(out, kept_by_redundancy)
             by_fix = span_means(out, prediction_residuals_m(data, second, out, config))
-            delay = by_fix if delay is None else np.where(np.isfinite(delay), delay, by_fix)
-        kept = out & (np.nan_to_num(delay, nan=np.inf) >= cfg.cn0_min_delay_m)
-        second, out = (second if kept.sum() == out.sum() else None), kept
+            if cfg.cn0_delay_sigmas > 0.0:
+                sigma = span_sigma_m(out, prediction_sigma_m(data, second, out), first.sigma_m)
+                margin = cfg.cn0_delay_sigmas * np.nan_to_num(sigma, nan=np.inf)
+            if delay is not None:
+                margin = np.where(np.isfinite(delay), 0.0, margin)
+                delay = np.where(np.isfinite(delay), delay, by_fix)
+            else:
+                delay = by_fix
+        delay = np.nan_to_num(delay, nan=np.inf)
+        late = out & (delay >= cfg.cn0_min_delay_m)
+        unsure = out & ~late & (delay + margin >= cfg.cn0_min_delay_m)  # not surely early: down-weighted
+        kept_by_redundancy = kept_by_redundancy | unsure
+        second, out = (second if late.sum() == out.sum() else None), late
     if not np.isfinite(cfg.residual_h):
         return out, kept_by_redundancy
     second = second if second is not None else without(out)

@@ -18,7 +18,8 @@ from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.methods import method_settings, solve_multi_epoch
 from gnss_cli.pipeline.nlos import (code_minus_doppler_m, cusum_spans, doppler_span_delays_m, keep_redundancy,
-                                    los_cn0_template_dbhz, persistent_spans, span_means)
+                                    los_cn0_template_dbhz, persistent_spans, prediction_sigma_m, span_means,
+                                    span_sigma_m)
 
 ROOT = Path(__file__).resolve().parents[2]
 ARCS = {"methods": "wls", "nlos.detector": "arcs"}
@@ -69,6 +70,32 @@ def test_span_means_average_each_run() -> None:
     got = span_means(spans, values)
     np.testing.assert_array_equal(got[:, 0], [3.0, 3.0, np.nan, 5.0])
     np.testing.assert_array_equal(got[:, 1], [np.nan, np.nan, np.nan, 1.0])  # a run of NaNs has no mean
+
+
+def test_the_prediction_sigma_is_the_spread_of_the_predicted_range() -> None:
+    """:func:`prediction_sigma_m` against Monte Carlo: fixes drawn from the fix's covariance (two
+    clocks, correlated) move the exact (non-linear) range to a left-out satellite of each system by
+    that standard deviation."""
+    from types import SimpleNamespace as NS
+
+    rng = np.random.default_rng(5)
+    x = np.array([4.0e6, 3.0e5, 4.9e6])
+    sats = x + rng.normal(size=(1, 4, 3)) * 1.2e7 + 2.0e7 * x / np.linalg.norm(x)
+    a = rng.normal(size=(5, 5)) * [3.0, 2.0, 5.0, 4.0, 1.0]
+    cov = a @ a.T
+    data = NS(sat_ecef_m=sats, system_index=np.array([0, 1, 0, 1]), sv=np.array(["G01", "C02", "G03", "C04"]))
+    which = np.array([[True, True, False, True]])
+    got = prediction_sigma_m(data, NS(x_ecef_m=x[None], cov_m2=cov[None]), which)  # type: ignore[arg-type]
+    draws = rng.multivariate_normal(np.zeros(5), cov, size=200_000)
+    rng_0 = np.linalg.norm(sats[0] - x, axis=1)
+    moved = np.linalg.norm(sats[0][None] - (x + draws[:, None, :3]), axis=2) - rng_0 + draws[:, 3 + data.system_index]
+    np.testing.assert_allclose(got[0, which[0]], moved.std(axis=0)[which[0]], rtol=0.01)
+    assert np.isnan(got[0, 2])
+    # a span's sigma: the predictions' variance stays, the pseudoranges' own is divided by its epochs
+    spans = np.array([[True], [True], [True], [False]])
+    s = span_sigma_m(spans, np.array([[1.0], [2.0], [2.0], [5.0]]), np.full((4, 1), 3.0))
+    np.testing.assert_allclose(s[:3, 0], np.sqrt(3.0 + 9.0 / 3))
+    assert np.isnan(s[3, 0])
 
 
 def test_the_template_is_an_upper_quantile_per_bin_and_satellite_level() -> None:
@@ -150,6 +177,34 @@ def test_the_delay_test_keeps_only_spans_the_fix_predicts_short(canyon: Path) ->
     every, late = excluded(**{"nlos.cn0_min_delay_m": -np.inf}), excluded(**{"nlos.cn0_min_delay_m": 2.0})
     assert every.sum() > 300 and not (late & ~every).any() and late.sum() >= 0.9 * every.sum()
     assert not excluded(**{"nlos.cn0_min_delay_m": 1e4}).any()
+
+
+def test_uncertain_delays_down_weight_what_the_fix_cannot_call_early(canyon: Path) -> None:
+    """``cn0_delay_sigmas``: a C/N0 span whose fix-measured delay is short of the threshold but within
+    that many standard deviations of it is down-weighted, not kept at full weight; the spans that are
+    surely late are excluded as before. With a 10 m threshold (the canyon's reflections are late by
+    5-40 m) more of the reflections are then out or at a hundredth of their weight, and no more of
+    the direct signals."""
+    def run(z: float):  # noqa: ANN202
+        cfg = load_config(None, {**ARCS, "integrity": "check", "nlos.failed_epochs": "keep",
+                                 "nlos.cn0_min_delay_m": 10.0, "nlos.cn0_delay_sigmas": z})
+        res = process(canyon / "obs.rnx", [canyon / "nav.rnx"], cfg)
+        return res.solutions["wls"], res.epochs
+
+    (plain, epochs), (wide, _) = run(0.0), run(2.0)
+    np.testing.assert_array_equal(plain.excluded, wide.excluded)  # the same fix measures the same delays
+    low = lambda sol: np.nan_to_num(sol.variance_scale, nan=1.0) > 1.0 if sol.variance_scale is not None else False  # noqa: E731
+    assert (low(wide) & ~low(plain)).sum() > 20 and not (low(plain) & ~low(wide)).any()
+    faults = pd.read_csv(canyon / "faults.csv")
+    tow = np.round(gps_s2week_tow(epochs.time_gps_s)[1], 3)
+    ti = np.searchsorted(tow, np.round(faults["tow_s"].to_numpy(), 3))
+    si = np.searchsorted(epochs.sv.astype(str), faults["sv"].astype(str).to_numpy())
+    ok = (ti < tow.size) & (si < epochs.sv.size)
+    labels = np.full(plain.excluded.shape, -1)
+    labels[ti[ok], si[ok]] = faults["los"].to_numpy()[ok]
+    out = {z: sol.excluded | low(sol) for z, sol in (("plain", plain), ("wide", wide))}
+    assert out["wide"][labels == 0].mean() > out["plain"][labels == 0].mean()
+    assert out["wide"][labels == 1].sum() == out["plain"][labels == 1].sum()
 
 
 def test_open_sky_and_clean_files_lose_no_satellite(open_sky: Path, rinex_dir: Path) -> None:
@@ -261,7 +316,8 @@ def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(ca
     ("nlos.template_quantile", 1.0, "nlos.template_quantile"), ("nlos.variance_factor", 0.5, "nlos.variance_factor"),
     ("nlos.multi_epoch", "cn0", "nlos.multi_epoch"), ("nlos.multi_epoch_h", 0.0, "nlos.multi_epoch_h"),
     ("nlos.multi_epoch_k", -1.0, "nlos.multi_epoch_k"), ("nlos.multi_epoch_rounds", 0, "nlos.multi_epoch_rounds"),
-    ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source"), ("nlos.multi_epoch_min_dof", 0, "nlos.multi_epoch_min_dof")])
+    ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source"), ("nlos.multi_epoch_min_dof", 0, "nlos.multi_epoch_min_dof"),
+    ("nlos.cn0_delay_sigmas", -1.0, "nlos.cn0_delay_sigmas"), ("nlos.cn0_delay_sigmas", float("inf"), "nlos.cn0_delay_sigmas")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
