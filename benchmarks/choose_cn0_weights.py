@@ -2,7 +2,7 @@
 
     python benchmarks/choose_cn0_weights.py [--quick]
 
-Training data: simulated urban drives with seeds 101-103 (``bench_urban.py`` reports seeds 1-10),
+Training data: simulated urban drives with seeds 101-103 (``bench_urban.py`` reports seeds 1-20),
 both receiver profiles, 300 s at 1 Hz; the shared urban sets tst2 (against its truth) and
 smartloc-berlin (availability only: no reference); and ESBC, a clean station, which must not get
 worse. For each candidate -- ``off``, and ``sigma-epsilon`` with ``cn0_ref_dbhz`` 40, 45, 50 --

@@ -8,7 +8,7 @@ which a satellite's residual at their own trajectory stays positive (a one-sided
 again, up to ``multi_epoch_rounds`` times; :func:`gnss_cli.pipeline.nlos.multi_epoch_spans`).
 
 Training data (as ``choose_nlos.py``): simulated urban drives with seeds 101-103
-(``bench_urban.py`` reports seeds 1-10), both receiver profiles, 300 s at 1 Hz, against the
+(``bench_urban.py`` reports seeds 1-20), both receiver profiles, 300 s at 1 Hz, against the
 simulator's truth and its ``faults.csv`` labels; tst2 (against its truth); smartloc-berlin
 (availability only). Candidates: ``off`` and a grid of ``(k, h, rounds)``; ``smoother`` and ``kf``
 with every other option at its default (``stls`` takes the same setting; it is slower and left

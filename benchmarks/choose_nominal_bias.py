@@ -8,7 +8,7 @@ extra error is a bias as much as noise, and several of them at once are what the
 hypotheses miss. ``beta`` changes the levels only (positions, tests and exclusions stay).
 
 Training data (as ``choose_integrity_priors.py``, with more drives): simulated urban drives with
-seeds 101-110 (``bench_urban.py`` reports seeds 1-10), both receiver profiles, 300 s at 1 Hz; tst2 (against its truth);
+seeds 101-110 (``bench_urban.py`` reports seeds 1-20), both receiver profiles, 300 s at 1 Hz; tst2 (against its truth);
 smartloc-berlin, ESBC and rtklib-0759 (levels only). Candidates ``beta`` in {0, 0.5, 1, 1.5, 2,
 3, 4}: ``wls`` with every other option at its default. Per case: availability, misleading epochs
 (``ok`` with the horizontal error above HPL or the vertical above VPL) and the median HPL / VPL of
