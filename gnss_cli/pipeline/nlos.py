@@ -22,7 +22,12 @@ from the first to the last epoch of the span:
    (:func:`code_minus_doppler_m`, :func:`doppler_span_delays_m`): a reflection's pseudoranges
    step up at its start against the range the Doppler integrates and step down at its end, so
    their mean over the span less that over the direct epochs beside it is the delay, free of the
-   fix (which the epoch's other reflections pull).
+   fix (which the epoch's other reflections pull). The fix leaves the tested spans out and weighs
+   the spans redundancy keeps in (below) at ``variance_factor`` times their variance. With
+   ``cn0_delay_sigmas = z > 0`` a span measured by the fix is kept in only when its delay plus
+   ``z`` standard deviations (:func:`prediction_sigma_m`, :func:`span_sigma_m`) is still short of
+   the threshold -- surely early -- and a span neither surely late nor surely early is
+   down-weighted like those redundancy keeps.
 2. **Persistent positive residuals.** At the WLS fix without the C/N0 spans, the standardized
    post-fit residual ``u = r / sigma`` (``sigma`` the a-priori pseudorange sigma) of each
    satellite; a one-sided CUSUM over runs of ``u > residual_k``: a run is a span when
@@ -59,8 +64,9 @@ from gnss_cli.pipeline.integrity import check_fixes, merge_epochs, monitor, take
 from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, take_solution
 
 __all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz",
-           "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy", "span_sigma_m", "prediction_sigma_m", "cn0_spans", "residual_spans", "prediction_residuals_m", "exclude_nlos",
-           "monitor_without_nlos"]
+           "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy",
+           "span_sigma_m", "prediction_sigma_m", "cn0_spans", "residual_spans", "prediction_residuals_m",
+           "exclude_nlos", "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
 #: The direct epochs that give a C/N0 span's code-minus-Doppler level are at most this far (s)
@@ -331,8 +337,8 @@ def prediction_sigma_m(data: EpochData, sol: MethodSolution, which: NDArray[np.b
     """``(T, n)`` standard deviation (m) of the range that the fix ``sol`` predicts for the satellites
     ``which`` it left out: ``sqrt(g P g^T)`` with ``P`` the fix's position-and-clock covariance
     (``cov_m2``) and ``g = [-e, 1_clock]`` the satellite's line of sight ``e`` (unit, receiver to
-    satellite) and its system's clock column. NaN elsewhere, where ``sol`` has no fix and where the
-    satellite's clock is not among the fix's unknowns."""
+    satellite) and its system's clock column. NaN elsewhere, where ``sol`` has no fix and where its
+    covariance is not finite."""
     out = np.full(which.shape, np.nan)
     rows = np.flatnonzero(np.isfinite(sol.x_ecef_m).all(axis=1) & which.any(axis=1))
     if not rows.size:
@@ -423,7 +429,11 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     or, with ``cn0_delay_source = "doppler"``, :func:`doppler_span_delays_m` where it has a
     value), then the
     residual spans at the fix ``fit`` gives without them; each stage keeps every epoch's redundancy.
-    Also returns the spans' satellite-epochs that redundancy kept (used, flagged, not excluded)."""
+    The fix that measures the delays leaves the spans out and weighs those redundancy keeps in at
+    ``variance_factor`` times their variance. Also returns the satellite-epochs to down-weight:
+    the spans redundancy kept (used, flagged, not excluded) and, with ``cn0_delay_sigmas > 0``,
+    the spans whose fix-measured delay is short of ``cn0_min_delay_m`` but not by that many of its
+    standard deviations (:func:`span_sigma_m`)."""
     cfg = config.nlos
     k = len(data.systems)
     system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
@@ -462,7 +472,7 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
         second, out = (second if late.sum() == out.sum() else None), late
     if not np.isfinite(cfg.residual_h):
         return out, kept_by_redundancy
-    second = second if second is not None else without(out)
+    second = second if second is not None else without(out, kept_by_redundancy)
     spans, u = residual_spans(second, config)
     return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m)), kept_by_redundancy
 
