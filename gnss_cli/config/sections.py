@@ -210,8 +210,10 @@ class NlosConfig:
 
     def validated(self) -> "NlosConfig":
         """Self, after checking every value; raises :class:`ConfigError` naming the key."""
-        if self.detector not in NLOS_DETECTORS:
-            raise ConfigError(f"nlos.detector: expected one of {', '.join(NLOS_DETECTORS)}; received {self.detector!r}")
+        for name, allowed in (("detector", NLOS_DETECTORS), ("failed_epochs", NLOS_FAILED_EPOCHS),
+                              ("cn0_delay_source", NLOS_DELAY_SOURCES), ("multi_epoch", NLOS_MULTI_EPOCH)):
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"nlos.{name}: expected one of {', '.join(allowed)}; received {getattr(self, name)!r}")
         if not 0.5 <= self.template_quantile < 1.0:
             raise ConfigError(f"nlos.template_quantile: expected 0.5 <= value < 1; received {self.template_quantile}")
         if not 0.0 < self.template_bin_deg <= 90.0:
@@ -231,20 +233,11 @@ class NlosConfig:
         if not 1.0 <= self.variance_factor < float("inf"):
             raise ConfigError(f"nlos.variance_factor: expected a finite value >= 1 (1: full weight); "
                               f"received {self.variance_factor}")
-        if self.failed_epochs not in NLOS_FAILED_EPOCHS:
-            raise ConfigError(f"nlos.failed_epochs: expected one of {', '.join(NLOS_FAILED_EPOCHS)}; "
-                              f"received {self.failed_epochs!r}")
         if self.cn0_min_delay_m != self.cn0_min_delay_m:
             raise ConfigError("nlos.cn0_min_delay_m: expected a number (m; -inf: no delay test); received nan")
         if not 0.0 <= self.cn0_delay_sigmas < float("inf"):
             raise ConfigError(f"nlos.cn0_delay_sigmas: expected a finite number >= 0 (sigmas); "
                               f"received {self.cn0_delay_sigmas}")
-        if self.cn0_delay_source not in NLOS_DELAY_SOURCES:
-            raise ConfigError(f"nlos.cn0_delay_source: expected one of {', '.join(NLOS_DELAY_SOURCES)}; "
-                              f"received {self.cn0_delay_source!r}")
-        if self.multi_epoch not in NLOS_MULTI_EPOCH:
-            raise ConfigError(f"nlos.multi_epoch: expected one of {', '.join(NLOS_MULTI_EPOCH)}; "
-                              f"received {self.multi_epoch!r}")
         if not 0.0 <= self.multi_epoch_k < float("inf"):
             raise ConfigError(f"nlos.multi_epoch_k: expected a number >= 0 (sigmas); received {self.multi_epoch_k}")
         if not 0.0 < self.multi_epoch_h < float("inf"):
