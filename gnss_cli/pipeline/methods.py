@@ -83,8 +83,14 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
     snapshot_integrity = config.integrity + (f", robust {config.robust}" if config.robust != "off" else "")
     if config.integrity != "off" and config.nlos.detector != "off":  # the reflections left out first
         snapshot_integrity += f", nlos {config.nlos.detector}"
-        if config.nlos.cn0_delay_source == "doppler" and has_doppler and np.isfinite(config.nlos.cn0_min_delay_m):
-            snapshot_integrity += " (span delays from the Doppler)"  # without Doppler they come from the fix
+        delay = []
+        if np.isfinite(config.nlos.cn0_min_delay_m):
+            if config.nlos.cn0_delay_source == "doppler" and has_doppler:  # without Doppler they come from the fix
+                delay.append("span delays from the Doppler")
+            if config.nlos.cn0_delay_sigmas > 0.0:  # the fix's delays: unsure spans down-weighted
+                delay.append(f"delay margin {config.nlos.cn0_delay_sigmas:g} sigma")
+        if delay:
+            snapshot_integrity += f" ({', '.join(delay)})"
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
     spans = (", reflection spans" if config.integrity != "off" and config.nlos.multi_epoch != "off" else "")
     tested += spans

@@ -325,7 +325,7 @@ def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -
 
 def test_summary_names_the_detector_only_when_it_runs() -> None:
     """summary.csv's integrity column: off by default, so the defaults write ``fde`` alone; on, the
-    ls/wls rows say so (and whether the spans' delays came from the Doppler); with integrity off
+    ls/wls rows say so (whether the spans' delays came from the Doppler, and their margin); with integrity off
     the detector does not run and is not named."""
     def integrity(doppler: bool = False, **over: object) -> str:
         return method_settings(load_config(None, {"methods": "wls", **over}), doppler, False)["wls"].integrity
@@ -335,6 +335,11 @@ def test_summary_names_the_detector_only_when_it_runs() -> None:
     by_doppler = {"nlos.detector": "arcs", "nlos.cn0_delay_source": "doppler"}
     assert integrity(True, **by_doppler) == "fde, nlos arcs (span delays from the Doppler)"
     assert integrity(False, **by_doppler) == "fde, nlos arcs"  # a file without Doppler: the fix's delays
+    margin = {"nlos.detector": "arcs", "nlos.cn0_delay_sigmas": 1.5}
+    assert integrity(**margin) == "fde, nlos arcs (delay margin 1.5 sigma)"
+    assert integrity(True, **by_doppler, **{"nlos.cn0_delay_sigmas": 2.0}) == \
+        "fde, nlos arcs (span delays from the Doppler, delay margin 2 sigma)"
+    assert integrity(**margin, **{"nlos.cn0_min_delay_m": -np.inf}) == "fde, nlos arcs"  # no delay test
     assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
 
 
