@@ -50,6 +50,7 @@ from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.io.compression import open_bytes
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
+from results_page import results_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -147,6 +148,37 @@ def los_only_rows(obs: Path, navs: list[Path], faults: pd.DataFrame, ref_at) -> 
         sol = solve_method(replace(data, usable=data.usable & ~nlos), "wls", cfg)
         out[label] = method_row(sol, ref_at(data.time_gps_s), np.ones(tow.size, dtype=bool))
     return out
+
+
+CASE_COLUMNS = ["case", "setting", "method", "epochs", "ok", "ok_without_pl", "misleading", "rms_3d_m", "p95_3d_m",
+                "max_3d_m", "rms_3d_all_m", "statuses", "nlos_dropped_pct", "los_dropped_pct"]
+"""The per-case table of the JSON: one row per case, setting and method (``los_only off`` /
+``los_only default``: WLS with the labelled NLOS removed, :func:`los_only_rows`)."""
+
+
+def _r(v: object) -> object:
+    return round(v, 3) if isinstance(v, float) else v
+
+
+def case_table(entries: list[dict[str, object]]) -> dict[str, object]:
+    """The cases as one table (columns named once; metres and percent to 3 decimals), the rnx2rtkp
+    rows per case and the resolved settings (one entry when every case ran the same)."""
+    rows: list[list[object]] = []
+    for e in entries:
+        runs = [(label, m, r) for label, by in e["settings"].items() for m, r in by.items() if m != "seconds"]  # type: ignore[union-attr]
+        runs += [(f"los_only {label}", "wls", r) for label, r in e.get("wls_los_only", {}).items()]  # type: ignore[union-attr]
+        for label, m, r in runs:
+            nl = r.get("nlos", {})
+            statuses = ",".join(f"{k}:{v}" for k, v in sorted(r.get("statuses", {}).items()))
+            rows.append([e["case"], label, m, *(_r(r.get(c)) for c in CASE_COLUMNS[3:11]), statuses,
+                         _r(nl.get("nlos_dropped_pct")), _r(nl.get("los_dropped_pct"))])
+    resolved = {str(e["case"]): e.get("resolved", {}) for e in entries}
+    same = len({json.dumps(v, sort_keys=True) for v in resolved.values()}) == 1
+    return {"columns": CASE_COLUMNS, "rows": rows,
+            "rnx2rtkp": {str(e["case"]): {k: (_r(v) if not isinstance(v, dict) else {a: _r(b) for a, b in v.items()})
+                                          for k, v in e["rnx2rtkp"].items()}  # type: ignore[union-attr]
+                         for e in entries if e.get("rnx2rtkp")},
+            "resolved": next(iter(resolved.values())) if same else resolved}
 
 
 def _plain_copy(src: Path, folder: Path) -> Path:
@@ -409,7 +441,7 @@ def main() -> None:
         for p, agg in by_profile.items():
             print(f"simulated {p}-profile drives, {SETTING_NAMES[label]}, pooled: {json.dumps(agg, indent=None)}")
     if not args.quick:
-        args.out.write_text(json.dumps({
+        args.out.write_text(results_json({
             "title": "Integrity in street canyons",
             "command": "python benchmarks/bench_urban.py",
             "table": summary_table(entries, summary),
@@ -425,8 +457,8 @@ def main() -> None:
                       "The multi-epoch methods' levels are those of their own positions from the WLS epoch's "
                       "fault-free subsets (docs/integrity.md, 'In the multi-epoch methods')."),
             "seeds": n_seeds, "duration_s": duration, "methods": METHODS, "settings": SETTINGS,
-            "pooled": summary, "cases": entries, "seconds": time.perf_counter() - t0,
-        }, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+            "pooled": summary, "cases": case_table(entries), "seconds": time.perf_counter() - t0,
+        }))
         print(f"wrote {args.out}", file=sys.stderr)
 
 

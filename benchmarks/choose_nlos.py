@@ -48,7 +48,6 @@ The evaluation seeds stay unseen.
 
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 import time
@@ -60,6 +59,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import nlos_handling  # noqa: E402
 from choose_cn0_weights import score_candidates, training_cases, training_run  # noqa: E402
+from results_page import results_json  # noqa: E402
 
 from gnss_cli.pipeline import RunResult  # noqa: E402
 
@@ -117,6 +117,21 @@ def _extra(faults: dict[str, pd.DataFrame]):  # noqa: ANN202 - the score_candida
     return extra
 
 
+CASE_COLUMNS = ["candidate", "case", "epochs", "ok", "misleading", "rms_3d_m", "p95_3d_m", "max_3d_m", "excluded",
+                "nlos_dropped_pct", "los_dropped_pct"]
+
+
+def case_table(results: dict[str, dict[str, dict[str, object]]]) -> dict[str, object]:
+    """Every candidate's cases as one table (columns named once; metres and percent to 3 decimals)."""
+    def r(v: object) -> object:
+        return round(v, 3) if isinstance(v, float) else v
+
+    rows = [[cand, name, *(r(row.get(c)) for c in CASE_COLUMNS[2:9]),
+             *(r(row.get("nlos", {}).get(c)) for c in CASE_COLUMNS[9:])]  # type: ignore[union-attr]
+            for cand, by_case in results.items() for name, row in by_case.items()]
+    return {"columns": CASE_COLUMNS, "rows": rows}
+
+
 def _pooled(rows: dict[str, dict[str, object]], key: str) -> float:
     """The ``key`` share (%) of the drives' NLOS or LOS satellite-epochs, pooled over the drives."""
     nl = [r["nlos"] for r in rows.values() if "nlos" in r]
@@ -168,7 +183,7 @@ def main() -> None:
     print("\n".join(lines))
     print(f"chosen: {chosen} (NLOS {nlos_pct[chosen]:.1f} %, LOS {los_pct[chosen]:.1f} %, score {scores[chosen]:.3f})")
     if not quick:
-        OUT.write_text(json.dumps({"title": "Choosing the NLOS detector on training data",
+        OUT.write_text(results_json({"title": "Choosing the NLOS detector on training data",
                                    "command": "python benchmarks/choose_nlos.py",
                                    "table": {"columns": ["candidate", *[f"{n}: ok / RMS / excluded" for n in names],
                                                          "NLOS / LOS satellite-epochs out, % (drives)",
@@ -178,8 +193,8 @@ def main() -> None:
                                             "bench_urban.py reports other seeds.",
                                    "seeds": seeds, "duration_s": duration, "candidates": CANDIDATES,
                                    "scores": scores, "misleading": misleading, "nlos_dropped_pct": nlos_pct,
-                                   "los_dropped_pct": los_pct, "chosen": chosen, "cases": results,
-                                   "seconds": time.perf_counter() - t0}, indent=1) + "\n")
+                                   "los_dropped_pct": los_pct, "chosen": chosen, "cases": case_table(results),
+                                   "seconds": time.perf_counter() - t0}))
 
 
 if __name__ == "__main__":

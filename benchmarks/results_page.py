@@ -57,6 +57,23 @@ ADAPTERS: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
 """File name -> function turning a result file of an older shape into title, command, table."""
 
 
+def results_json(data: object) -> str:
+    """A result file's text: JSON indented by one space, each array of plain values (a table row)
+    on one line, so that a table of hundreds of rows stays hundreds of lines.
+
+    >>> print(results_json({"rows": [[1, "a"], [2.5, None]]}), end="")
+    {
+     "rows": [
+      [1, "a"],
+      [2.5, null]
+     ]
+    }
+    """
+    text = json.dumps(data, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+    flat = re.compile(r"\[\n\s*([^\[\]{}]*?)\n\s*\]")  # JSON strings hold no raw newline
+    return flat.sub(lambda m: "[" + ", ".join(v.strip() for v in m.group(1).split(",\n")) + "]", text) + "\n"
+
+
 def has_table(data: object) -> bool:
     """Whether ``data`` has the fields a section is made of."""
     return (isinstance(data, dict) and isinstance(data.get("title"), str) and isinstance(data.get("command"), str)
