@@ -448,13 +448,11 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
                                                    floats=tuple(f.name for f in fields(KalmanConfig)
                                                                 if f.name not in ("model", "output"))))
         if "nlos" in data:
-            cfg = replace(cfg, nlos=_apply_table(cfg.nlos, data["nlos"], "nlos", source,
-                                                 text=("detector", "failed_epochs", "multi_epoch", "cn0_delay_source"),
-                                                 floats=tuple(f.name for f in fields(NlosConfig) if f.name not in
-                                                              ("detector", "failed_epochs", "multi_epoch", "cn0_delay_source",
-                                                               "template_min_count",
-                                                               "cn0_min_epochs", "min_dof", "multi_epoch_rounds",
-                                                               "multi_epoch_min_dof"))))
+            text = ("detector", "failed_epochs", "multi_epoch", "cn0_delay_source")
+            counts = ("template_min_count", "cn0_min_epochs", "min_dof", "multi_epoch_rounds", "multi_epoch_min_dof")
+            cfg = replace(cfg, nlos=_apply_table(cfg.nlos, data["nlos"], "nlos", source, text=text,
+                                                 floats=tuple(f.name for f in fields(NlosConfig)
+                                                              if f.name not in text + counts)))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
