@@ -18,9 +18,12 @@ Rule: the allowed candidates have no more misleading epochs (summed over the cas
 reference) than ``off``, exclude at most 5 % of the LOS satellite-epochs of the drives, keep the
 availability of tst2 and smartloc-berlin within 2 points of ``off``'s, and on ESBC exclude no
 more satellite-epochs than ``off`` (clean signals: nothing to flag) with its RMS within 1 cm;
-among them, the one with the lowest score (the mean RMS over ``off``'s) of those that take at least
-90 % of the drives' NLOS satellite-epochs out or below a tenth of their weight (the share the
-issue asks of the canyons; when none does, the one that takes the largest share). ``off`` is
+among them, the one with the lowest score (the mean RMS over ``off``'s) of those that surely take at
+least 90 % of the drives' NLOS satellite-epochs out or below a tenth of their weight (the share the
+issue asks of the canyons): in each receiver profile, the lower end of a 90 % bootstrap interval
+over the drives (``scipy.stats.bootstrap``, each drive one sample) of the mean share per drive is
+at least 90 % -- a one-sided 95 % bound on what an unseen drive of that profile gets. When none
+does, the one with the largest such bound. ``off`` is
 chosen when no ``arcs`` candidate is allowed. The candidates with a delay test
 (``cn0_min_delay_m``: a C/N0 span stays out only when the fix without it predicts the
 satellite's pseudoranges short by at least that much, so that an attenuated direct signal is
@@ -39,11 +42,15 @@ detector costs away from street canyons). Prints a table and writes
 ``benchmarks/results/choose_nlos.json``.
 About 8 minutes on one core.
 
-Why ten seeds: the choice was first made on seeds 101-103, where the chosen candidate took
-92.0 % of the drives' reflections out (pooled; each drive 90-96 %) and then 85.5-86.3 % of the
-evaluation drives': three drives per profile hold too few reflection spans to tell a share near
-the 90 % bound from one below it (as ``choose_nominal_bias.py`` found for its misleading rate).
-The evaluation seeds stay unseen.
+Why ten seeds and a bound: the choice was first made on seeds 101-103, where the chosen candidate
+took 92.0 % of the drives' reflections out (pooled; each drive 90-96 %) and then 85.5-86.3 % of
+the evaluation drives': three drives per profile hold too few reflection spans to tell a share
+near the 90 % bound from one below it (as ``choose_nominal_bias.py`` found for its misleading
+rate). On seeds 101-110 the rule took the pooled share (the candidate "7/4 dB, dof 2, delay 0 m":
+91.0 %, each drive 76-98 %) and the evaluation drives then got 89.4 % / 90.6 %: a pooled share
+just over the bar says nothing about the next drive, whose share spreads by 5-10 points. The
+bound over the drives asks the training data for what the bar means. The evaluation seeds stay
+unseen.
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.stats import bootstrap
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import nlos_handling  # noqa: E402
@@ -103,6 +111,10 @@ TRAINING_SEEDS = list(range(101, 111))
 REAL = ("tst2", "smartloc-berlin")
 MAX_LOS_PCT = 5.0
 MIN_NLOS_PCT = 90.0
+SHARE_CONFIDENCE = 0.90
+"""Two-sided level of the bootstrap interval of a profile's mean NLOS share; its lower end is a
+one-sided 95 % bound."""
+PROFILES = ("single", "dual")
 MAX_AVAILABILITY_LOSS = 0.02
 MAX_ESBC_RMS_INCREASE_M = 0.01
 
@@ -140,6 +152,21 @@ def _pooled(rows: dict[str, dict[str, object]], key: str) -> float:
     return float(sum(x[key] * x[f"{kind}_candidates"] for x in nl) / max(n, 1))
 
 
+def share_lower_bound(rows: dict[str, dict[str, object]], profile: str) -> float:
+    """A one-sided 95 % lower bound (%) on the mean NLOS share per drive of ``profile``'s drives.
+
+    The lower end of a :data:`SHARE_CONFIDENCE` percentile bootstrap over the drives (each drive one
+    sample: its reflections come in spans, so its satellite-epochs are not independent); with a
+    single drive, that drive's share."""
+    shares = np.array([r["nlos"]["nlos_dropped_pct"] for n, r in rows.items()  # type: ignore[index]
+                       if n.startswith(f"sim-{profile}-") and "nlos" in r], dtype=float)
+    if shares.size < 2 or np.ptp(shares) == 0.0:
+        return float(shares.min()) if shares.size else float("nan")
+    res = bootstrap((shares,), np.mean, confidence_level=SHARE_CONFIDENCE, method="percentile",
+                    n_resamples=4000, random_state=0)
+    return float(res.confidence_interval.low)
+
+
 def main() -> None:
     seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
     seeds = seeds if quick else TRAINING_SEEDS
@@ -150,12 +177,13 @@ def main() -> None:
         results, _ = score_candidates(CANDIDATES, cases, "choose_nlos", extra=_extra(faults))
     off = results["off"]
     names = list(off)
-    scores, misleading, nlos_pct, los_pct = {}, {}, {}, {}
+    scores, misleading, nlos_pct, los_pct, nlos_low = {}, {}, {}, {}, {}
     for cand, rows in results.items():
         ratios = [rows[n]["rms_3d_m"] / off[n]["rms_3d_m"] for n in names if rows[n].get("rms_3d_m") and off[n].get("rms_3d_m")]
         scores[cand] = float(np.mean(ratios))
         misleading[cand] = int(sum(rows[n].get("misleading", 0) for n in names))
         nlos_pct[cand], los_pct[cand] = _pooled(rows, "nlos_dropped_pct"), _pooled(rows, "los_dropped_pct")
+        nlos_low[cand] = {p: share_lower_bound(rows, p) for p in PROFILES}
 
     def allowed(cand: str) -> bool:
         rows = results[cand]
@@ -166,34 +194,41 @@ def main() -> None:
                                       and rows["esbc"]["excluded"] <= off["esbc"]["excluded"])))
 
     arcs = [c for c in CANDIDATES if c != "off" and allowed(c)]
-    enough = [c for c in arcs if nlos_pct[c] >= MIN_NLOS_PCT]
+    def surely(cand: str) -> float:  # the lower of the two profiles' bounds
+        return min(nlos_low[cand].values())
+
+    enough = [c for c in arcs if surely(c) >= MIN_NLOS_PCT]
     chosen = (min(enough, key=lambda c: scores[c]) if enough
-              else max(arcs, key=lambda c: (round(nlos_pct[c], 1), -scores[c])) if arcs else "off")
-    lines = ["| candidate | " + " | ".join(names) + " | NLOS / LOS out % | score | misleading | allowed |",
-             "|---|" + "---|" * (len(names) + 4)]
+              else max(arcs, key=lambda c: (round(surely(c), 1), -scores[c])) if arcs else "off")
+    lines = ["| candidate | " + " | ".join(names) + " | NLOS / LOS out % | NLOS out, 95 % lower bound per drive, "
+             "single / dual % | score | misleading | allowed |",
+             "|---|" + "---|" * (len(names) + 5)]
     table_rows: list[list[object]] = []
     for cand, rows in results.items():
         cells = [f"{100 * rows[n]['availability']:.0f} % / " + (f"{rows[n]['rms_3d_m']:.2f} m" if rows[n].get("rms_3d_m")
                  else "–") + f" / {rows[n]['excluded']}" for n in names]
         ok = "yes" if cand == "off" or allowed(cand) else "no"
-        lines.append(f"| {cand} | " + " | ".join(cells) + f" | {nlos_pct[cand]:.1f} / {los_pct[cand]:.1f} | "
+        low = " / ".join(f"{nlos_low[cand][p]:.1f}" for p in PROFILES)
+        lines.append(f"| {cand} | " + " | ".join(cells) + f" | {nlos_pct[cand]:.1f} / {los_pct[cand]:.1f} | {low} | "
                      f"{scores[cand]:.3f} | {misleading[cand]} | {ok} |")
-        table_rows.append([cand, *cells, f"{nlos_pct[cand]:.1f} / {los_pct[cand]:.1f}", round(scores[cand], 3),
+        table_rows.append([cand, *cells, f"{nlos_pct[cand]:.1f} / {los_pct[cand]:.1f}", low, round(scores[cand], 3),
                            misleading[cand], ok])
     print("\n".join(lines))
-    print(f"chosen: {chosen} (NLOS {nlos_pct[chosen]:.1f} %, LOS {los_pct[chosen]:.1f} %, score {scores[chosen]:.3f})")
+    print(f"chosen: {chosen} (NLOS {nlos_pct[chosen]:.1f} %, at least {surely(chosen):.1f} % per drive (95 %), "
+          f"LOS {los_pct[chosen]:.1f} %, score {scores[chosen]:.3f})")
     if not quick:
         OUT.write_text(results_json({"title": "Choosing the NLOS detector on training data",
                                    "command": "python benchmarks/choose_nlos.py",
                                    "table": {"columns": ["candidate", *[f"{n}: ok / RMS / excluded" for n in names],
                                                          "NLOS / LOS satellite-epochs out, % (drives)",
+                                                         "NLOS out, 95 % lower bound per drive, single / dual %",
                                                          "score (RMS / off's, mean)", "misleading epochs", "allowed"],
                                              "rows": table_rows},
                                    "notes": f"WLS, default integrity; chosen: {chosen}. Training data only: "
                                             "bench_urban.py reports other seeds.",
                                    "seeds": seeds, "duration_s": duration, "candidates": CANDIDATES,
                                    "scores": scores, "misleading": misleading, "nlos_dropped_pct": nlos_pct,
-                                   "los_dropped_pct": los_pct, "chosen": chosen, "cases": case_table(results),
+                                   "los_dropped_pct": los_pct, "nlos_dropped_low_pct": nlos_low, "chosen": chosen, "cases": case_table(results),
                                    "seconds": time.perf_counter() - t0}))
 
 

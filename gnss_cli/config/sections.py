@@ -196,7 +196,7 @@ class NlosConfig:
     cn0_min_epochs: int = 2
     cn0_min_delay_m: float = 0.0
     cn0_delay_source: str = "fix"
-    cn0_delay_sigmas: float = 0.0
+    cn0_delay_sigmas: float = 1.0
     residual_k: float = 1.0
     residual_h: float = float("inf")
     min_dof: int = 2

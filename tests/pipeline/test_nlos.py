@@ -331,13 +331,15 @@ def test_summary_names_the_detector_only_when_it_runs() -> None:
         return method_settings(load_config(None, {"methods": "wls", **over}), doppler, False)["wls"].integrity
 
     assert integrity() == "fde"
-    assert integrity(**{"nlos.detector": "arcs"}) == "fde, nlos arcs"
-    by_doppler = {"nlos.detector": "arcs", "nlos.cn0_delay_source": "doppler"}
+    assert integrity(**{"nlos.detector": "arcs"}) == "fde, nlos arcs (delay margin 1 sigma)"  # packaged margin
+    plain = {"nlos.detector": "arcs", "nlos.cn0_delay_sigmas": 0.0}
+    assert integrity(**plain) == "fde, nlos arcs"
+    by_doppler = {**plain, "nlos.cn0_delay_source": "doppler"}
     assert integrity(True, **by_doppler) == "fde, nlos arcs (span delays from the Doppler)"
     assert integrity(False, **by_doppler) == "fde, nlos arcs"  # a file without Doppler: the fix's delays
     margin = {"nlos.detector": "arcs", "nlos.cn0_delay_sigmas": 1.5}
     assert integrity(**margin) == "fde, nlos arcs (delay margin 1.5 sigma)"
-    assert integrity(True, **by_doppler, **{"nlos.cn0_delay_sigmas": 2.0}) == \
+    assert integrity(True, **{**by_doppler, "nlos.cn0_delay_sigmas": 2.0}) == \
         "fde, nlos arcs (span delays from the Doppler, delay margin 2 sigma)"
     assert integrity(**margin, **{"nlos.cn0_min_delay_m": -np.inf}) == "fde, nlos arcs"  # no delay test
     assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
