@@ -58,11 +58,12 @@ def test_rtklib_peer_sets_what_it_claims() -> None:
 
 def test_the_nlos_detector_is_off_by_default_and_on_in_the_urban_settings() -> None:
     """Off in the packaged defaults (it costs accuracy away from street canyons); configs/urban.toml
-    turns it on beside its multi-satellite protection levels, every other [nlos] key packaged."""
+    turns it on beside its multi-satellite protection levels, with fixes that rest on suspected
+    reflections not ok (``min_direct_dof`` 1), every other [nlos] key packaged."""
     default = load_config(None)
     assert default.nlos.detector == "off"
     urban = load_config(ROOT / "configs" / "urban.toml")
-    assert urban.nlos == replace(default.nlos, detector="arcs")
+    assert urban.nlos == replace(default.nlos, detector="arcs", min_direct_dof=1)
     assert urban.max_simultaneous_faults == 3 and urban.prior_fault_satellite == 1e-2
 
 

@@ -449,7 +449,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
                                                                 if f.name not in ("model", "output"))))
         if "nlos" in data:
             text = ("detector", "failed_epochs", "multi_epoch", "cn0_delay_source")
-            counts = ("template_min_count", "cn0_min_epochs", "min_dof", "multi_epoch_rounds", "multi_epoch_min_dof")
+            counts = ("template_min_count", "cn0_min_epochs", "min_dof", "min_direct_dof", "multi_epoch_rounds",
+                      "multi_epoch_min_dof")
             cfg = replace(cfg, nlos=_apply_table(cfg.nlos, data["nlos"], "nlos", source, text=text,
                                                  floats=tuple(f.name for f in fields(NlosConfig)
                                                               if f.name not in text + counts)))

@@ -202,6 +202,7 @@ class NlosConfig:
     min_dof: int = 2
     failed_epochs: str = "retry"
     variance_factor: float = 100.0
+    min_direct_dof: int = 0
     multi_epoch: str = "cusum"
     multi_epoch_k: float = 1.5
     multi_epoch_h: float = 5.0
@@ -247,4 +248,6 @@ class NlosConfig:
         for name in ("min_dof", "multi_epoch_min_dof"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"nlos.{name}: expected >= 1 (an epoch keeps a test); received {getattr(self, name)}")
+        if self.min_direct_dof < 0:
+            raise ConfigError(f"nlos.min_direct_dof: expected >= 0 (0: off); received {self.min_direct_dof}")
         return self

@@ -102,7 +102,7 @@ from gnss_cli.pipeline.measurements import (
     standardized,
 )
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, as_wls_used
+from gnss_cli.pipeline.results import PASSED_FIX, EpochData, MethodSolution, as_wls_used
 
 __all__ = ["alternate_windows", "behavior_tests", "WindowRun", "window_rows", "RTOL", "MAX_ALTERNATIONS", "GATE_PASSES"]
 
@@ -550,7 +550,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
     colors: list[list[int]] = [[0] * run.epochs.shape[0] for run in runs]
     for (a, e, i, b), c in zip(spans, _colors([(a, e) for a, e, _, _ in spans])):
         colors[i][b] = c
-    fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
+    fix = np.isin(wls.status, PASSED_FIX) & np.isfinite(wls.x_ecef_m).all(axis=1)
     base = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))
     previous: list[dict[str, F64]] = [{} for _ in runs]
     cache: _Modes = {}

@@ -879,8 +879,8 @@ def monitor_fixes(data: EpochData, sol: MethodSolution, wls_status: NDArray[np.s
         return replace(sol, status=status, test_stat=stat, residuals_m=residuals, hpl_m=hpl, vpl_m=vpl)
     status = final_status(sol.status, failed, dof, sol.gdop, np.full(T, np.nan), np.full(T, np.nan),
                           replace(config, alert_limit_h_m=np.inf, alert_limit_v_m=np.inf))
-    for word in (EpochStatus.VPL_LIMIT, EpochStatus.HPL_LIMIT):  # the WLS epoch's protection levels
-        status[(status == EpochStatus.OK) & (wls_status == word)] = word.value
+    for word in (EpochStatus.VPL_LIMIT, EpochStatus.HPL_LIMIT, EpochStatus.NLOS_DEPENDENT):  # the WLS epoch's
+        status[(status == EpochStatus.OK) & (wls_status == word)] = word.value  # levels and direct satellites
     return replace(sol, status=status, test_stat=stat, residuals_m=residuals)
 
 

@@ -37,7 +37,7 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
 from gnss_cli.pipeline.kalman import linearized_measurements, nominal_trajectory
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, as_wls_used
+from gnss_cli.pipeline.results import PASSED_FIX, EpochData, MethodSolution, as_wls_used
 from gnss_cli.solvers.robust import m_estimator_weights
 
 __all__ = ["KINDS", "default_measurements", "checked_measurements", "measurement_rows", "epoch_normals",
@@ -144,7 +144,7 @@ def free_misfit_totals(data: EpochData, wls: MethodSolution, config: ProcessingC
     ``measurements``: the kinds to use (default :func:`default_measurements`)."""
     kinds = default_measurements(data, config) if measurements is None else checked_measurements(data, measurements)
     data = as_wls_used(data, wls)  # its satellites and weights
-    fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
+    fix = np.isin(wls.status, PASSED_FIX) & np.isfinite(wls.x_ecef_m).all(axis=1)
     if not fix.any():
         return (0.0,) * 6
     nominal = nominal_trajectory(data.time_gps_s, np.where(fix[:, None], wls.x_ecef_m, np.nan))

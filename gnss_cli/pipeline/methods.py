@@ -91,6 +91,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
                 delay.append(f"delay margin {config.nlos.cn0_delay_sigmas:g} sigma")
         if delay:
             snapshot_integrity += f" ({', '.join(delay)})"
+        if config.nlos.min_direct_dof > 0:  # fixes the direct satellites cannot test are nlos_dependent
+            snapshot_integrity += f", min direct dof {config.nlos.min_direct_dof}"
     tested = "off" if config.integrity == "off" else "check"  # the residual test at the method's own fix
     spans = (", reflection spans" if config.integrity != "off" and config.nlos.multi_epoch != "off" else "")
     tested += spans

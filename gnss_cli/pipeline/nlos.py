@@ -44,7 +44,10 @@ hundredth of the weight; 1: full weight), in the WLS solution's ``variance_scale
 method that starts from the WLS fix weighs them alike
 (:func:`~gnss_cli.pipeline.results.as_wls_used`). With ``failed_epochs = "retry"`` an epoch
 that is not ``ok`` after the exclusions is solved again with every satellite, every span
-down-weighted by the same factor (:func:`monitor_without_nlos`). The detector runs with ``integrity = "check"`` or ``"fde"``;
+down-weighted by the same factor (:func:`monitor_without_nlos`). With ``min_direct_dof > 0`` an
+``ok`` epoch whose satellites at full weight (those the detector takes as direct) leave its fix
+fewer redundant measurements than that becomes ``nlos_dependent`` (:func:`direct_dof`): only
+suspected reflections test it. The detector runs with ``integrity = "check"`` or ``"fde"``;
 ``"off"`` is the plain fix. The template is the solved part's (a file of at most
 ``stream_above_epochs`` epochs is one part).
 """
@@ -66,7 +69,7 @@ from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, ta
 __all__ = ["code_minus_doppler_m", "doppler_span_delays_m", "NEIGHBOUR_S", "los_cn0_template_dbhz",
            "persistent_spans", "cusum_spans", "multi_epoch_spans", "span_means", "keep_redundancy",
            "span_sigma_m", "prediction_sigma_m", "cn0_spans", "residual_spans", "prediction_residuals_m",
-           "exclude_nlos", "monitor_without_nlos"]
+           "exclude_nlos", "direct_dof", "monitor_without_nlos"]
 
 F64 = NDArray[np.float64]
 #: The direct epochs that give a C/N0 span's code-minus-Doppler level are at most this far (s)
@@ -477,6 +480,21 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     return out | allowed(spans, u / cfg.residual_k, np.isfinite(second.residuals_m)), kept_by_redundancy
 
 
+def direct_dof(sol: MethodSolution, system_index: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The redundancy ``(T,)`` of each epoch's fix in its satellites at full weight: those used
+    (finite residual, not excluded) whose variance the detector did not scale up
+    (``variance_scale`` 1), less 3 and less the clocks of their systems -- the degrees of freedom
+    the fix of those satellites alone would have (negative: they cannot fix the epoch alone).
+    ``system_index``: ``(n,)`` clock of each satellite."""
+    used = np.isfinite(sol.residuals_m)
+    if sol.excluded is not None:
+        used &= ~sol.excluded
+    direct = used if sol.variance_scale is None else used & (np.nan_to_num(sol.variance_scale, nan=1.0) <= 1.0)
+    k = int(system_index.max()) + 1 if system_index.size else 0
+    clocks = (direct[:, :, None] & (system_index[None, :, None] == np.arange(k))).any(axis=1).sum(axis=1)
+    return direct.sum(axis=1) - 3 - clocks
+
+
 def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, config: ProcessingConfig) -> MethodSolution:
     """:func:`~gnss_cli.pipeline.integrity.monitor` (the test, FDE, protection levels) of the fixes
     without the reflections :func:`exclude_nlos` finds from the plain fix ``first``; ``fit`` solves a
@@ -485,7 +503,9 @@ def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, con
     The spans redundancy keeps in get ``variance_factor`` times their variance (the solution's
     ``variance_scale``). With ``[nlos] failed_epochs = "retry"`` an epoch that is not ``ok`` after
     the exclusions (its test fails and FDE, short of redundancy, cannot repair it) is solved again
-    with every satellite, every span down-weighted alike, and takes that solution when it is ``ok``."""
+    with every satellite, every span down-weighted alike, and takes that solution when it is ``ok``.
+    Last, with ``min_direct_dof > 0``, an ``ok`` epoch with fewer redundant measurements than that in
+    its satellites at full weight (:func:`direct_dof`) becomes ``nlos_dependent``."""
     reflected, kept = exclude_nlos(data, first, lambda sub: fit(sub, None, None), config)
     scale = np.where(kept, config.nlos.variance_factor, 1.0) if config.nlos.variance_factor > 1.0 else None
     reduced = replace(data, usable=data.usable & ~reflected, variance_scale=scale)
@@ -493,14 +513,17 @@ def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, con
     sol = replace(sol, excluded=reflected if sol.excluded is None else sol.excluded | reflected,
                   variance_scale=scale)
     retry = np.flatnonzero((sol.status != EpochStatus.OK) & (reflected | kept).any(axis=1))
-    if config.nlos.failed_epochs != "retry" or not retry.size:
-        return sol
-    every = None if scale is None else np.where(reflected | kept, config.nlos.variance_factor, 1.0)
-    sub = take_epochs(replace(data, variance_scale=every), retry)
-    again = monitor(sub, take_solution(first, retry), config, fit)
-    better = np.flatnonzero(again.status == EpochStatus.OK)
-    if not better.size:
-        return sol
-    if every is not None:  # every satellite again, the reflections down-weighted
-        again = replace(again, variance_scale=every[retry])
-    return merge_epochs(sol, retry[better], take_solution(again, better))
+    if config.nlos.failed_epochs == "retry" and retry.size:
+        every = None if scale is None else np.where(reflected | kept, config.nlos.variance_factor, 1.0)
+        sub = take_epochs(replace(data, variance_scale=every), retry)
+        again = monitor(sub, take_solution(first, retry), config, fit)
+        better = np.flatnonzero(again.status == EpochStatus.OK)
+        if better.size:
+            if every is not None:  # every satellite again, the reflections down-weighted
+                again = replace(again, variance_scale=every[retry])
+            sol = merge_epochs(sol, retry[better], take_solution(again, better))
+    if config.nlos.min_direct_dof > 0:
+        system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+        weak = (sol.status == EpochStatus.OK) & (direct_dof(sol, system_index) < config.nlos.min_direct_dof)
+        sol = replace(sol, status=np.where(weak, EpochStatus.NLOS_DEPENDENT.value, sol.status).astype(sol.status.dtype))
+    return sol

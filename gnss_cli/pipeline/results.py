@@ -42,13 +42,18 @@ value                   meaning
                         epoch has none), or its protection levels are infinite (the faults no
                         hypothesis covers exceed ``integrity_risk``): no test or no level;
                         position kept, not counted as solved
+``nlos_dependent``      ls/wls and the snapshot methods solved at its fix, with the NLOS detector
+                        and ``[nlos] min_direct_dof`` > 0: the fix passes its test and its alert
+                        limits, but the satellites the detector leaves at full weight give it
+                        fewer than ``min_direct_dof`` redundant measurements -- it rests on
+                        suspected reflections; position and levels kept, not counted as solved
 ``predicted``           kf: no usable measurement at this epoch; the position is the motion
                         model's (filtered, or smoothed from both sides)
 ======================  ==========================================================================
 
 A kf epoch is ``ok`` when the filter updated it with at least one pseudorange (1-3 satellites
 included). Only ``ok``, ``fallback_wls``, ``integrity_fail``, ``gdop_limit``, ``hpl_limit``,
-``vpl_limit``, ``untested`` and ``predicted`` epochs have a position
+``vpl_limit``, ``untested``, ``nlos_dependent`` and ``predicted`` epochs have a position
 (:data:`KEEPS_POSITION`); only ``ok`` ones count as solved. A window model record
 (:class:`WindowModel`) has its own status: the identification outcome
 (:class:`~gnss_cli.behavior.StlsStatus` name, e.g. ``converged``, ``direct``) or ``failed``.
@@ -90,6 +95,7 @@ class EpochStatus(str, Enum):
     HPL_LIMIT = "hpl_limit"
     VPL_LIMIT = "vpl_limit"
     UNTESTED = "untested"
+    NLOS_DEPENDENT = "nlos_dependent"
     PREDICTED = "predicted"
 
     def __str__(self) -> str:
@@ -98,8 +104,13 @@ class EpochStatus(str, Enum):
 
 KEEPS_POSITION = (EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,
                   EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
-                  EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value, EpochStatus.PREDICTED.value)
+                  EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value, EpochStatus.NLOS_DEPENDENT.value,
+                  EpochStatus.PREDICTED.value)
 """Statuses of epochs whose position, clocks and DOPs are written."""
+
+PASSED_FIX = (EpochStatus.OK.value, EpochStatus.NLOS_DEPENDENT.value)
+"""WLS statuses of fixes that passed their test: the multi-epoch methods start from these fixes
+(``nlos_dependent`` says how far the epoch alone can be trusted, not that its fix failed)."""
 
 _SOLVER_STATUS = {
     Status.CONVERGED: EpochStatus.OK,

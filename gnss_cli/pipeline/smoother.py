@@ -105,7 +105,7 @@ from gnss_cli.pipeline.measurements import (
     standardized,
 )
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
-from gnss_cli.pipeline.results import EpochData, EpochStatus, MethodSolution, WindowModel, as_wls_used
+from gnss_cli.pipeline.results import PASSED_FIX, EpochData, EpochStatus, MethodSolution, WindowModel, as_wls_used
 from gnss_cli.pipeline.behavioral import finish_smoothing
 from gnss_cli.solvers.dop import dop_from_cov
 
@@ -240,7 +240,7 @@ def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     a piece of it); else they are estimated from ``data``.
     """
     t = data.time_gps_s
-    fix = (wls.status == EpochStatus.OK.value) & np.isfinite(wls.x_ecef_m).all(axis=1)
+    fix = np.isin(wls.status, PASSED_FIX) & np.isfinite(wls.x_ecef_m).all(axis=1)
     if not fix.any():
         return None
     doppler, phase = "doppler" in measurements, "phase" in measurements

@@ -46,7 +46,7 @@ WEIGHTED_METHODS = frozenset({"wls", "wtls", "stls"})
 ITERATED_METHODS = frozenset({"ls", "wls"})
 """Methods iterated to convergence; the others take one step at the converged WLS fix."""
 _FLAGGED = (EpochStatus.INTEGRITY_FAIL.value, EpochStatus.GDOP_LIMIT.value, EpochStatus.HPL_LIMIT.value,
-            EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value)
+            EpochStatus.VPL_LIMIT.value, EpochStatus.UNTESTED.value, EpochStatus.NLOS_DEPENDENT.value)
 _ITERATION_BLOCK = 1024  # epochs per stacked Gauss-Newton solve of LS/WLS
 
 

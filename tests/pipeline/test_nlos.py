@@ -310,6 +310,42 @@ def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(ca
         np.testing.assert_allclose(ratio, ratio[0], rtol=1e-4)  # one variance factor for the kind, no other change
 
 
+def test_fixes_that_rest_on_suspected_reflections_are_not_ok(canyon_single: Path) -> None:
+    """``min_direct_dof``: an ``ok`` WLS epoch becomes ``nlos_dependent`` exactly where its
+    satellites at full weight, counted one epoch at a time here, give fewer redundant measurements
+    (n - 3 - their systems' clocks) than asked. Nothing else changes: every method's positions,
+    every other status, and the multi-epoch methods (they start from its fix as from an ok one);
+    tls carries the WLS word. Against the simulator's truth, the epochs it takes from ``ok`` are
+    the worse ones of a single-frequency canyon."""
+    canyon = canyon_single
+    over = {**ARCS, "methods": "wls,tls,smoother,kf"}
+    plain = process(canyon / "obs.rnx", [canyon / "nav.rnx"], load_config(None, over))
+    res = process(canyon / "obs.rnx", [canyon / "nav.rnx"], load_config(None, {**over, "nlos.min_direct_dof": 3}))
+    wls, before = res.solutions["wls"], plain.solutions["wls"]
+    systems = np.array([s[0] for s in res.epochs.sv.astype(str)])
+    dof = []
+    for t in range(wls.status.size):  # the direct satellites of each epoch, one at a time
+        direct = [j for j in range(systems.size) if np.isfinite(wls.residuals_m[t, j]) and not wls.excluded[t, j]
+                  and (wls.variance_scale is None or not wls.variance_scale[t, j] > 1.0)]
+        dof.append(len(direct) - 3 - len({systems[j] for j in direct}))
+    weak = (before.status == "ok") & (np.array(dof) < 3)
+    assert 0 < weak.sum() < (before.status == "ok").sum()
+    np.testing.assert_array_equal(wls.status, np.where(weak, "nlos_dependent", before.status))
+    assert (plain.solutions["tls"].status[weak] == "ok").any()
+    assert not (res.solutions["tls"].status[weak] == "ok").any()
+    np.testing.assert_array_equal(res.solutions["tls"].status[~weak], plain.solutions["tls"].status[~weak])
+    for m in ("wls", "tls", "smoother", "kf"):
+        np.testing.assert_array_equal(res.solutions[m].x_ecef_m, plain.solutions[m].x_ecef_m)
+        np.testing.assert_array_equal(res.solutions[m].hpl_m, plain.solutions[m].hpl_m)
+    for m in ("smoother", "kf"):
+        np.testing.assert_array_equal(res.solutions[m].status, plain.solutions[m].status)
+    truth = pd.read_csv(canyon / "truth.csv")
+    tow = np.round(gps_s2week_tow(res.epochs.time_gps_s)[1], 3)
+    ref = truth.set_index(truth["tow_s"].round(3)).loc[tow, ["x_m", "y_m", "z_m"]].to_numpy()
+    err = np.linalg.norm(wls.x_ecef_m - ref, axis=1)
+    assert np.sqrt(np.mean(err[wls.status == "ok"] ** 2)) < np.sqrt(np.mean(err[before.status == "ok"] ** 2))
+
+
 @pytest.mark.parametrize(("key", "value", "match"), [
     ("nlos.detector", "cn0", "nlos.detector"), ("nlos.cn0_exit_db", 12.0, "exit <= enter"),
     ("nlos.residual_k", 0.0, "nlos.residual_k"), ("nlos.min_dof", 0, "nlos.min_dof"),
@@ -317,7 +353,8 @@ def test_reflections_redundancy_keeps_are_down_weighted_alike_in_every_method(ca
     ("nlos.multi_epoch", "cn0", "nlos.multi_epoch"), ("nlos.multi_epoch_h", 0.0, "nlos.multi_epoch_h"),
     ("nlos.multi_epoch_k", -1.0, "nlos.multi_epoch_k"), ("nlos.multi_epoch_rounds", 0, "nlos.multi_epoch_rounds"),
     ("nlos.cn0_delay_source", "carrier", "nlos.cn0_delay_source"), ("nlos.multi_epoch_min_dof", 0, "nlos.multi_epoch_min_dof"),
-    ("nlos.cn0_delay_sigmas", -1.0, "nlos.cn0_delay_sigmas"), ("nlos.cn0_delay_sigmas", float("inf"), "nlos.cn0_delay_sigmas")])
+    ("nlos.cn0_delay_sigmas", -1.0, "nlos.cn0_delay_sigmas"), ("nlos.cn0_delay_sigmas", float("inf"), "nlos.cn0_delay_sigmas"),
+    ("nlos.min_direct_dof", -1, "nlos.min_direct_dof")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
@@ -343,6 +380,8 @@ def test_summary_names_the_detector_only_when_it_runs() -> None:
         "fde, nlos arcs (span delays from the Doppler, delay margin 2 sigma)"
     assert integrity(**margin, **{"nlos.cn0_min_delay_m": -np.inf}) == "fde, nlos arcs"  # no delay test
     assert integrity(**{"nlos.detector": "arcs", "integrity": "off"}) == "off"
+    assert integrity(**plain, **{"nlos.min_direct_dof": 1}) == "fde, nlos arcs, min direct dof 1"
+    assert integrity(**{"nlos.min_direct_dof": 1}) == "fde"  # the detector off: nothing to depend on
 
 
 def _cusum_loop(u: np.ndarray, k: float, h: float) -> np.ndarray:
