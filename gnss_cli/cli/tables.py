@@ -425,9 +425,12 @@ def closing_lines(run: RunOutput, program: str = "gnss-solve") -> list[str]:
     for _, row in run.summary.iterrows():
         m = row["method"]
         line = f"{program}: {m}: {row['epochs_solved']}/{row['epochs']} epochs solved"
-        if run.with_errors:
+        if row["epochs_solved"] == 0:  # no ok epoch: no statistics of ok epochs to quote
+            line += " (none ok: see the status column)"
+        elif run.with_errors:
             line += f", 3D RMS {row['rms_3d_m']:.3f} m (E {row['rms_e_m']:.3f} N {row['rms_n_m']:.3f} U {row['rms_u_m']:.3f})"
-        line += f", mean GDOP {row['mean_gdop']:.2f}"
+        if row["epochs_solved"] > 0:
+            line += f", mean GDOP {row['mean_gdop']:.2f}"
         if m in run.settings:
             line += f"; {run.settings[m].line()}"
         lines.append(line)

@@ -75,6 +75,8 @@ class _Restart:
 
 RESTART = _Restart()
 """Yielded by :meth:`Run.parts` when the parts handed out so far are void and follow again from the start."""
+_FIXED = (EpochStatus.OK.value, EpochStatus.UNTESTED.value, EpochStatus.NLOS_DEPENDENT.value)
+"""Statuses of a fix that did not fail: a run without any epoch of these is an error (no epoch solved)."""
 
 
 def process(obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
@@ -405,7 +407,7 @@ class Run:
             if reparse is not None:
                 pieces = reparse()
             yield RESTART
-        if not any(c.get(EpochStatus.OK.value, 0) + c.get(EpochStatus.UNTESTED.value, 0) for c in counts.values()):
+        if not any(sum(c.get(w, 0) for w in _FIXED) for c in counts.values()):
             raise NoSolutionError(f"{Path(self.obs_path).name}: no epoch could be solved ({status_summary(counts)})")
         self.warnings = tuple(warnings) + tuple(self._notes)
 

@@ -346,6 +346,36 @@ def test_fixes_that_rest_on_suspected_reflections_are_not_ok(canyon_single: Path
     assert np.sqrt(np.mean(err[wls.status == "ok"] ** 2)) < np.sqrt(np.mean(err[before.status == "ok"] ** 2))
 
 
+def test_a_run_whose_fixes_all_rest_on_suspected_reflections_still_writes_them(canyon_single: Path) -> None:
+    """``nlos_dependent`` fixes passed their test: a run with no ``ok`` epoch but those is not
+    refused as unsolved (a direct redundancy no epoch reaches)."""
+    over = {**ARCS, "nlos.min_direct_dof": 99}
+    res = process(canyon_single / "obs.rnx", [canyon_single / "nav.rnx"], load_config(None, over))
+    words = set(res.solutions["wls"].status.tolist())
+    assert "ok" not in words and "nlos_dependent" in words
+    assert np.isfinite(res.solutions["wls"].x_ecef_m[res.solutions["wls"].status == "nlos_dependent"]).all()
+
+
+def test_the_command_line_says_no_epoch_is_ok_without_quoting_nan(canyon_single: Path, tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """gnss-solve with every fix ``nlos_dependent``: exit 0, the tables written, and the closing line
+    says that none is ``ok`` instead of quoting the statistics of no epoch (NaN)."""
+    from gnss_cli.cli.exits import run_app
+    from gnss_cli.cli.solve import app
+
+    cfg = tmp_path / "all.toml"
+    cfg.write_text('[nlos]\ndetector = "arcs"\nmin_direct_dof = 99\n')
+    with pytest.raises(SystemExit) as done:
+        run_app(app, "gnss-solve", [str(canyon_single / "obs.rnx"), str(canyon_single / "nav.rnx"), "--config", str(cfg),
+                                    "--reference-csv", str(canyon_single / "truth.csv"), "--out-dir", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert done.value.code == 0, err
+    line = next(x for x in err.splitlines() if "wls: " in x and "epochs solved" in x)
+    assert "wls: 0/" in line and "none ok" in line and "nan" not in line.lower()
+    status = pd.read_csv(tmp_path / "o" / "positions.csv")["status"]
+    assert "nlos_dependent" in set(status) and "ok" not in set(status)
+
+
 @pytest.mark.parametrize(("key", "value", "match"), [
     ("nlos.detector", "cn0", "nlos.detector"), ("nlos.cn0_exit_db", 12.0, "exit <= enter"),
     ("nlos.residual_k", 0.0, "nlos.residual_k"), ("nlos.min_dof", 0, "nlos.min_dof"),
