@@ -260,7 +260,7 @@ def _run_segment(seg: NDArray[np.intp], data: EpochData, meas: Measurements, ini
         F[j], Q[j] = steps[dt]
         if jumps[seg[j]]:
             Q[j][lay.clocks, lay.clocks] += _CLOCK_RESET_VAR_M2
-    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    sysidx = data.clock_index
     m0, P0 = _prior(init, int(seg[0]), lay, config)
     if meas.phase is not None:
         F, Q = clone_transition(F, Q, _CLONED)
@@ -396,7 +396,7 @@ def _solution(data: EpochData, wls: MethodSolution, meas: Measurements, x: F64, 
     status = np.where(have, np.where(n_sat > 0, EpochStatus.OK.value, EpochStatus.PREDICTED.value), wls.status)
     keep = np.r_[0:3, lay.clocks]
     cov = P[:, keep][:, :, keep]
-    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    sysidx = data.clock_index
     clocks = x[:, lay.clocks]
     predicted = -np.einsum("tnk,tk->tn", meas.unit, x[:, :3]) + np.take_along_axis(clocks, np.broadcast_to(sysidx, meas.used.shape), 1)
     residuals = np.where(meas.used & have[:, None], meas.y_pr - predicted, np.nan)

@@ -106,7 +106,7 @@ def pseudorange_rows(data: EpochData, meas: Measurements, nominal: F64) -> dict[
     """The pseudorange rows of the smoother's form (``P, w, y, C``:
     :func:`~gnss_cli.pipeline.phase_rows.phase_pair_rows` takes them) at ``nominal``."""
     k = len(data.systems)
-    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    sysidx = data.clock_index
     return {"P": -meas.unit, "w": np.where(meas.used, 1.0 / meas.var_pr, 0.0),
             "y": meas.y_pr + np.einsum("tni,ti->tn", meas.unit, nominal),
             "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k))}

@@ -80,7 +80,7 @@ def measurement_rows(data: EpochData, nominal: F64, config: ProcessingConfig, do
         config = replace(config, measurements=("pseudorange", "doppler") if doppler else ("pseudorange",))
     meas = linearized_measurements(data, nominal, config)
     k = len(data.systems)
-    sysidx = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    sysidx = data.clock_index
     out = {"P": -meas.unit, "w": np.where(meas.used, 1.0 / meas.var_pr, 0.0),
            "y": meas.y_pr + np.einsum("tni,ti->tn", meas.unit, nominal),  # pseudorange minus its value at nominal
            "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k))}

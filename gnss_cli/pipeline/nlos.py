@@ -208,7 +208,7 @@ def multi_epoch_spans(data: EpochData, sol: MethodSolution, sigma_m: F64, config
     cand = data.usable & np.isfinite(sigma_m)
     u = prediction_residuals_m(data, sol, cand, config) / sigma_m
     spans = cusum_spans(u, cfg.multi_epoch_k, cfg.multi_epoch_h)
-    system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    system_index = data.clock_index
     return keep_redundancy(spans, np.nan_to_num(u), cand, system_index, len(data.systems), cfg.multi_epoch_min_dof,
                            config.min_satellites)
 
@@ -349,7 +349,7 @@ def prediction_sigma_m(data: EpochData, sol: MethodSolution, which: NDArray[np.b
     los = data.sat_ecef_m[rows] - sol.x_ecef_m[rows, None, :]
     los /= np.linalg.norm(los, axis=2, keepdims=True)
     k = sol.cov_m2.shape[1] - 3
-    clock = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    clock = data.clock_index
     g = np.concatenate([-los, np.broadcast_to(np.eye(k)[clock], (rows.size, data.sv.size, k))], axis=2)
     var = np.einsum("tni,tij,tnj->tn", g, sol.cov_m2[rows], g)
     out[rows] = np.where(which[rows], np.sqrt(np.maximum(var, 0.0)), np.nan)
@@ -439,7 +439,7 @@ def exclude_nlos(data: EpochData, first: MethodSolution, fit: Fit, config: Proce
     standard deviations (:func:`span_sigma_m`)."""
     cfg = config.nlos
     k = len(data.systems)
-    system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    system_index = data.clock_index
 
     def allowed(flagged: NDArray[np.bool_], suspicion: F64, used: NDArray[np.bool_]) -> NDArray[np.bool_]:
         return keep_redundancy(flagged, np.nan_to_num(suspicion), used, system_index, k, cfg.min_dof,
@@ -523,7 +523,6 @@ def monitor_without_nlos(data: EpochData, first: MethodSolution, fit: Refit, con
                 again = replace(again, variance_scale=every[retry])
             sol = merge_epochs(sol, retry[better], take_solution(again, better))
     if config.nlos.min_direct_dof > 0:
-        system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
-        weak = (sol.status == EpochStatus.OK) & (direct_dof(sol, system_index) < config.nlos.min_direct_dof)
+        weak = (sol.status == EpochStatus.OK) & (direct_dof(sol, data.clock_index) < config.nlos.min_direct_dof)
         sol = replace(sol, status=np.where(weak, EpochStatus.NLOS_DEPENDENT.value, sol.status).astype(sol.status.dtype))
     return sol

@@ -294,6 +294,12 @@ class EpochData:
     """``(T, n)`` the phase may have slipped since the previous epoch: loss-of-lock indicator bit 0,
     or a jump against the Doppler (:func:`~gnss_cli.gnss.carrier.phase_slips`)."""
 
+    @property
+    def clock_index(self) -> NDArray[np.int64]:
+        """``(n,)`` clock column (index into ``systems``) of every satellite: ``system_index``, or
+        0 for every satellite (one clock) when it is None."""
+        return self.system_index if self.system_index is not None else np.zeros(self.sv.size, dtype=np.int64)
+
 
 @dataclass(frozen=True)
 class MethodSolution:

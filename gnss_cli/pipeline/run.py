@@ -54,7 +54,7 @@ from gnss_cli.pipeline.memory import map_large_blocks
 from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.results import (
-    EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
+    PASSED_FIX, EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
 )
 from gnss_cli.pipeline.snapshot import solve_methods, status_counts, status_summary
 from gnss_cli.pipeline.velocity import with_velocity
@@ -75,7 +75,7 @@ class _Restart:
 
 RESTART = _Restart()
 """Yielded by :meth:`Run.parts` when the parts handed out so far are void and follow again from the start."""
-_FIXED = (EpochStatus.OK.value, EpochStatus.UNTESTED.value, EpochStatus.NLOS_DEPENDENT.value)
+_FIXED = PASSED_FIX + (EpochStatus.UNTESTED.value,)
 """Statuses of a fix that did not fail: a run without any epoch of these is an error (no epoch solved)."""
 
 

@@ -52,7 +52,7 @@ def segment_misfit(data: EpochData, sol: MethodSolution, seg: NDArray[np.intp]) 
         return float("nan"), 0
     r, s = sol.residuals_m[seg], sol.sigma_m[seg]
     used = np.isfinite(r) & np.isfinite(s) & (s > 0)
-    system_index = data.system_index if data.system_index is not None else np.zeros(data.sv.size, dtype=np.int64)
+    system_index = data.clock_index
     clocks = np.zeros((seg.size, int(system_index.max(initial=0)) + 1), dtype=bool)
     rows, cols = np.nonzero(used)
     clocks[rows, system_index[cols]] = True

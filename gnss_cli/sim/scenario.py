@@ -478,6 +478,16 @@ def urban_labels_table(scenario: Scenario) -> pd.DataFrame:
     )
 
 
+def los_grid(labels: pd.DataFrame, time_gps_s: F64, sv: NDArray[np.str_]) -> NDArray[np.int64]:
+    """The ``los`` column of a ``faults.csv`` (:func:`urban_labels_table`) on an epoch grid:
+    ``(T, n)`` 1 direct, 0 NLOS, -1 no row, for the epochs ``time_gps_s`` (GPS s; matched by their
+    time of week to the millisecond) and the satellites ``sv``."""
+    rows = labels.assign(tow_s=labels["tow_s"].round(3), sv=labels["sv"].astype(str))
+    grid = rows.pivot_table(index="tow_s", columns="sv", values="los", aggfunc="first")
+    tow = np.round(gps_s2week_tow(np.asarray(time_gps_s, dtype=float))[1], 3)
+    return grid.reindex(index=tow, columns=np.asarray(sv).astype(str)).fillna(-1).to_numpy(dtype=np.int64)
+
+
 def faults_table(scenario: Scenario) -> pd.DataFrame:
     """The random outliers (``outlier_rate > 0``): one row per faulty epoch, its satellite and bias (m)."""
     obs = scenario.observations

@@ -20,6 +20,7 @@ from gnss_cli.pipeline.methods import method_settings, solve_multi_epoch
 from gnss_cli.pipeline.nlos import (code_minus_doppler_m, cusum_spans, doppler_span_delays_m, keep_redundancy,
                                     los_cn0_template_dbhz, persistent_spans, prediction_sigma_m, span_means,
                                     span_sigma_m)
+from gnss_cli.sim.scenario import los_grid
 
 ROOT = Path(__file__).resolve().parents[2]
 ARCS = {"methods": "wls", "nlos.detector": "arcs"}
@@ -83,12 +84,12 @@ def test_the_prediction_sigma_is_the_spread_of_the_predicted_range() -> None:
     sats = x + rng.normal(size=(1, 4, 3)) * 1.2e7 + 2.0e7 * x / np.linalg.norm(x)
     a = rng.normal(size=(5, 5)) * [3.0, 2.0, 5.0, 4.0, 1.0]
     cov = a @ a.T
-    data = NS(sat_ecef_m=sats, system_index=np.array([0, 1, 0, 1]), sv=np.array(["G01", "C02", "G03", "C04"]))
+    data = NS(sat_ecef_m=sats, clock_index=np.array([0, 1, 0, 1]), sv=np.array(["G01", "C02", "G03", "C04"]))
     which = np.array([[True, True, False, True]])
     got = prediction_sigma_m(data, NS(x_ecef_m=x[None], cov_m2=cov[None]), which)  # type: ignore[arg-type]
     draws = rng.multivariate_normal(np.zeros(5), cov, size=200_000)
     rng_0 = np.linalg.norm(sats[0] - x, axis=1)
-    moved = np.linalg.norm(sats[0][None] - (x + draws[:, None, :3]), axis=2) - rng_0 + draws[:, 3 + data.system_index]
+    moved = np.linalg.norm(sats[0][None] - (x + draws[:, None, :3]), axis=2) - rng_0 + draws[:, 3 + data.clock_index]
     np.testing.assert_allclose(got[0, which[0]], moved.std(axis=0)[which[0]], rtol=0.01)
     assert np.isnan(got[0, 2])
     # a span's sigma: the predictions' variance stays, the pseudoranges' own is divided by its epochs
@@ -140,15 +141,7 @@ def test_an_epoch_keeps_its_redundancy_most_suspicious_out_first() -> None:
 
 def _labels(res, faults: pd.DataFrame) -> np.ndarray:  # noqa: ANN001 - RunResult
     """``(T, n)``: 1 LOS, 0 NLOS, -1 no label, from the simulator's faults.csv."""
-    ep = res.epochs
-    tow = np.round(gps_s2week_tow(ep.time_gps_s)[1], 3)
-    ti = {t: i for i, t in enumerate(tow)}
-    si = {s: j for j, s in enumerate(ep.sv.astype(str))}
-    out = np.full(ep.usable.shape, -1)
-    for t, s, los in zip(faults["tow_s"].round(3), faults["sv"].astype(str), faults["los"]):
-        if t in ti and s in si:
-            out[ti[t], si[s]] = los
-    return out
+    return los_grid(faults, res.epochs.time_gps_s, res.epochs.sv)
 
 
 def test_the_canyon_reflections_are_excluded_and_the_direct_signals_kept(canyon: Path) -> None:
@@ -195,13 +188,7 @@ def test_uncertain_delays_down_weight_what_the_fix_cannot_call_early(canyon: Pat
     np.testing.assert_array_equal(plain.excluded, wide.excluded)  # the same fix measures the same delays
     low = lambda sol: np.nan_to_num(sol.variance_scale, nan=1.0) > 1.0 if sol.variance_scale is not None else False  # noqa: E731
     assert (low(wide) & ~low(plain)).sum() > 20 and not (low(plain) & ~low(wide)).any()
-    faults = pd.read_csv(canyon / "faults.csv")
-    tow = np.round(gps_s2week_tow(epochs.time_gps_s)[1], 3)
-    ti = np.searchsorted(tow, np.round(faults["tow_s"].to_numpy(), 3))
-    si = np.searchsorted(epochs.sv.astype(str), faults["sv"].astype(str).to_numpy())
-    ok = (ti < tow.size) & (si < epochs.sv.size)
-    labels = np.full(plain.excluded.shape, -1)
-    labels[ti[ok], si[ok]] = faults["los"].to_numpy()[ok]
+    labels = los_grid(pd.read_csv(canyon / "faults.csv"), epochs.time_gps_s, epochs.sv)
     out = {z: sol.excluded | low(sol) for z, sol in (("plain", plain), ("wide", wide))}
     assert out["wide"][labels == 0].mean() > out["plain"][labels == 0].mean()
     assert out["wide"][labels == 1].sum() == out["plain"][labels == 1].sum()
