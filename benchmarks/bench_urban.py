@@ -51,6 +51,7 @@ from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.io.compression import open_bytes
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
+from gnss_cli.sim.scenario import los_grid
 from results_page import results_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,25 +113,18 @@ def method_row(sol, ref_m: np.ndarray | None, keep: np.ndarray) -> dict[str, obj
 def nlos_handling(sol, epochs, faults: pd.DataFrame) -> dict[str, object]:  # noqa: ANN001
     """Share of NLOS and of LOS satellite-epochs (observed and used as candidates) that ``sol``
     excluded or down-weighted below 10 % of the nominal weight."""
-    tow = np.round(gps_s2week_tow(epochs.time_gps_s)[1], 3)
-    t_index = {t: i for i, t in enumerate(tow)}
-    s_index = {s: j for j, s in enumerate(epochs.sv.astype(str))}
-    excluded = sol.excluded if sol.excluded is not None else np.zeros((tow.size, len(s_index)), bool)
+    labels = los_grid(faults, epochs.time_gps_s, epochs.sv)
+    excluded = sol.excluded if sol.excluded is not None else np.zeros(labels.shape, bool)
     weights = sol.robust_weights if sol.robust_weights is not None else np.ones(excluded.shape)
     if sol.variance_scale is not None:  # the NLOS detector's down-weighted reflections
         weights = weights / np.nan_to_num(sol.variance_scale, nan=1.0)
     used = np.isfinite(sol.residuals_m) | excluded
+    dropped = excluded | (np.nan_to_num(weights, nan=1.0) < 0.1)
     out: dict[str, object] = {}
     for name, los in (("nlos", 0), ("los", 1)):
-        f = faults[faults["los"] == los]
-        ti = np.array([t_index.get(round(t, 3), -1) for t in f["tow_s"].to_numpy()])
-        si = np.array([s_index.get(s, -1) for s in f["sv"].astype(str)])
-        ok = (ti >= 0) & (si >= 0)
-        ti, si = ti[ok], si[ok]
-        cand = used[ti, si]
-        dropped = (excluded[ti, si] | (np.nan_to_num(weights[ti, si], nan=1.0) < 0.1)) & cand
+        cand = used & (labels == los)
         out[f"{name}_candidates"] = int(cand.sum())
-        out[f"{name}_dropped_pct"] = float(100 * dropped.sum() / max(cand.sum(), 1))
+        out[f"{name}_dropped_pct"] = float(100 * (dropped & cand).sum() / max(cand.sum(), 1))
     return out
 
 
@@ -141,16 +135,9 @@ def los_only_rows(obs: Path, navs: list[Path], faults: pd.DataFrame, ref_at) -> 
     for label, over in (("off", {"integrity": "off"}), ("default", {})):
         cfg = load_config(None, {"methods": "wls", **over})
         data = load_epochs(obs, navs, cfg)
-        tow = np.round(gps_s2week_tow(data.time_gps_s)[1], 3)
-        t_index = {t: i for i, t in enumerate(tow)}
-        s_index = {s: j for j, s in enumerate(data.sv.astype(str))}
-        f = faults[faults["los"] == 0]
-        ti = np.array([t_index.get(round(t, 3), -1) for t in f["tow_s"].to_numpy()])
-        si = np.array([s_index.get(s, -1) for s in f["sv"].astype(str)])
-        nlos = np.zeros(data.usable.shape, dtype=bool)
-        nlos[ti[(ti >= 0) & (si >= 0)], si[(ti >= 0) & (si >= 0)]] = True
+        nlos = los_grid(faults, data.time_gps_s, data.sv) == 0
         sol = solve_method(replace(data, usable=data.usable & ~nlos), "wls", cfg)
-        out[label] = method_row(sol, ref_at(data.time_gps_s), np.ones(tow.size, dtype=bool))
+        out[label] = method_row(sol, ref_at(data.time_gps_s), np.ones(data.time_gps_s.size, dtype=bool))
     return out
 
 

@@ -24,12 +24,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from gnss_cli.config import load_config
-from gnss_cli.gnss.time import gps_s2week_tow
 from gnss_cli.pipeline import load_epochs, solve_method
 from gnss_cli.pipeline.nlos import cusum_spans
+from gnss_cli.sim.scenario import los_grid
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_urban import real_cases, simulated_cases  # noqa: E402
@@ -69,18 +68,6 @@ def cmc_sigmas(data, sigma_m: np.ndarray) -> np.ndarray:  # noqa: ANN001 - Epoch
     return u
 
 
-def labels(data, faults: pd.DataFrame) -> np.ndarray:  # noqa: ANN001 - EpochData
-    """``(T, n)``: 1 LOS, 0 NLOS, -1 no label."""
-    tow = np.round(gps_s2week_tow(data.time_gps_s)[1], 3)
-    ti = {t: i for i, t in enumerate(tow)}
-    si = {s: j for j, s in enumerate(data.sv.astype(str))}
-    out = np.full(data.usable.shape, -1)
-    for t, s, los in zip(faults["tow_s"].round(3), faults["sv"].astype(str), faults["los"]):
-        if t in ti and s in si:
-            out[ti[t], si[s]] = los
-    return out
-
-
 def main() -> None:
     seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
     seeds = seeds if quick else TRAINING_SEEDS
@@ -95,7 +82,7 @@ def main() -> None:
             sol = solve_method(data, "wls", cfg)
             u = cmc_sigmas(data, sol.sigma_m)
             used = np.isfinite(sol.residuals_m)
-            lab = labels(data, faults) if faults is not None else np.full(u.shape, -1)
+            lab = los_grid(faults, data.time_gps_s, data.sv) if faults is not None else np.full(u.shape, -1)
             have = np.isfinite(u) & used
             row: list[object] = [name, round(100 * have.sum() / max(used.sum(), 1), 1),
                                  round(float(np.std((u * sol.sigma_m)[have])), 2)]

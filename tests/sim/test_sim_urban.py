@@ -22,7 +22,8 @@ from gnss_cli.io.rinex import read_obs
 from gnss_cli.sim.constellation import SYSTEMS
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.rinex_writer import ObsLayout
-from gnss_cli.sim.scenario import Scenario, ScenarioConfig, config_from_mapping, run_scenario, with_receiver_profile, write_scenario
+from gnss_cli.sim.scenario import (Scenario, ScenarioConfig, config_from_mapping, los_grid, run_scenario, with_receiver_profile,
+                                   write_scenario)
 from gnss_cli.sim.trajectory import drive_trajectory
 from gnss_cli.sim.urban import RECEIVERS, street_heading_rad, street_mask_rad
 
@@ -131,6 +132,20 @@ def test_labels_list_exactly_the_written_observations(drive_pair: Pair) -> None:
     s1 = rows.loc[list(zip(labels["time"], labels["sv"]))]
     first = np.where(labels["sv"].str[0] == "C", s1["S2I"], s1["S1C"])
     assert np.abs(first - labels["cn0_dbhz"].to_numpy()).max() < 0.006
+
+
+def test_the_labels_go_back_onto_the_epoch_grid(drive_pair: Pair) -> None:
+    """``los_grid`` of faults.csv, on the scenario's own epochs and satellites (in reverse order, so
+    that columns are matched by name): the canyon's ``los`` where a satellite was written, -1
+    where it was not; an epoch the file does not hold is -1 throughout."""
+    obs = drive_pair.urban.observations
+    assert obs.urban is not None
+    order = np.argsort(obs.sv)[::-1]
+    t = np.append(obs.t_gps_s, obs.t_gps_s[-1] + 0.5)
+    grid = los_grid(_labels(drive_pair.urban_dir), t, obs.sv[order])
+    want = np.where(obs.visible, obs.urban.los.astype(np.int64), -1)[:, order]
+    np.testing.assert_array_equal(grid[:-1], want)
+    assert (grid[-1] == -1).all() and (want == 0).any() and (want == 1).any()
 
 
 def test_nlos_bias_is_positive_and_is_what_the_pseudoranges_carry(drive_pair: Pair) -> None:
