@@ -16,8 +16,10 @@ Cases:
   availability only, and the distance to rnx2rtkp on the epochs both write.
 
 Methods: ``wls``, ``smoother``, ``kf`` and ``stls --lag 3`` in one run, each file with
-``--integrity off``, with the defaults (``fde`` and the multi-epoch gates), with the defaults and
-the NLOS detector (``[nlos] detector = "arcs"``), and with ``configs/urban.toml`` (the detector and
+``--integrity off``, with ``--environment open`` (``fde`` and the multi-epoch gates, no
+street-canyon settings), with the defaults (``--environment auto``: the street-canyon settings
+when the file's WLS variance factor says so; the run's judgement is recorded per case) and with
+``configs/urban.toml`` (``--environment urban``: the NLOS detector, nlos_dependent fixes and
 protection levels that monitor several reflected satellites at once). Per method and
 setting: availability (share of the epochs with status ``ok``), misleading epochs (``ok`` with the
 horizontal error above HPL or the vertical above VPL), ``ok`` epochs that carry no protection level,
@@ -61,14 +63,15 @@ PEER_CONF = SHARED / "peer" / "rnx2rtkp-spp.conf"
 OUT = ROOT / "benchmarks" / "results" / "urban.json"
 NAVSYS = {"G": 1, "R": 4, "E": 8, "J": 16, "C": 32}
 METHODS = ("wls", "smoother", "kf", "stls")
-SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off"}, "default": {},
-                                           "nlos": {"nlos.detector": "arcs"},
+SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off"}, "open": {"environment": "open"}, "default": {},
                                            "urban": {"config": "configs/urban.toml"}}
 """Integrity settings of each run (every other option at its packaged default): integrity off, the
-defaults, the defaults with the NLOS detector (``[nlos] detector = "arcs"``, off by default), and
-``configs/urban.toml`` as a whole (the detector and the levels' multi-satellite faults; ``config``
-names a settings file, relative to the repository, that the run loads under the flags)."""
-SETTING_NAMES = {"default": "defaults", "nlos": "defaults + nlos arcs", "urban": "configs/urban.toml"}
+open-sky settings (``environment = "open"``: the packaged settings without the street-canyon ones),
+the defaults (``environment = "auto"``: the street-canyon settings when the file's WLS variance
+factor says so) and ``configs/urban.toml`` (``environment = "urban"``: the NLOS detector,
+nlos_dependent fixes and the levels' multi-satellite faults, always; ``config`` names a settings
+file, relative to the repository, that the run loads under the flags)."""
+SETTING_NAMES = {"open": "environment open", "default": "defaults (environment auto)", "urban": "configs/urban.toml"}
 """The judged settings (every one but ``off``) as the tables name them."""
 TST_TRUTH = np.array([-2418077.2710, 5386069.6872, 2405174.1252])
 TST_TOW = (270149.0, 270305.0)
@@ -130,9 +133,10 @@ def nlos_handling(sol, epochs, faults: pd.DataFrame) -> dict[str, object]:  # no
 
 def los_only_rows(obs: Path, navs: list[Path], faults: pd.DataFrame, ref_at) -> dict[str, object]:  # noqa: ANN001
     """WLS with every NLOS satellite-epoch of the simulator's labels removed before the fix, with
-    integrity off and at the defaults: what a perfect detector would leave (a bound, not a method)."""
+    integrity off and with the open-sky settings (``environment = "open"``: FDE, no NLOS detector):
+    what a perfect detector would leave (a bound, not a method)."""
     out: dict[str, object] = {}
-    for label, over in (("off", {"integrity": "off"}), ("default", {})):
+    for label, over in (("off", {"integrity": "off"}), ("default", {"environment": "open"})):
         cfg = load_config(None, {"methods": "wls", **over})
         data = load_epochs(obs, navs, cfg)
         nlos = los_grid(faults, data.time_gps_s, data.sv) == 0
@@ -243,6 +247,8 @@ def run_case(name: str, obs: Path, navs: list[Path], systems: str | None, ref_at
         if label in SETTING_NAMES:
             wls_of[label] = res.solutions["wls"]
         entry["resolved"] = {m: s.to_dict() for m, s in res.settings.items()} if res.settings else {}
+        if label == "default":  # what environment = "auto" judged: only urban sets min_direct_dof
+            entry["environment"] = "urban" if "min direct dof" in res.settings["wls"].integrity else "open"
     assert t_all is not None and keep is not None
     if faults is not None:
         entry["wls_los_only"] = los_only_rows(obs, navs, faults, ref_at)

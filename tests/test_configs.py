@@ -57,12 +57,17 @@ def test_rtklib_peer_sets_what_it_claims() -> None:
 
 
 def test_the_nlos_detector_is_off_by_default_and_on_in_the_urban_settings() -> None:
-    """Off in the packaged defaults (it costs accuracy away from street canyons); configs/urban.toml
-    turns it on beside its multi-satellite protection levels, with fixes that rest on suspected
-    reflections not ok (``min_direct_dof`` 1), every other [nlos] key packaged."""
+    """Off in the packaged settings (it costs accuracy away from street canyons); the urban
+    environment (configs/urban.toml, or a file the default ``auto`` judges a canyon) turns it on
+    beside its multi-satellite protection levels, with fixes that rest on suspected reflections not
+    ok (``min_direct_dof`` 1), every other [nlos] key packaged."""
+    from gnss_cli.pipeline.environment import judged
+
     default = load_config(None)
-    assert default.nlos.detector == "off"
-    urban = load_config(ROOT / "configs" / "urban.toml")
+    assert default.nlos.detector == "off" and default.environment == "auto"
+    given = load_config(ROOT / "configs" / "urban.toml")
+    assert given == replace(default, environment="urban")  # the file names the environment, nothing else
+    urban = judged(given, None)
     assert urban.nlos == replace(default.nlos, detector="arcs", min_direct_dof=1)
     assert urban.max_simultaneous_faults == 3 and urban.prior_fault_satellite == 1e-2
 

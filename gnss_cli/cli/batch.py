@@ -28,7 +28,7 @@ import typer
 from gnss_cli.cli.exits import HELP_OPTIONS, run_app, single_blas_thread, version_callback, without_dask
 from gnss_cli.cli.help import PanelCommand
 from gnss_cli.cli.options import (
-    AlertLimit, Config, Debug, ElevationMask, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method, Motion,
+    AlertLimit, Config, Debug, ElevationMask, Environment, Exclude, Integrity, Iono, Kernel, KfModel, KfOutput, Lag, Measurements, Method, Motion,
     OldModel, OldSmoother, Order, Quiet, Reference, ReferenceCsv, ReferencePos, ReferenceSinex, Robust, SnrMask, Systems,
     TimeSystem, Tropo, Window, check_method_flags, check_old_spellings, check_reference_options, reference_inputs,
     run_config,
@@ -80,6 +80,7 @@ def batch(
     model: OldModel = None,
     smoother: OldSmoother = None,
     integrity: Integrity = None,
+    environment: Environment = None,
     alert_limit: AlertLimit = None,
     robust: Robust = None,
     exclude: Exclude = None,

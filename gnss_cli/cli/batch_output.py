@@ -25,7 +25,7 @@ from gnss_cli.cli.batch_task import FileResult
 PARTITIONS = ("day",)
 """The Hive keys of the positions dataset (below the station folder)."""
 FILES_COLUMNS = ["obs_path", "nav_paths", "station", "status", "exit_code", "epochs", "solved", "method", "rms_3d_m",
-                 "seconds", "error", "warnings"]
+                 "environment", "seconds", "error", "warnings"]
 """``files.csv`` columns (README: gnss-batch)."""
 
 

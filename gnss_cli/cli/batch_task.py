@@ -67,6 +67,8 @@ class FileResult:
     seconds: float = 0.0
     error: str = ""
     warnings: tuple[str, ...] = ()
+    environment: str = ""
+    """The environment the run took (``summary.csv``'s ``settings``: ``urban (auto: ...)``)."""
     positions: Any = field(default=None, repr=False)
     summary: Any = field(default=None, repr=False)
 
@@ -74,7 +76,7 @@ class FileResult:
         """The ``files.csv`` row."""
         return {"obs_path": self.obs_path, "nav_paths": ";".join(self.nav_paths), "station": self.station,
                 "status": self.status, "exit_code": self.exit_code, "epochs": self.epochs, "solved": self.solved,
-                "method": self.method, "rms_3d_m": self.rms_3d_m, "seconds": self.seconds, "error": self.error,
+                "method": self.method, "rms_3d_m": self.rms_3d_m, "environment": self.environment, "seconds": self.seconds, "error": self.error,
                 "warnings": " | ".join(self.warnings)}
 
 
@@ -197,6 +199,7 @@ def run_file(index: int, obs_path: str, settings: BatchSettings) -> FileResult:
     first = summary.iloc[0]
     out = FileResult(index, obs_path, station, "ok", 0, tuple(navs), int(first["epochs"]), int(first["epochs_solved"]),
                      str(first["method"]), float(first.get("rms_3d_m", float("nan"))), 0.0, "", tuple(warnings))
+    out.environment = run.run_settings.get("environment", "")
     out.positions = dataset_rows(run.positions, settings.config.time_system, obs_path, station)
     summary.insert(0, "station", station)
     summary.insert(0, "obs_path", obs_path)

@@ -63,6 +63,7 @@ OldModel = Annotated[Optional[str], typer.Option("--model", hidden=True, help="R
 OldSmoother = Annotated[Optional[str], typer.Option("--smoother", hidden=True, help="Replaced by --kf-output.")]
 Robust = Annotated[Optional[str], typer.Option("--robust", metavar="MODE", rich_help_panel="Integrity", help="huber | cauchy: M-estimate of the ls/wls fixes (IRLS, residuals scaled by the a-priori sigmas); the chi-square test and fde still apply | off.", show_default=shown(_PROC.get("robust")))]
 Integrity = Annotated[Optional[str], typer.Option("--integrity", metavar="MODE", rich_help_panel="Integrity", help="fde (chi-square test, exclude the worst satellite and solve again) | check (test only) | off.", show_default=shown(_PROC.get("integrity")))]
+Environment = Annotated[Optional[str], typer.Option("--environment", metavar="ENV", rich_help_panel="Integrity", help="auto (street-canyon settings when the WLS residuals say so; summary.csv says which ran) | open | urban (the NLOS detector, nlos_dependent fixes, levels over several faulty satellites: configs/urban.toml).", show_default=shown(_PROC.get("environment")))]
 AlertLimit = Annotated[Optional[str], typer.Option("--alert-limit", metavar="H,V", rich_help_panel="Integrity", help="Horizontal and vertical alert limits, m (inf: none): an epoch whose protection level exceeds one is hpl_limit / vpl_limit, not ok.", show_default=f"{_PROC.get('alert_limit_h_m')},{_PROC.get('alert_limit_v_m')}")]
 Exclude = Annotated[Optional[str], typer.Option("--exclude", metavar="LIST", rich_help_panel="Processing", help="Satellites never used, comma list (G07,C28).", show_default=shown(_PROC.get("exclude")) or "none")]
 SnrMask = Annotated[Optional[float], typer.Option("--snr-mask", metavar="DBHZ", rich_help_panel="Processing", help="Signals with C/N0 below this (dB-Hz, the code's S observation) are not used; 0 = none.", show_default=shown(_PROC.get("snr_mask_dbhz")))]
@@ -72,7 +73,7 @@ Debug = Annotated[bool, typer.Option("--debug", rich_help_panel="Run", help="Sho
 
 CONFIG_KEYS = {
     "method": "methods", "iono": "iono", "tropo": "tropo", "elevation_mask": "elevation_mask_deg", "systems": "systems",
-    "integrity": "integrity", "exclude": "exclude", "snr_mask": "snr_mask_dbhz", "lag": ("stls.lag", "smoother.lag"),
+    "integrity": "integrity", "environment": "environment", "exclude": "exclude", "snr_mask": "snr_mask_dbhz", "lag": ("stls.lag", "smoother.lag"),
     "kernel": "stls.kernel", "order": "stls.order", "window": "stls.window", "motion": "smoother.motion",
     "measurements": "measurements", "kf_model": "kalman.model", "kf_output": "kalman.output", "robust": "robust",
     "time_system": "time_system", "processes": "processes",

@@ -207,7 +207,7 @@ def solve_files(files: list[Path], cfg: Any, progress: Any, reference: Any, *, t
     result = RunOutput(out.spools, out.models, out.summary.table(last), tuple(last.solutions), dict(last.settings),
                        warnings, reference.given, tuple(last.epochs.systems), last.epochs.marker_name,
                        files=list(files), command=command,
-                       run_settings=run_settings(cfg, reference_text(reference), tuple(last.epochs.systems)))
+                       run_settings=run_settings(run.config, reference_text(reference), tuple(last.epochs.systems)))
     if keep_positions:
         import pandas as pd
 
@@ -390,19 +390,21 @@ def run_settings(cfg: Any, reference: str, systems: tuple[str, ...] = ()) -> dic
     """The resolved settings of a run that every method shares (``summary.csv``'s ``settings``
     column; each method's own settings have columns of their own)."""
     from gnss_cli import __version__
+    from gnss_cli.pipeline.environment import describe
 
     levels = "none" if cfg.integrity == "off" else (
         f"risk {cfg.integrity_risk:g}, prior satellite {cfg.prior_fault_satellite:g}, prior constellation "
         f"{cfg.prior_fault_constellation:g}, faults at once {cfg.max_simultaneous_faults}, nominal bias "
         f"{cfg.nominal_bias_cn0_sigmas:g} C/N0 sigmas, alert limits {cfg.alert_limit_h_m:g}/{cfg.alert_limit_v_m:g} m")
     nlos = cfg.nlos.detector if cfg.nlos.detector == "off" or cfg.integrity == "off" else (
-        f"{cfg.nlos.detector}, kept spans variance x{cfg.nlos.variance_factor:g}")
+        f"{cfg.nlos.detector}, kept spans variance x{cfg.nlos.variance_factor:g}"
+        + (f", min direct dof {cfg.nlos.min_direct_dof}" if cfg.nlos.min_direct_dof > 0 else ""))
     if cfg.nlos.multi_epoch != "off" and cfg.multi_epoch_methods:
         nlos += (f", multi-epoch spans {cfg.nlos.multi_epoch} k {cfg.nlos.multi_epoch_k:g} h {cfg.nlos.multi_epoch_h:g}"
                  f" x{cfg.nlos.multi_epoch_rounds}")
     return {"methods": ",".join(cfg.methods), "systems": ",".join(systems or cfg.systems), "iono": cfg.iono,
             "tropo": cfg.tropo, "elevation_mask_deg": f"{cfg.elevation_mask_deg:g}", "weights": cfg.weights.describe(),
-            "integrity": cfg.integrity, "levels": levels, "nlos": "off" if cfg.integrity == "off" else nlos,
+            "integrity": cfg.integrity, "environment": describe(cfg), "levels": levels, "nlos": "off" if cfg.integrity == "off" else nlos,
             "robust": cfg.robust, "time_system": cfg.time_system, "reference": reference, "version": __version__}
 
 
@@ -420,8 +422,10 @@ def with_run_columns(summary: Any, command: str, settings: dict[str, str]) -> An
 
 
 def closing_lines(run: RunOutput, program: str = "gnss-solve") -> list[str]:
-    """The closing stderr lines: per method what ran and its epochs, errors and DOP."""
-    lines = []
+    """The closing stderr lines: the environment the run took, then per method what ran and its
+    epochs, errors and DOP."""
+    environment = run.run_settings.get("environment")
+    lines = [f"{program}: environment {environment}"] if environment else []
     for _, row in run.summary.iterrows():
         m = row["method"]
         line = f"{program}: {m}: {row['epochs_solved']}/{row['epochs']} epochs solved"

@@ -47,7 +47,7 @@ __all__ = [
     "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "NlosConfig", "load_config",
     "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
     "parse_alert_limits",
-    "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
+    "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ENVIRONMENTS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
     "STLS_KERNELS", "SMOOTHER_MOTIONS", "MEASUREMENT_KINDS", "KALMAN_MODELS", "KALMAN_OUTPUTS", "NLOS_DETECTORS", "RENAMED",
 ]
 
@@ -55,6 +55,8 @@ IONO_OPTIONS = ("klobuchar", "iono-free", "none")
 TIME_SYSTEMS = ("gpst", "utc")
 """Time scale of the output time stamps (``--time-system``)."""
 INTEGRITY_OPTIONS = ("fde", "check", "off")
+ENVIRONMENTS = ("auto", "open", "urban")
+"""``[processing] environment``: judged from the file, open sky, or street canyon."""
 ROBUST_OPTIONS = ("off", "huber", "cauchy")
 """``robust``: plain ls/wls, or an M-estimator by IRLS (:mod:`gnss_cli.solvers.robust`)."""
 SYSTEM_LETTERS = ("G", "E", "C", "J", "R")
@@ -95,6 +97,15 @@ class ProcessingConfig:
     """Time scale of the output time stamps: ``gpst`` or ``utc`` (GPST - leap seconds)."""
     integrity: str = "fde"
     """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
+    environment: str = "auto"
+    """``auto``, ``open`` or ``urban``: the street-canyon settings
+    (:data:`~gnss_cli.pipeline.environment.URBAN_SETTINGS`) never, always, or when the file's WLS
+    variance factor exceeds ``urban_variance_factor`` (:mod:`gnss_cli.pipeline.environment`)."""
+    urban_variance_factor: float = 0.5
+    """The median WLS variance factor (chi-square over degrees of freedom, dimensionless) above
+    which ``auto`` takes a file for a street canyon (see default.toml)."""
+    environment_judgement: str = ""
+    """Set by a run, not a key: what judged ``auto`` (``auto: variance factor 1.62 > 0.5``; empty: given)."""
     integrity_pfa: float = 1e-3
     max_gdop: float = 30.0
     alert_limit_h_m: float = float("inf")
@@ -235,6 +246,10 @@ class ProcessingConfig:
         for name in ("integrity_pfa",):
             if not 0.0 < getattr(self, name) < 0.5:
                 raise ConfigError(f"{name}: expected 0 < value < 0.5; received {getattr(self, name)}")
+        if self.environment not in ENVIRONMENTS:
+            raise ConfigError(f"environment: expected one of {', '.join(ENVIRONMENTS)}; received {self.environment!r}")
+        if not 0.0 < self.urban_variance_factor < float("inf"):
+            raise ConfigError(f"urban_variance_factor: expected a finite value > 0; received {self.urban_variance_factor}")
         if self.max_exclusions < 0:
             raise ConfigError(f"max_exclusions: expected >= 0; received {self.max_exclusions}")
         if not 1 <= self.max_simultaneous_faults <= 3:
@@ -368,12 +383,12 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
 
 _SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman", "nlos")
 _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman",
-               "nlos"}
+               "nlos", "environment_judgement"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
            "nominal_bias_cn0_sigmas", "snr_mask_dbhz", "robust_huber_k", "robust_cauchy_c", "robust_tolerance", "doppler_sigma_m_s",
-           "phase_sigma_m", "phase_slip_m", "max_segment_misfit")
+           "phase_sigma_m", "phase_slip_m", "max_segment_misfit", "urban_variance_factor")
 _INTS = ("max_iterations", "min_satellites", "max_exclusions", "fde_min_dof", "max_simultaneous_faults", "robust_max_iterations",
          "chunk_epochs", "stream_above_epochs", "processes")
 
@@ -405,6 +420,8 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             proc["exclude"] = parse_satellites(proc["exclude"])
         if "robust" in proc:
             proc["robust"] = str(proc["robust"]).lower()
+        if "environment" in proc:
+            proc["environment"] = str(proc["environment"]).lower()
         for key in _FLOATS:
             if key in proc:
                 proc[key] = float(proc[key])

@@ -34,6 +34,7 @@ the rows are those of one process, bit for bit.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from functools import partial
@@ -50,6 +51,7 @@ from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
     Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, system_warnings, used_systems,
 )
+from gnss_cli.pipeline.environment import HEAD_EPOCHS, judged
 from gnss_cli.pipeline.memory import map_large_blocks
 from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
@@ -219,7 +221,9 @@ class Run:
 
     def __init__(self, obs_path: str | Path, nav_paths: Sequence[str | Path], config: ProcessingConfig,
                  progress: Progress | None = None) -> None:
-        self.obs_path, self.nav_paths, self.config = obs_path, list(nav_paths), config
+        # an environment given (open, urban) is set now: a judged one (auto) once the file is read
+        self.obs_path, self.nav_paths = obs_path, list(nav_paths)
+        self.config = config if config.environment == "auto" else judged(config, None)
         whole = 1 << 62 if config.chunk_epochs == 0 else max(config.stream_above_epochs, config.chunk_epochs)
         self.chunk_epochs = config.chunk_epochs or whole
         self.whole_epochs = max(whole, 1)
@@ -250,11 +254,15 @@ class Run:
         held = [next(chunks)]
         second = next(chunks, None)
         if second is None:  # one part: the whole file
+            survey = _Survey()
+            survey.add(held[0], setup)
+            self._judge(held[0], setup, survey)
             workers = self._workers(held[0].sizes["time"])
             pieces = split_epochs(held.pop(), workers) if workers > 1 else held
-            survey = _Survey()
-            for piece in pieces:
-                survey.add(piece, setup)
+            if workers > 1:  # the survey of the pieces, as each process makes its own
+                survey = _Survey()
+                for piece in pieces:
+                    survey.add(piece, setup)
 
             def reread() -> list[xr.Dataset]:  # a restart (rare): the file read again
                 whole = next(iter_obs_chunks(self.obs_path, setup.systems, setup.codes, self.whole_epochs))
@@ -264,12 +272,15 @@ class Run:
             return
         map_large_blocks()
         survey = _Survey()
-        for obs in (held.pop(), second):
+        head: list[xr.Dataset] = []  # the first HEAD_EPOCHS epochs, whatever the parts: what judges the environment
+        for obs in itertools.chain((held.pop(), second), chunks):
             survey.add(obs, setup)
-        del second, obs
-        for obs in chunks:
-            survey.add(obs, setup)
+            if sum(h.sizes["time"] for h in head) < HEAD_EPOCHS:
+                head.append(obs.isel(time=slice(0, HEAD_EPOCHS)))
             del obs
+        del second
+        self._judge(xr.concat(head, dim="time", join="outer") if len(head) > 1 else head[0], setup, survey)
+        del head
         yield from self._solve(setup, survey, finish)
 
     def _run_split(self, split: ObsRuns, setup: EpochSetup, finish: Callable[[RunResult], Any]) -> Iterator[Any]:
@@ -290,10 +301,18 @@ class Run:
             first = split.parse(0)
             setup.read_navigation()
             survey = _whole_survey(split, [_Survey.of(first, setup)] + [child.recv() for child in children])
+            self._judge(first, setup, survey)
+            if self._workers(self.whole_epochs) == 1:  # judged a canyon: the NLOS detector wants the whole file
+                for child in children:
+                    child.cancel()
+                whole = xr.concat([ds for ds in [first] + [split.parse(k) for k in range(1, len(split))]
+                                   if ds is not None], dim="time", join="outer")
+                yield from self._solve(setup, survey, finish, [whole], reparse=lambda: [whole])
+                return
 
             def first_pass(systems: list[str], sv: np.ndarray, used: tuple[str, ...]):  # type: ignore[no-untyped-def]
                 for child in children:
-                    child.send((systems, sv, used))
+                    child.send((systems, sv, used, self.config))
                 return (yield from self._gather(
                     [None if first is None else solve_part(first, setup, systems, sv, used, self.config, finish)]
                     + children))
@@ -313,8 +332,8 @@ class Run:
         piece = split.parse(k)
         channel.send(_Survey.of(piece, setup))
         setup.read_navigation()
-        systems, sv, used = channel.recv()
-        return None if piece is None else solve_part(piece, setup, systems, sv, used, self.config, finish)
+        systems, sv, used, config = channel.recv()  # the config with its environment judged
+        return None if piece is None else solve_part(piece, setup, systems, sv, used, config, finish)
 
     def _gather(self, outcomes: list[Any]) -> Iterator[Any]:
         """Hand out the parts' outputs in order (a :class:`~gnss_cli.parallel.Forked` waited for);
@@ -337,6 +356,20 @@ class Run:
             del out, outcome
         assert cov is not None
         return cov, counts
+
+    def _judge(self, head: xr.Dataset | None, setup: EpochSetup, survey: _Survey) -> None:
+        """Resolve the run's environment (:func:`~gnss_cli.pipeline.environment.judged`) from the
+        first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs of the file, ``head``
+        (at least those; None: a first part without records, judged open), on the axes of ``survey``."""
+        data = None
+        if head is not None and self.config.environment == "auto" and self.config.integrity != "off":
+            systems, sv = self._axes(setup, survey)
+            sys_of = np.array([s[0] for s in sv])
+            used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
+            if self.progress:
+                self.progress("judging the environment", 0.0)
+            data, _ = part_epochs(head.isel(time=slice(0, HEAD_EPOCHS)), setup, systems, sv, used)
+        self.config = judged(self.config, data)
 
     def _refused(self, error: OSError) -> None:
         """No more processes from now on; the run's warnings say why."""

@@ -29,7 +29,7 @@ def invoke(args, capsys, application=app, prog="gnss-solve"):  # type: ignore[no
 def test_tst2_ground_truth_as_is_equals_the_truth_converted_independently(rinex_dir, tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
     d = rinex_dir / "tst2-2020155-urban-static"
     truth = d / "groundTruth_TST.csv"
-    files = [d / "2020_06_03_TST_03.obs.gz", d / "hksc155d.20n", "--method", "ls,wls"]
+    files = [d / "2020_06_03_TST_03.obs.gz", d / "hksc155d.20n", "--method", "ls,wls", "--environment", "open"]
     code, _, err = invoke([*files, "--reference-csv", truth, "--out-dir", tmp_path / "as_is"], capsys)
     assert code == 0, err
     raw = np.loadtxt(truth, delimiter=",")

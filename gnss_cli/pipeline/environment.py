@@ -1,0 +1,113 @@
+"""The receiver's environment, open sky or street canyon, judged from the file itself
+(``[processing] environment``, ``--environment``).
+
+Street canyons need settings that cost elsewhere (docs/integrity.md, "The environment"): the
+NLOS detector (``[nlos] detector = "arcs"``), fixes that only suspected reflections test made
+``nlos_dependent`` (``[nlos] min_direct_dof = 1``) and protection levels that monitor several
+faulty satellites at once (``max_simultaneous_faults = 3`` at ``prior_fault_satellite = 1e-2``):
+:data:`URBAN_SETTINGS`, what ``configs/urban.toml`` sets. With ``environment = "auto"`` (the
+default) a run takes them when its pseudoranges disagree with one another far more than their
+noise model says, as reflections make them do:
+
+- the **variance factor** of an epoch is its WLS chi-square statistic over its degrees of
+  freedom, ``T / dof`` with ``T = sum_i r_i^2 / sigma_i^2`` (``sigma_i`` the a-priori sigma of
+  ``[weights]``, ``dof = n - 3 - clocks``), of the packaged WLS fix (FDE, no NLOS detector);
+- the file's is the median over the epochs with ``dof >= 1`` among its first
+  :data:`HEAD_EPOCHS` epochs (the whole file when shorter; a file read in parts is judged on the
+  same epochs, whatever its parts and processes);
+- above ``urban_variance_factor`` the run is ``urban``, else ``open``; with no epoch to judge
+  (no redundancy) it stays ``open``.
+
+Measured on training data (``benchmarks/choose_environment.py``): 0.04-0.06 on the real open-sky
+sets, 0.28-0.36 on simulated open-sky drives and flights (the simulator's noise is larger than
+the weights assume), 0.97-2.03 on simulated street-canyon drives, 1.27 on tst2 and 2.37 on
+smartloc-berlin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.pipeline.integrity import take_epochs
+from gnss_cli.pipeline.results import EpochData, MethodSolution
+
+__all__ = ["HEAD_EPOCHS", "URBAN_SETTINGS", "variance_factor", "head_variance_factor", "with_environment", "judged", "describe"]
+
+HEAD_EPOCHS = 500
+"""Epochs at the start of a file that judge its environment (the first part of a file read in
+parts holds at least this many: ``PART_MIN_EPOCHS``, ``chunk_epochs``)."""
+
+URBAN_SETTINGS: dict[str, object] = {
+    "max_simultaneous_faults": 3,
+    "prior_fault_satellite": 1e-2,
+    "nlos.detector": "arcs",
+    "nlos.min_direct_dof": 1,
+}
+"""What an ``urban`` environment sets (``configs/urban.toml``; each value's choice on training
+data is in docs/integrity.md)."""
+
+
+def variance_factor(sol: MethodSolution, data: EpochData) -> float:
+    """The median over epochs of the WLS variance factor ``T / dof`` of ``sol`` (module
+    docstring); NaN when no epoch has a finite statistic and ``dof >= 1``."""
+    if sol.test_stat is None:
+        return float("nan")
+    used = np.isfinite(sol.residuals_m)
+    if sol.excluded is not None:
+        used &= ~sol.excluded
+    clocks = np.zeros(used.shape[0], dtype=np.int64)
+    for c in np.unique(data.clock_index):
+        clocks += used[:, data.clock_index == c].any(axis=1)
+    dof = used.sum(axis=1) - 3 - clocks
+    good = (dof >= 1) & np.isfinite(sol.test_stat)
+    return float(np.median(sol.test_stat[good] / dof[good])) if good.any() else float("nan")
+
+
+def head_variance_factor(config: ProcessingConfig, data: EpochData) -> float:
+    """:func:`variance_factor` of the packaged WLS fix (``config``'s, without the NLOS detector)
+    of the first :data:`HEAD_EPOCHS` epochs of ``data``: what ``auto`` judges by."""
+    from gnss_cli.pipeline.snapshot import solve_methods  # the snapshot solvers import this module's users
+
+    head = take_epochs(data, np.arange(min(data.time_gps_s.size, HEAD_EPOCHS)))
+    wls = solve_methods(head, replace(config, methods=("wls",), nlos=replace(config.nlos, detector="off")))["wls"]
+    return variance_factor(wls, head)
+
+
+def with_environment(config: ProcessingConfig, environment: str, judgement: str = "") -> ProcessingConfig:
+    """``config`` in ``environment`` (``open`` or ``urban``: :data:`URBAN_SETTINGS` over it), with
+    the words that judged it (empty: as given)."""
+    out = replace(config, environment=environment, environment_judgement=judgement)
+    if environment != "urban":
+        return out
+    nlos = {k.split(".", 1)[1]: v for k, v in URBAN_SETTINGS.items() if k.startswith("nlos.")}
+    top = {k: v for k, v in URBAN_SETTINGS.items() if "." not in k}
+    return replace(out, nlos=replace(config.nlos, **nlos), **top)  # type: ignore[arg-type]
+
+
+def judged(config: ProcessingConfig, data: EpochData | None) -> ProcessingConfig:
+    """``config`` with its environment resolved: ``open`` and ``urban`` as they are, ``auto`` from
+    the first :data:`HEAD_EPOCHS` epochs of ``data`` (module docstring). With ``integrity = "off"``
+    nothing is tested or excluded, so ``auto`` is ``open``; so is a run without an epoch to judge
+    (``data`` None, or no epoch with redundancy)."""
+    if config.environment != "auto":
+        return with_environment(config, config.environment)
+    if config.integrity == "off":
+        return with_environment(config, "open", "auto: integrity off")
+    if data is None:
+        return with_environment(config, "open", "auto: no epoch to judge")
+    factor = head_variance_factor(config, data)
+    if not np.isfinite(factor):
+        return with_environment(config, "open", "auto: no epoch with redundancy to judge")
+    urban = factor > config.urban_variance_factor
+    return with_environment(config, "urban" if urban else "open",
+                            f"auto: variance factor {factor:.2f} {'>' if urban else '<='} {config.urban_variance_factor:g}")
+
+
+def describe(config: ProcessingConfig) -> str:
+    """The environment a run took and why, for ``summary.csv`` and stderr: ``urban (auto:
+    variance factor 1.62 > 0.5)``, ``open (auto: variance factor 0.06 <= 0.5)``, ``open (auto:
+    no epoch to judge)``, or ``open`` / ``urban`` as given; ``auto`` before a run judges it."""
+    return f"{config.environment} ({config.environment_judgement})" if config.environment_judgement else config.environment
