@@ -14,7 +14,9 @@ has a ``method=`` argument of its own, the lookup rule; ``sel(time=t, method="ne
 means that);
 ``tdop_<letter>`` variables per system when several systems are processed, ``gdop_paper``
 with TLS, and the error variables when a reference is given. Every variable has ``units``
-and ``long_name`` attributes.
+and ``long_name`` attributes; the dataset's ``attrs`` say what the run read and took:
+``obs_path``, ``nav_paths``, ``systems``, ``warnings`` and ``environment`` (``urban (auto:
+variance factor 1.62 > 0.5)``: docs/integrity.md, "The environment").
 """
 
 from __future__ import annotations
@@ -273,5 +275,6 @@ def to_dataset(result: RunResult, reference_ecef_m: F64 | None = None) -> "Solut
         "time_scale": "GPS", "obs_path": epochs.obs_path, "nav_paths": list(epochs.nav_paths),
         "marker_name": epochs.marker_name, "systems": list(epochs.systems), "warnings": list(epochs.warnings),
         "reference_clock_system": epochs.systems[0] if epochs.systems else "",
+        "environment": result.environment,
     }
     return SolutionDataset(data_vars, coords=coords, attrs=attrs)

@@ -395,6 +395,9 @@ class RunResult:
     solutions: dict[str, MethodSolution] = field(default_factory=dict)
     models: tuple[WindowModel, ...] = ()
     settings: dict[str, Any] = field(default_factory=dict)
+    environment: str = ""
+    """The environment the run took and why (:func:`~gnss_cli.pipeline.environment.describe`;
+    empty for a part: set on the whole run by :func:`~gnss_cli.pipeline.run.process`)."""
 
     @property
     def warnings(self) -> tuple[str, ...]:

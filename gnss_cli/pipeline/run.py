@@ -51,7 +51,7 @@ from gnss_cli.io.obs_chunks import ObsRuns, iter_obs_chunks, split_obs
 from gnss_cli.pipeline.epochs import (
     Coverage, EpochSetup, _systems_with_data, file_warnings, signal_setup, system_warnings, used_systems,
 )
-from gnss_cli.pipeline.environment import HEAD_EPOCHS, judged
+from gnss_cli.pipeline.environment import HEAD_EPOCHS, describe, judged
 from gnss_cli.pipeline.memory import map_large_blocks
 from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
@@ -89,8 +89,8 @@ def process(obs_path: str | Path, nav_paths: Sequence[str | Path], config: Proce
     -------
     RunResult
         Every epoch of the file, one solution per method of ``config.methods`` (in that order),
-        the window models of the multi-epoch methods, each method's resolved settings and the
-        run's warnings (``RunResult.warnings``).
+        the window models of the multi-epoch methods, each method's resolved settings, the
+        environment it took (``RunResult.environment``) and the run's warnings (``RunResult.warnings``).
 
     Raises
     ------
@@ -107,7 +107,7 @@ def process(obs_path: str | Path, nav_paths: Sequence[str | Path], config: Proce
         else:
             parts.append(part)
     result = concat_results(parts)
-    return replace(result, epochs=replace(result.epochs, warnings=run.warnings))
+    return replace(result, epochs=replace(result.epochs, warnings=run.warnings), environment=describe(run.config))
 
 
 class MultiEpoch:

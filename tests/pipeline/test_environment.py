@@ -126,6 +126,7 @@ def test_a_judged_run_is_the_run_given_its_environment(canyon: Path, open_sky: P
     opened = process(*_files(canyon), load_config(None, {**over, "environment": "open"}))
     assert not np.array_equal(auto.solutions["wls"].status, opened.solutions["wls"].status)
     assert "min direct dof 1" in auto.settings["wls"].integrity and "nlos" not in opened.settings["wls"].integrity
+    assert auto.environment.startswith("urban (auto: variance factor ") and opened.environment == "open"
     _same(process(*_files(open_sky), load_config(None, over)),
           process(*_files(open_sky), load_config(None, {**over, "environment": "open"})))
 
@@ -179,3 +180,12 @@ def test_the_outputs_say_which_environment_ran(canyon: Path, tmp_path: Path, cap
     assert done.value.code == 3
     assert "environment: expected one of auto, open, urban" in capsys.readouterr().err
     assert not (tmp_path / "p.csv").exists()
+
+
+def test_the_python_api_says_which_environment_ran() -> None:
+    import gnss_cli
+
+    sample = ROOT / "sample_rinex" / "static"
+    ds = gnss_cli.solve(sample / "obs.rnx", sample / "nav.rnx")
+    assert ds.attrs["environment"].startswith("open (auto: variance factor ")
+    assert gnss_cli.solve(sample / "obs.rnx", sample / "nav.rnx", environment="urban").attrs["environment"] == "urban"
