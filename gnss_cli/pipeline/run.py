@@ -15,6 +15,13 @@ records but turns out unusable all through the file (every satellite excluded, m
 unhealthy) is only known at the end: the parts are then handed out again from the start
 (:data:`RESTART`), without it.
 
+Before anything is solved the run's environment is resolved
+(:func:`~gnss_cli.pipeline.environment.judged`): with ``environment = "auto"`` from the file's
+first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs, whatever its parts, so that a file
+in parts or in several processes takes the settings of the whole file. A file cut over processes
+before it was judged a street canyon is joined again and solved in this one (the NLOS detector
+estimates its C/N0 template from the whole file).
+
 The multi-epoch methods (``stls`` with ``lag >= 1``, ``smoother``, ``kf``) run on the parts'
 WLS solutions in overlapping pieces (:class:`MultiEpoch`): each piece is the epochs not yet
 handed out plus :data:`MARGIN_EPOCHS` epochs on either side, and only its middle is handed out.
@@ -364,8 +371,7 @@ class Run:
         data = None
         if head is not None and self.config.environment == "auto" and self.config.integrity != "off":
             systems, sv = self._axes(setup, survey)
-            sys_of = np.array([s[0] for s in sv])
-            used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
+            used = _clock_systems(setup, systems, sv)
             if self.progress:
                 self.progress("judging the environment", 0.0)
             data, _ = part_epochs(head.isel(time=slice(0, HEAD_EPOCHS)), setup, systems, sv, used)
@@ -419,8 +425,7 @@ class Run:
         already being read elsewhere (:meth:`_run_split`); ``reparse()``: the datasets again for
         another pass."""
         systems, sv = self._axes(setup, survey)
-        sys_of = np.array([s[0] for s in sv])
-        used = tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
+        used = _clock_systems(setup, systems, sv)
         n_epochs = int(sum(t.size for t in survey.times))
         while True:
             if first_pass is not None:
@@ -537,6 +542,13 @@ class Run:
             del out  # before the next part is read: one part in memory at a time
         assert cov is not None
         return cov, counts
+
+
+def _clock_systems(setup: EpochSetup, systems: list[str], sv: np.ndarray) -> tuple[str, ...]:
+    """The systems of ``systems`` with a satellite on the axis ``sv`` and broadcast records: the
+    clock columns, until a pass finds one unusable all through the file."""
+    sys_of = np.array([s[0] for s in sv])
+    return tuple(sy for sy in systems if (sys_of == sy).any() and setup.records(sy)[0] is not None)
 
 
 def _add_counts(counts: dict[str, dict[str, int]], more: dict[str, dict[str, int]]) -> None:
