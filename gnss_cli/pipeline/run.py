@@ -42,7 +42,7 @@ the rows are those of one process, bit for bit.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -263,7 +263,7 @@ class Run:
         if second is None:  # one part: the whole file
             survey = _Survey()
             survey.add(held[0], setup)
-            self._judge(held[0], setup, survey)
+            self._judge(_head(held), setup, survey)
             workers = self._workers(held[0].sizes["time"])
             pieces = split_epochs(held.pop(), workers) if workers > 1 else held
             if workers > 1:  # the survey of the pieces, as each process makes its own
@@ -286,7 +286,7 @@ class Run:
                 head.append(obs.isel(time=slice(0, HEAD_EPOCHS)))
             del obs
         del second
-        self._judge(xr.concat(head, dim="time", join="outer") if len(head) > 1 else head[0], setup, survey)
+        self._judge(_head(head), setup, survey)
         del head
         yield from self._solve(setup, survey, finish)
 
@@ -301,6 +301,7 @@ class Run:
             self._refused(children)
             parsed = [split.parse(k) for k in range(len(split))]
             survey = _whole_survey(split, [_Survey.of(ds, setup) for ds in parsed])
+            self._judge(_head(parsed), setup, survey)
             yield from self._solve(setup, survey, finish, [ds for ds in parsed if ds is not None],
                                    reparse=lambda: [ds for ds in map(split.parse, range(len(split))) if ds is not None])
             return
@@ -308,7 +309,8 @@ class Run:
             first = split.parse(0)
             setup.read_navigation()
             survey = _whole_survey(split, [_Survey.of(first, setup)] + [child.recv() for child in children])
-            self._judge(first, setup, survey)
+            # a part holds HEAD_EPOCHS epochs (PART_MIN_EPOCHS) unless set shorter: then the next are parsed here too
+            self._judge(_head(itertools.chain([first], (split.parse(k) for k in range(1, len(split))))), setup, survey)
             if self._workers(self.whole_epochs) == 1:  # judged a canyon: the NLOS detector wants the whole file
                 for child in children:
                     child.cancel()
@@ -366,15 +368,15 @@ class Run:
 
     def _judge(self, head: xr.Dataset | None, setup: EpochSetup, survey: _Survey) -> None:
         """Resolve the run's environment (:func:`~gnss_cli.pipeline.environment.judged`) from the
-        first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs of the file, ``head``
-        (at least those; None: a first part without records, judged open), on the axes of ``survey``."""
+        file's first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs, ``head``
+        (:func:`_head`; None: no records, judged open), on the axes of ``survey``."""
         data = None
         if head is not None and self.config.environment == "auto" and self.config.integrity != "off":
             systems, sv = self._axes(setup, survey)
             used = _clock_systems(setup, systems, sv)
             if self.progress:
                 self.progress("judging the environment", 0.0)
-            data, _ = part_epochs(head.isel(time=slice(0, HEAD_EPOCHS)), setup, systems, sv, used)
+            data, _ = part_epochs(head, setup, systems, sv, used)
         self.config = judged(self.config, data)
 
     def _refused(self, error: OSError) -> None:
@@ -542,6 +544,21 @@ class Run:
             del out  # before the next part is read: one part in memory at a time
         assert cov is not None
         return cov, counts
+
+
+def _head(datasets: Iterable[xr.Dataset | None]) -> xr.Dataset | None:
+    """The first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs of consecutive
+    ``datasets`` (None: a part without records), taking no more of them than it needs; None
+    when none has records."""
+    head: list[xr.Dataset] = []
+    for ds in datasets:
+        if sum(h.sizes["time"] for h in head) >= HEAD_EPOCHS:
+            break
+        if ds is not None:
+            head.append(ds)
+    if not head:
+        return None
+    return (xr.concat(head, dim="time", join="outer") if len(head) > 1 else head[0]).isel(time=slice(0, HEAD_EPOCHS))
 
 
 def _clock_systems(setup: EpochSetup, systems: list[str], sv: np.ndarray) -> tuple[str, ...]:
