@@ -23,8 +23,10 @@ from gnss_cli.pipeline.nlos import (code_minus_doppler_m, cusum_spans, doppler_s
 from gnss_cli.sim.scenario import los_grid
 
 ROOT = Path(__file__).resolve().parents[2]
-ARCS = {"methods": "wls", "nlos.detector": "arcs"}
-OFF = {"methods": "wls", "nlos.detector": "off"}
+ARCS = {"methods": "wls", "environment": "open", "nlos.detector": "arcs"}
+OFF = {"methods": "wls", "environment": "open", "nlos.detector": "off"}
+"""The detector alone, on or off: the open-sky settings otherwise (the default judges a canyon
+urban, which turns the detector on with the levels over several satellites and min_direct_dof 1)."""
 
 
 def _simulate(out: Path, *args: str) -> Path:
@@ -351,7 +353,7 @@ def test_the_command_line_says_no_epoch_is_ok_without_quoting_nan(canyon_single:
     from gnss_cli.cli.solve import app
 
     cfg = tmp_path / "all.toml"
-    cfg.write_text('[nlos]\ndetector = "arcs"\nmin_direct_dof = 99\n')
+    cfg.write_text('[processing]\nenvironment = "open"\n[nlos]\ndetector = "arcs"\nmin_direct_dof = 99\n')
     with pytest.raises(SystemExit) as done:
         run_app(app, "gnss-solve", [str(canyon_single / "obs.rnx"), str(canyon_single / "nav.rnx"), "--config", str(cfg),
                                     "--reference-csv", str(canyon_single / "truth.csv"), "--out-dir", str(tmp_path / "o")])
@@ -468,8 +470,9 @@ def test_multi_epoch_spans_take_the_canyon_reflections_out(canyon_single: Path) 
     ones, and their 3D error over every epoch falls. WLS is the same with or without them."""
     obs, navs = canyon_single / "obs.rnx", [canyon_single / "nav.rnx"]
     truth = pd.read_csv(canyon_single / "truth.csv")[["x_m", "y_m", "z_m"]].to_numpy()
-    on = process(obs, navs, load_config(None, {"methods": "wls,smoother,kf"}))
-    off = process(obs, navs, load_config(None, {"methods": "wls,smoother,kf", "nlos.multi_epoch": "off"}))
+    over = {"methods": "wls,smoother,kf", "environment": "open"}  # WLS without the NLOS detector
+    on = process(obs, navs, load_config(None, over))
+    off = process(obs, navs, load_config(None, {**over, "nlos.multi_epoch": "off"}))
     labels = _labels(on, pd.read_csv(canyon_single / "faults.csv"))
     wls = on.solutions["wls"]
     np.testing.assert_array_equal(wls.x_ecef_m, off.solutions["wls"].x_ecef_m)
