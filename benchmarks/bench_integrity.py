@@ -118,7 +118,7 @@ def clean_0759() -> dict[str, object]:
 
 
 def urban_tst(settings: dict[str, object]) -> dict[str, object]:
-    cfg = load_config(None, settings)
+    cfg = load_config(None, {"environment": "open", **settings})  # as measured: the open-sky settings
     navs = sorted(TST.glob("hksc155d.20?"))
     res = process(TST / "2020_06_03_TST_03.obs.gz", navs, cfg)
     sol = res.solutions["wls"]

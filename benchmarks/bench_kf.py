@@ -63,7 +63,7 @@ def stats(x: np.ndarray, ref: np.ndarray) -> dict[str, float]:
 def run_set(obs: Path, nav: list[Path], ref_of, base: dict[str, object], truth_v: np.ndarray | None) -> dict[str, dict]:  # type: ignore[no-untyped-def]
     out: dict[str, dict] = {}
     for name, extra in VARIANTS.items():
-        result = process(obs, nav, load_config(None, {"methods": "wls,kf", **base, **extra}))
+        result = process(obs, nav, load_config(None, {"methods": "wls,kf", "environment": "open", **base, **extra}))
         ref = ref_of(result.epochs.time_gps_s)
         for method, s in result.solutions.items():
             key = "wls" if method == "wls" else name

@@ -75,7 +75,7 @@ def main() -> None:
     results: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         for name, (obs, navs, ref_of) in sets(Path(tmp_name), args.rinex).items():
-            cfg = load_config(None, {"methods": "wls,kf"})
+            cfg = load_config(None, {"methods": "wls,kf", "environment": "open"})  # as measured: open-sky settings
             data = load_epochs(obs, navs, cfg)
             wls = solve_method(data, "wls", cfg)
             ref, sel = ref_of(data.time_gps_s)  # type: ignore[operator]

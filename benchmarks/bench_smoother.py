@@ -117,7 +117,7 @@ def measurement_sets(data) -> list[frozenset[str]]:  # type: ignore[no-untyped-d
 def new_rows(obs: Path, navs: list[Path], base: dict[str, object], ref_of) -> dict[str, dict]:  # type: ignore[no-untyped-def]
     from gnss_cli.pipeline.smoother import smooth_segments
 
-    config = load_config(None, {**base, "methods": "wls,smoother"})
+    config = load_config(None, {**base, "methods": "wls,smoother", "environment": "open"})  # as measured
     data = load_epochs(obs, navs, config)  # the epochs of a smoothing run: with carrier phase where the file has it
     wls = solve_method(data, "wls", config)
     t = data.time_gps_s

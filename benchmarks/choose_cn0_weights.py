@@ -88,7 +88,9 @@ def score_candidates(candidates: dict[str, dict[str, object]], cases: list[tuple
     seconds: dict[str, dict[str, float]] = {c: {} for c in candidates}
     for name, obs, navs, systems, ref_at, keep_at in cases:
         for cand, over in candidates.items():
-            cfg = load_config(None, {"methods": "wls", **({"systems": systems} if systems else {}), **over})
+            # the open-sky settings the choices were made with, unless a candidate names an environment
+            cfg = load_config(None, {"methods": "wls", "environment": "open", **({"systems": systems} if systems else {}),
+                                     **over})
             t1 = time.perf_counter()
             res = process(obs, navs, cfg)
             seconds[cand][name] = time.perf_counter() - t1

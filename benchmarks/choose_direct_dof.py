@@ -47,7 +47,7 @@ VALUES = (0, 1, 2, 3)
 MAX_RATIO = 0.5
 CANDIDATES: dict[str, tuple[Path | None, dict[str, object]]] = {
     "integrity off": (None, {"integrity": "off"}),
-    **{f"urban, min_direct_dof {m}": (URBAN, {"nlos.min_direct_dof": m}) for m in VALUES},
+    **{f"urban, min_direct_dof {m}": (URBAN, {"urban.nlos_min_direct_dof": m}) for m in VALUES},
 }
 """Each candidate's settings file (None: the packaged defaults) and overrides."""
 

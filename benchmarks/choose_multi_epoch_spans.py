@@ -68,7 +68,8 @@ def run_candidates(candidates: dict[str, dict[str, object]], seeds: list[int], d
         cases = simulated_cases(seeds, duration, Path(tmp)) + real_cases(quick)
         for name, obs, navs, systems, ref_at, keep_at, faults in cases:
             for cand, over in candidates.items():
-                cfg = load_config(None, {"methods": ",".join(METHODS), **({"systems": systems} if systems else {}), **over})
+                cfg = load_config(None, {"methods": ",".join(METHODS), "environment": "open",  # as chosen: open-sky settings
+                                         **({"systems": systems} if systems else {}), **over})
                 t1 = time.perf_counter()
                 res = process(obs, navs, cfg)
                 t = res.epochs.time_gps_s

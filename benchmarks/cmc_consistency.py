@@ -72,7 +72,7 @@ def main() -> None:
     seeds, duration, quick = training_run(__doc__, "one seed per profile, 120 s, tst2")
     seeds = seeds if quick else TRAINING_SEEDS
     t0 = time.perf_counter()
-    cfg = load_config(None, {"methods": "wls,smoother"})  # a multi-epoch method: the carrier phase is read
+    cfg = load_config(None, {"methods": "wls,smoother", "environment": "open"})  # a multi-epoch method: the carrier phase is read
     rows: list[list[object]] = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, obs, navs, systems, _, _, faults in simulated_cases(seeds, duration, Path(tmp)) + real_cases(True):

@@ -29,6 +29,7 @@ from gnss_cli.config.sections import (
     NlosConfig,
     SmootherConfig,
     StlsConfig,
+    UrbanConfig,
     WeightConfig,
 )
 from gnss_cli.constants import METHOD_KEYS, MULTI_EPOCH_METHOD_KEYS
@@ -44,7 +45,8 @@ if TYPE_CHECKING:
     from importlib.resources.abc import Traversable
 
 __all__ = [
-    "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "NlosConfig", "load_config",
+    "ProcessingConfig", "WeightConfig", "StlsConfig", "SmootherConfig", "KalmanConfig", "NlosConfig", "UrbanConfig",
+    "load_config",
     "packaged_defaults", "parse_methods", "parse_systems", "parse_satellites", "parse_measurements", "ALL_METHOD_KEYS",
     "parse_alert_limits",
     "IONO_OPTIONS", "TIME_SYSTEMS", "INTEGRITY_OPTIONS", "ENVIRONMENTS", "ROBUST_OPTIONS", "SYSTEM_LETTERS", "DEFAULT_CONFIG_PATH",
@@ -98,8 +100,8 @@ class ProcessingConfig:
     integrity: str = "fde"
     """``fde`` (test, exclude, re-solve), ``check`` (test only) or ``off`` (see default.toml)."""
     environment: str = "auto"
-    """``auto``, ``open`` or ``urban``: the street-canyon settings
-    (:data:`~gnss_cli.pipeline.environment.URBAN_SETTINGS`) never, always, or when the file's WLS
+    """``auto``, ``open`` or ``urban``: the street-canyon settings (:attr:`urban`, the ``[urban]``
+    table) never, always, or when the file's WLS
     variance factor exceeds ``urban_variance_factor`` (:mod:`gnss_cli.pipeline.environment`)."""
     urban_variance_factor: float = 0.5
     """The median WLS variance factor (chi-square over degrees of freedom, dimensionless) above
@@ -147,6 +149,8 @@ class ProcessingConfig:
     kalman: KalmanConfig = field(default_factory=lambda: KalmanConfig())
     nlos: NlosConfig = field(default_factory=NlosConfig)
     """The NLOS detector of the ls/wls fixes (``[nlos]``, :mod:`gnss_cli.pipeline.nlos`)."""
+    urban: UrbanConfig = field(default_factory=UrbanConfig)
+    """What the urban environment sets (``[urban]``; :mod:`gnss_cli.pipeline.environment`)."""
     chunk_epochs: int = 1200
     """Epochs per part of a long observation file (``gnss-solve``'s streamed run, see default.toml); 0 = whole file."""
     stream_above_epochs: int = 3600
@@ -274,6 +278,7 @@ class ProcessingConfig:
             raise ConfigError(f"exclude: expected satellite ids like G07, C28; received {bad}")
         self.kalman.validated()
         self.nlos.validated()
+        self.urban.validated()
         if not 0.0 <= self.snr_mask_dbhz < 100.0:
             raise ConfigError(f"snr_mask_dbhz: expected 0 <= value < 100 (0 = no mask); received {self.snr_mask_dbhz}")
         if self.robust not in ROBUST_OPTIONS:
@@ -381,9 +386,9 @@ def _read_toml(path: Path | Traversable) -> dict[str, Any]:
         raise ConfigError(f"{path}: invalid TOML ({exc})") from None
 
 
-_SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman", "nlos")
+_SECTIONS = ("processing", "weights", "signals", "stls", "wtls", "smoother", "kalman", "nlos", "urban")
 _OWN_TABLES = {"weights", "signals", "signals_second", "orbit_sigma_m", "wtls_column_scaling", "stls", "smoother", "kalman",
-               "nlos", "environment_judgement"}
+               "nlos", "urban", "environment_judgement"}
 """ProcessingConfig fields that are not ``[processing]`` keys."""
 _FLOATS = ("elevation_mask_deg", "convergence_m", "integrity_pfa", "max_gdop", "alert_limit_h_m",
            "alert_limit_v_m", "integrity_risk", "prior_fault_satellite", "prior_fault_constellation",
@@ -471,6 +476,9 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             cfg = replace(cfg, nlos=_apply_table(cfg.nlos, data["nlos"], "nlos", source, text=text,
                                                  floats=tuple(f.name for f in fields(NlosConfig)
                                                               if f.name not in text + counts)))
+        if "urban" in data:
+            cfg = replace(cfg, urban=_apply_table(cfg.urban, data["urban"], "urban", source, text=("nlos_detector",),
+                                                  floats=("prior_fault_satellite",)))
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise

@@ -251,3 +251,27 @@ class NlosConfig:
         if self.min_direct_dof < 0:
             raise ConfigError(f"nlos.min_direct_dof: expected >= 0 (0: off); received {self.min_direct_dof}")
         return self
+
+
+@dataclass(frozen=True)
+class UrbanConfig:
+    """What the urban environment sets (``[urban]`` in ``gnss_cli/configs/default.toml``; a run
+    takes it with ``environment = "urban"``, or ``"auto"`` on a file judged a street canyon:
+    :mod:`gnss_cli.pipeline.environment`). Each key stands for the key of the same name in
+    ``[processing]``, or, after ``nlos_``, in ``[nlos]``."""
+
+    max_simultaneous_faults: int = 3
+    prior_fault_satellite: float = 1e-2
+    nlos_detector: str = "arcs"
+    nlos_min_direct_dof: int = 1
+
+    def validated(self) -> "UrbanConfig":
+        if not 1 <= self.max_simultaneous_faults <= 3:
+            raise ConfigError(f"urban.max_simultaneous_faults: expected 1, 2 or 3; received {self.max_simultaneous_faults}")
+        if not 0.0 < self.prior_fault_satellite < 1.0:
+            raise ConfigError(f"urban.prior_fault_satellite: expected 0 < value < 1; received {self.prior_fault_satellite}")
+        if self.nlos_detector not in NLOS_DETECTORS:
+            raise ConfigError(f"urban.nlos_detector: expected one of {', '.join(NLOS_DETECTORS)}; received {self.nlos_detector!r}")
+        if self.nlos_min_direct_dof < 0:
+            raise ConfigError(f"urban.nlos_min_direct_dof: expected >= 0 (0: off); received {self.nlos_min_direct_dof}")
+        return self

@@ -36,6 +36,7 @@ def config_toml(config: ProcessingConfig) -> str:
         ("smoother", _fields(config.smoother)),
         ("kalman", _fields(config.kalman)),
         ("nlos", _fields(config.nlos)),
+        ("urban", _fields(config.urban)),
     ]
     lines = ["# gnss-solve effective configuration (packaged defaults < --config < flags)"]
     for name, table in tables:

@@ -5,7 +5,8 @@ Street canyons need settings that cost elsewhere (docs/integrity.md, "The enviro
 NLOS detector (``[nlos] detector = "arcs"``), fixes that only suspected reflections test made
 ``nlos_dependent`` (``[nlos] min_direct_dof = 1``) and protection levels that monitor several
 faulty satellites at once (``max_simultaneous_faults = 3`` at ``prior_fault_satellite = 1e-2``):
-:data:`URBAN_SETTINGS`, what ``configs/urban.toml`` sets. With ``environment = "auto"`` (the
+the ``[urban]`` table (``ProcessingConfig.urban``), which ``environment = "urban"`` and
+``configs/urban.toml`` take. With ``environment = "auto"`` (the
 default) a run takes them when its pseudoranges disagree with one another far more than their
 noise model says, as reflections make them do:
 
@@ -34,21 +35,11 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
-__all__ = ["HEAD_EPOCHS", "URBAN_SETTINGS", "variance_factor", "head_variance_factor", "with_environment", "judged", "describe"]
+__all__ = ["HEAD_EPOCHS", "variance_factor", "head_variance_factor", "with_environment", "judged", "describe"]
 
 HEAD_EPOCHS = 500
 """Epochs at the start of a file that judge its environment (the first part of a file read in
 parts holds at least this many: ``PART_MIN_EPOCHS``, ``chunk_epochs``)."""
-
-URBAN_SETTINGS: dict[str, object] = {
-    "max_simultaneous_faults": 3,
-    "prior_fault_satellite": 1e-2,
-    "nlos.detector": "arcs",
-    "nlos.min_direct_dof": 1,
-}
-"""What an ``urban`` environment sets (``configs/urban.toml``; each value's choice on training
-data is in docs/integrity.md)."""
-
 
 def variance_factor(sol: MethodSolution, data: EpochData) -> float:
     """The median over epochs of the WLS variance factor ``T / dof`` of ``sol`` (module
@@ -77,14 +68,14 @@ def head_variance_factor(config: ProcessingConfig, data: EpochData) -> float:
 
 
 def with_environment(config: ProcessingConfig, environment: str, judgement: str = "") -> ProcessingConfig:
-    """``config`` in ``environment`` (``open`` or ``urban``: :data:`URBAN_SETTINGS` over it), with
-    the words that judged it (empty: as given)."""
+    """``config`` in ``environment`` (``open``: as it is; ``urban``: its ``[urban]`` table over
+    ``[processing]`` and ``[nlos]``), with the words that judged it (empty: as given)."""
     out = replace(config, environment=environment, environment_judgement=judgement)
     if environment != "urban":
         return out
-    nlos = {k.split(".", 1)[1]: v for k, v in URBAN_SETTINGS.items() if k.startswith("nlos.")}
-    top = {k: v for k, v in URBAN_SETTINGS.items() if "." not in k}
-    return replace(out, nlos=replace(config.nlos, **nlos), **top)  # type: ignore[arg-type]
+    u = config.urban
+    return replace(out, max_simultaneous_faults=u.max_simultaneous_faults, prior_fault_satellite=u.prior_fault_satellite,
+                   nlos=replace(config.nlos, detector=u.nlos_detector, min_direct_dof=u.nlos_min_direct_dof))
 
 
 def judged(config: ProcessingConfig, data: EpochData | None) -> ProcessingConfig:

@@ -15,7 +15,7 @@ import pytest
 from gnss_cli.config import load_config
 from gnss_cli.errors import ConfigError
 from gnss_cli.pipeline import load_epochs, process, solve_method
-from gnss_cli.pipeline.environment import (HEAD_EPOCHS, URBAN_SETTINGS, describe, head_variance_factor, judged,
+from gnss_cli.pipeline.environment import (HEAD_EPOCHS, describe, head_variance_factor, judged,
                                            variance_factor, with_environment)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,18 +81,21 @@ def test_a_canyon_is_judged_urban_and_open_sky_open(canyon: Path, open_sky: Path
 
 
 def test_the_urban_settings_are_those_of_configs_urban_toml() -> None:
-    """``configs/urban.toml`` names the environment; the four settings it stands for are applied over
-    the packaged ones and nothing else changes."""
+    """``configs/urban.toml`` names the environment; its ``[urban]`` table is applied over the
+    packaged settings and nothing else changes. A table of one's own is taken as given (a key set
+    in it, not the packaged value)."""
     base = load_config(None, {})
     urban = judged(load_config(ROOT / "configs" / "urban.toml", {}), None)
     assert urban.environment == "urban" and describe(urban) == "urban"
     assert (urban.max_simultaneous_faults, urban.prior_fault_satellite) == (3, 1e-2)
     assert (urban.nlos.detector, urban.nlos.min_direct_dof) == ("arcs", 1)
-    assert len(URBAN_SETTINGS) == 4
     undone = replace(urban, environment="auto", max_simultaneous_faults=base.max_simultaneous_faults,
                      prior_fault_satellite=base.prior_fault_satellite, nlos=base.nlos)
     assert undone == base
     assert with_environment(base, "open") == replace(base, environment="open")
+    mine = judged(load_config(None, {"environment": "urban", "urban.nlos_min_direct_dof": 0,
+                                     "urban.max_simultaneous_faults": 2}), None)
+    assert (mine.nlos.min_direct_dof, mine.max_simultaneous_faults, mine.nlos.detector) == (0, 2, "arcs")
 
 
 def test_a_given_environment_and_integrity_off_are_not_judged(canyon: Path) -> None:
@@ -104,7 +107,11 @@ def test_a_given_environment_and_integrity_off_are_not_judged(canyon: Path) -> N
 
 
 @pytest.mark.parametrize(("key", "value", "match"), [("environment", "city", "environment: expected one of auto, open, urban"),
-                                                     ("urban_variance_factor", 0.0, "urban_variance_factor: expected")])
+                                                     ("urban_variance_factor", 0.0, "urban_variance_factor: expected"),
+                                                     ("urban.nlos_detector", "cn0", "urban.nlos_detector"),
+                                                     ("urban.max_simultaneous_faults", 4, "urban.max_simultaneous_faults"),
+                                                     ("urban.nlos_min_direct_dof", -1, "urban.nlos_min_direct_dof"),
+                                                     ("urban.prior_fault_satellite", 1.0, "urban.prior_fault_satellite")])
 def test_bad_settings_are_refused_by_name(key: str, value: object, match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         load_config(None, {key: value})
