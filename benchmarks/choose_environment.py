@@ -84,7 +84,7 @@ def real_files() -> dict[str, tuple[str, tuple[Path, list[Path], str | None]]]:
 
 
 def factor_of(obs: Path, navs: list[Path], systems: str | None) -> float:
-    """The variance factor ``auto`` judges a file by (``head_variance_factor``: packaged WLS on its
+    """The variance factor ``auto`` judges a file by (``head_variance_factor``: the plain WLS fix of its
     first :data:`HEAD_EPOCHS` epochs)."""
     over: dict[str, object] = {"methods": "wls", "environment": "open"}
     if systems:

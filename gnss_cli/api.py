@@ -16,7 +16,7 @@ means that);
 with TLS, and the error variables when a reference is given. Every variable has ``units``
 and ``long_name`` attributes; the dataset's ``attrs`` say what the run read and took:
 ``obs_path``, ``nav_paths``, ``systems``, ``warnings`` and ``environment`` (``urban (auto:
-variance factor 1.62 > 0.5)``: docs/integrity.md, "The environment").
+variance factor 1.62 > 0.6)``: docs/integrity.md, "The environment").
 """
 
 from __future__ import annotations

@@ -103,11 +103,11 @@ class ProcessingConfig:
     """``auto``, ``open`` or ``urban``: the street-canyon settings (:attr:`urban`, the ``[urban]``
     table) never, always, or when the file's WLS
     variance factor exceeds ``urban_variance_factor`` (:mod:`gnss_cli.pipeline.environment`)."""
-    urban_variance_factor: float = 0.5
+    urban_variance_factor: float = 0.6
     """The median WLS variance factor (chi-square over degrees of freedom, dimensionless) above
     which ``auto`` takes a file for a street canyon (see default.toml)."""
     environment_judgement: str = ""
-    """Set by a run, not a key: what judged ``auto`` (``auto: variance factor 1.62 > 0.5``; empty: given)."""
+    """Set by a run, not a key: what judged ``auto`` (``auto: variance factor 1.62 > 0.6``; empty: given)."""
     integrity_pfa: float = 1e-3
     max_gdop: float = 30.0
     alert_limit_h_m: float = float("inf")

@@ -12,7 +12,8 @@ noise model says, as reflections make them do:
 
 - the **variance factor** of an epoch is its WLS chi-square statistic over its degrees of
   freedom, ``T / dof`` with ``T = sum_i r_i^2 / sigma_i^2`` (``sigma_i`` the a-priori sigma of
-  ``[weights]``, ``dof = n - 3 - clocks``), of the packaged WLS fix (FDE, no NLOS detector);
+  ``[weights]``, ``dof = n - 3 - clocks``), of the plain WLS fix (no test, exclusion or NLOS
+  detector: a satellite that one epoch's test would exclude moves one epoch of the median);
 - the file's is the median over the epochs with ``dof >= 1`` among its first
   :data:`HEAD_EPOCHS` epochs (the whole file when shorter; a file read in parts is judged on the
   same epochs, whatever its parts and processes);
@@ -43,28 +44,32 @@ parts holds at least this many: ``PART_MIN_EPOCHS``, ``chunk_epochs``)."""
 
 def variance_factor(sol: MethodSolution, data: EpochData) -> float:
     """The median over epochs of the WLS variance factor ``T / dof`` of ``sol`` (module
-    docstring); NaN when no epoch has a finite statistic and ``dof >= 1``."""
-    if sol.test_stat is None:
+    docstring), ``T = sum_i (r_i / sigma_i)^2`` over the satellites the fix used (finite
+    residual, not excluded); NaN when no epoch has ``dof >= 1``."""
+    if sol.sigma_m is None:
         return float("nan")
-    used = np.isfinite(sol.residuals_m)
+    used = np.isfinite(sol.residuals_m) & np.isfinite(sol.sigma_m)
     if sol.excluded is not None:
         used &= ~sol.excluded
+    stat = np.sum(np.where(used, (np.nan_to_num(sol.residuals_m) / np.where(used, sol.sigma_m, 1.0)) ** 2, 0.0), axis=1)
     clocks = np.zeros(used.shape[0], dtype=np.int64)
     for c in np.unique(data.clock_index):
         clocks += used[:, data.clock_index == c].any(axis=1)
     dof = used.sum(axis=1) - 3 - clocks
-    good = (dof >= 1) & np.isfinite(sol.test_stat)
-    return float(np.median(sol.test_stat[good] / dof[good])) if good.any() else float("nan")
+    good = dof >= 1
+    return float(np.median(stat[good] / dof[good])) if good.any() else float("nan")
 
 
 def head_variance_factor(config: ProcessingConfig, data: EpochData) -> float:
-    """:func:`variance_factor` of the packaged WLS fix (``config``'s, without the NLOS detector)
-    of the first :data:`HEAD_EPOCHS` epochs of ``data``: what ``auto`` judges by."""
+    """:func:`variance_factor` of the plain WLS fix (``config``'s weights and robust option; no
+    test, exclusion or NLOS detector: the judgement needs the residuals, not the levels, which
+    would take longer than the fix) of the first :data:`HEAD_EPOCHS` epochs of ``data``: what
+    ``auto`` judges by."""
     from gnss_cli.pipeline.snapshot import solve_methods  # the snapshot solvers import this module's users
 
     head = take_epochs(data, np.arange(min(data.time_gps_s.size, HEAD_EPOCHS)))
-    wls = solve_methods(head, replace(config, methods=("wls",), nlos=replace(config.nlos, detector="off")))["wls"]
-    return variance_factor(wls, head)
+    plain = replace(config, methods=("wls",), integrity="off", nlos=replace(config.nlos, detector="off"))
+    return variance_factor(solve_methods(head, plain)["wls"], head)
 
 
 def with_environment(config: ProcessingConfig, environment: str, judgement: str = "") -> ProcessingConfig:
@@ -99,6 +104,6 @@ def judged(config: ProcessingConfig, data: EpochData | None) -> ProcessingConfig
 
 def describe(config: ProcessingConfig) -> str:
     """The environment a run took and why, for ``summary.csv`` and stderr: ``urban (auto:
-    variance factor 1.62 > 0.5)``, ``open (auto: variance factor 0.06 <= 0.5)``, ``open (auto:
+    variance factor 1.62 > 0.6)``, ``open (auto: variance factor 0.06 <= 0.6)``, ``open (auto:
     no epoch to judge)``, or ``open`` / ``urban`` as given; ``auto`` before a run judges it."""
     return f"{config.environment} ({config.environment_judgement})" if config.environment_judgement else config.environment

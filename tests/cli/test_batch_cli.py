@@ -98,10 +98,9 @@ def test_files_csv_reports_every_input_in_order(local_run, network) -> None:
     ok = files[files["status"] == "ok"]
     assert (ok["epochs"] == 21).all() and (ok["solved"] == 21).all() and (ok["method"] == "ls").all()
     assert (ok["rms_3d_m"] > 0).all() and (ok["rms_3d_m"] < 20).all() and (ok["seconds"] > 0).all()
-    # each file judged on its own epochs (21 here: BBBB's GPS alone, 5-6 degrees of freedom an epoch, can
-    # land on either side of 0.5 -- docs/integrity.md, "The environment")
-    assert ok["environment"].str.match(r"(open \(auto: variance factor \d\.\d\d <= 0\.5\)|"
-                                       r"urban \(auto: variance factor \d\.\d\d > 0\.5\))$").all()
+    # each file judged on its own epochs: open sky, though BBBB's 21 epochs of GPS alone, 5-6 degrees of
+    # freedom each, measure 0.51 against 0.28 for its neighbours (docs/integrity.md, "The environment")
+    assert ok["environment"].str.match(r"open \(auto: variance factor \d\.\d\d <= 0\.6\)$").all()
     # progress: one line per finished file, then the closing line
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("gnss-batch: [")]
     assert len(lines) == 5 and sum("failed (exit 4)" in ln for ln in lines) == 2

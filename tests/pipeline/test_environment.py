@@ -49,21 +49,27 @@ def _files(d: Path) -> tuple[Path, list[Path]]:
 def test_the_variance_factor_is_the_median_chi_square_per_degree_of_freedom(canyon: Path) -> None:
     """Against the definition written out epoch by epoch: ``sum (r / sigma)^2`` over the satellites
     the fix used, over ``n - 3 - clocks`` (one clock per system letter; the single profile has no
-    QZSS), median over the epochs with a degree of freedom."""
-    cfg = load_config(None, {"methods": "wls", "environment": "open"})
-    data = load_epochs(*_files(canyon), cfg)
-    sol = solve_method(data, "wls", cfg)
-    letters = np.array([s[0] for s in data.sv.astype(str)])
-    ratios = []
-    for t in range(data.time_gps_s.size):
-        used = np.isfinite(sol.residuals_m[t]) & ~sol.excluded[t]
-        dof = used.sum() - 3 - len(set(letters[used]))
-        if dof >= 1 and np.isfinite(sol.test_stat[t]):
-            stat = float(np.sum((sol.residuals_m[t, used] / sol.sigma_m[t, used]) ** 2))
-            assert stat == pytest.approx(sol.test_stat[t], rel=1e-6)  # the statistic is that of the residuals
-            ratios.append(stat / dof)
-    assert len(ratios) > 60
-    assert variance_factor(sol, data) == pytest.approx(float(np.median(ratios)), rel=1e-6)
+    QZSS), median over the epochs with a degree of freedom -- of the plain fix the judgement uses
+    and of an FDE fix, whose statistic is then its test's."""
+    letters = None
+    for integrity in ("off", "fde"):
+        cfg = load_config(None, {"methods": "wls", "environment": "open", "integrity": integrity})
+        data = load_epochs(*_files(canyon), cfg)
+        sol = solve_method(data, "wls", cfg)
+        letters = np.array([s[0] for s in data.sv.astype(str)])
+        ratios = []
+        for t in range(data.time_gps_s.size):
+            used = np.isfinite(sol.residuals_m[t]) & ~sol.excluded[t]
+            dof = used.sum() - 3 - len(set(letters[used]))
+            if dof >= 1:
+                stat = float(np.sum((sol.residuals_m[t, used] / sol.sigma_m[t, used]) ** 2))
+                if integrity == "fde" and np.isfinite(sol.test_stat[t]):
+                    assert stat == pytest.approx(sol.test_stat[t], rel=1e-6)  # the test's statistic
+                ratios.append(stat / dof)
+        assert len(ratios) > 60
+        assert variance_factor(sol, data) == pytest.approx(float(np.median(ratios)), rel=1e-6)
+        if integrity == "off":
+            assert head_variance_factor(cfg, data) == pytest.approx(float(np.median(ratios)), rel=1e-6)
 
 
 def test_a_canyon_is_judged_urban_and_open_sky_open(canyon: Path, open_sky: Path) -> None:

@@ -174,7 +174,8 @@ def test_urban_static_tst_most_epochs_ok_and_close(rinex_dir):
     d = rinex_dir / "tst2-2020155-urban-static"
     navs = sorted(d.glob("hksc155d.20?"))
     out = {}
-    for name, overrides in (("fde", {}), ("off", {"integrity": "off"}), ("snr30", {"snr_mask_dbhz": 30.0})):
+    for name, overrides in (("fde", {}), ("off", {"integrity": "off"}),
+                            ("snr30", {"snr_mask_dbhz": 30.0, "environment": "open"})):
         res = process(d / "2020_06_03_TST_03.obs.gz", navs, load_config(None, overrides))
         sol = res.solutions["wls"]
         _, tow = gps_s2week_tow(res.epochs.time_gps_s)
@@ -182,7 +183,7 @@ def test_urban_static_tst_most_epochs_ok_and_close(rinex_dir):
         assert window.sum() == 157
         ok = window & (sol.status == "ok")
         out[name] = (ok.sum() / window.sum(), _rms(np.linalg.norm(sol.x_ecef_m[ok] - TST_TRUTH, axis=1)))
-    # measured: fde 87.3 % ok at 5.8 m (before the solution-separation test 96.8 % at 6.8 m;
-    # off: 63.5 m, rnx2rtkp: 9 epochs at 7.2 m); snr30 100 % at 4.1 m
-    assert out["fde"][0] >= 0.8 and out["fde"][1] <= 15.0
+    # the defaults judge tst2 a street canyon (the urban settings): 98.7 % ok at 3.9 m; with the
+    # open-sky settings 90.4 % at 5.1 m; off: 63.5 m; rnx2rtkp: 9 epochs at 7.2 m; snr30 (open) 100 % at 4.1 m
+    assert out["fde"][0] >= 0.9 and out["fde"][1] <= 15.0  # issue 25: >= 90 % of the truth epochs at <= 15 m
     assert out["snr30"][0] >= 0.9 and out["snr30"][1] < 6.0
