@@ -390,7 +390,7 @@ def summary_table(entries: list[dict[str, object]], pooled: dict[str, dict[str, 
                              None if a["rms_ratio_to_off"] is None else round(a["rms_ratio_to_off"], 2), out])
         bound = pooled["default"].get(profile, {}).get("wls_los_only")
         if bound:
-            rows.append([f"simulated drives, {profile} profile", "wls", "defaults, NLOS removed by the labels (bound)",
+            rows.append([f"simulated drives, {profile} profile", "wls", "environment open, NLOS removed by the labels (bound)",
                          round(100 * bound["ok"] / max(bound["epochs"], 1), 1), bound["misleading"], None, None,
                          round(bound["rms_3d_ok_m"], 2),
                          None if bound["rms_ratio_to_off"] is None else round(bound["rms_ratio_to_off"], 2), "100 / 0"])

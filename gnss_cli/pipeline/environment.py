@@ -20,10 +20,10 @@ noise model says, as reflections make them do:
 - above ``urban_variance_factor`` the run is ``urban``, else ``open``; with no epoch to judge
   (no redundancy) it stays ``open``.
 
-Measured on training data (``benchmarks/choose_environment.py``): 0.04-0.06 on the real open-sky
-sets, 0.28-0.36 on simulated open-sky drives and flights (the simulator's noise is larger than
-the weights assume), 0.97-2.03 on simulated street-canyon drives, 1.27 on tst2 and 2.37 on
-smartloc-berlin.
+Measured on training data (``benchmarks/choose_environment.py``, which sets the threshold, 0.6):
+0.04-0.07 on the real open-sky stations, 0.15-0.37 on simulated open-sky drives and flights (the
+simulator's noise is larger than the weights assume), 1.05-3.87 on simulated street-canyon drives,
+23.4 on tst2 and 12.8 on smartloc-berlin.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ __all__ = ["HEAD_EPOCHS", "variance_factor", "head_variance_factor", "with_envir
 HEAD_EPOCHS = 500
 """Epochs at the start of a file that judge its environment (the first part of a file read in
 parts holds at least this many: ``PART_MIN_EPOCHS``, ``chunk_epochs``)."""
+
 
 def variance_factor(sol: MethodSolution, data: EpochData) -> float:
     """The median over epochs of the WLS variance factor ``T / dof`` of ``sol`` (module

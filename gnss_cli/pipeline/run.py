@@ -370,8 +370,10 @@ class Run:
         """Resolve the run's environment (:func:`~gnss_cli.pipeline.environment.judged`) from the
         file's first :data:`~gnss_cli.pipeline.environment.HEAD_EPOCHS` epochs, ``head``
         (:func:`_head`; None: no records, judged open), on the axes of ``survey``."""
+        if self.config.environment != "auto":  # given: set when the run was made
+            return
         data = None
-        if head is not None and self.config.environment == "auto" and self.config.integrity != "off":
+        if head is not None and self.config.integrity != "off":
             systems, sv = self._axes(setup, survey)
             used = _clock_systems(setup, systems, sv)
             if self.progress:
