@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.window_solve import EpochNormals
 
-__all__ = ["shared_modes", "sampled_motion_kernels", "solve_in_behavior", "behavior_misfit", "MIN_RCOND"]
+__all__ = ["shared_modes", "mode_derivatives", "sampled_motion_kernels", "solve_in_behavior", "behavior_misfit", "MIN_RCOND"]
 
 F64 = NDArray[np.float64]
 
@@ -153,6 +153,27 @@ def shared_modes(r: F64, n_t: int, dt_s: F64,
     rq_safe = np.where(ok[:, None, None], rq, np.eye(lag))
     yv = np.linalg.solve(np.swapaxes(rq_safe, 1, 2), np.swapaxes(scalar @ f, 1, 2)).swapaxes(1, 2)  # scalar F R^-1
     return q, np.where(has_v[:, None, None], yv, np.nan), ok, has_v
+
+
+def mode_derivatives(r: F64, dt_s: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """``F = log(A) / dt`` ``(B, l, l)`` of shared kernels ``r (B, l+1)`` and where it exists.
+
+    The velocity of a trajectory of the behavior at epoch ``t0 + j`` (``0 <= j < l``) is
+    ``F[j] @ x[t0 : t0 + l]`` (module docstring: the state ``s(t0)`` of the companion form is
+    the ``l`` positions from ``t0``, and ``y'(t0 + j) = e_j^T F s(t0)``). NaN where no real
+    logarithm exists (a root on ``(-inf, 0]``) or ``r_l`` is negligible.
+
+    >>> F, ok = mode_derivatives(np.array([[-1.0, 3.0, -3.0, 1.0]]), np.array([1.0]))  # (z - 1)^3
+    >>> x = np.arange(3.0) ** 2                                                        # t^2 ...
+    >>> bool(ok[0]) and bool(np.allclose(F[0] @ x, 2 * np.arange(3.0)))                # ... velocity 2 t
+    True
+    """
+    n_b, lag = r.shape[0], r.shape[1] - 1
+    ok = np.all(np.isfinite(r), axis=1) & (np.abs(r[:, -1]) > 1e-10 * np.abs(np.nan_to_num(r)).max(axis=1, initial=0.0))
+    safe = np.where(ok[:, None], r, np.eye(1, lag + 1, lag))
+    log_a, real = _log_companion(_companion(safe))
+    ok &= real
+    return np.where(ok[:, None, None], log_a / dt_s[:, None, None], np.nan), ok
 
 
 def sampled_motion_kernels(r: F64) -> tuple[F64, NDArray[np.bool_]]:

@@ -325,7 +325,7 @@ def kinematic_position_cov(M_pr: F64, M_rr: F64 | None, dt_s: F64, motion: Motio
 
 
 def solve_kinematic(pr: EpochNormals, rr: EpochNormals | None, step_m: F64, dt_s: F64, motion: Motion,
-                    ph: EpochNormals | None = None) -> KinematicSolution:
+                    ph: EpochNormals | None = None, terms: MotionTerms | None = None) -> KinematicSolution:
     """Solve one segment (module docstring).
 
     Parameters
@@ -343,6 +343,10 @@ def solve_kinematic(pr: EpochNormals, rr: EpochNormals | None, step_m: F64, dt_s
         Normals of rows on two consecutive positions (time-differenced carrier phase), the
         nuisance columns reduced: ``ph.M[t]`` ``(6, 6)`` and ``ph.r[t]`` ``(6,)`` on
         ``[z_{t-1}, z_t]``; row 0 is not used (the term ``z^T M z - 2 z^T r`` joins the sum).
+    terms : MotionTerms, optional
+        The model's terms, when they are not those of ``motion`` (the identified piecewise
+        behavior of ``stls``, :func:`gnss_cli.behavior.piecewise.piecewise_terms`; ``motion``
+        then only gives the state blocks, :attr:`Motion.n_kin`).
 
     Returns
     -------
@@ -350,7 +354,7 @@ def solve_kinematic(pr: EpochNormals, rr: EpochNormals | None, step_m: F64, dt_s
         NaN corrections and velocities, ``rcond = 0``, when the system is singular.
     """
     n, k = pr.M.shape[0], motion.n_kin
-    terms = motion_terms(motion, dt_s)
+    terms = motion_terms(motion, dt_s) if terms is None else terms
     kkt = _kkt(pr.M, None if rr is None else rr.M, terms, k, None if ph is None else ph.M)
     r_x = pr.r.copy()
     if ph is not None and n > 1:

@@ -52,6 +52,7 @@ from gnss_cli.config import ProcessingConfig, StlsConfig
 from gnss_cli.errors import GnssError, UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.range_model import linearize
+from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 from gnss_cli.pipeline.multi_epoch_dop import with_paper_gdop
 from gnss_cli.pipeline.results import (
     KEEPS_POSITION,
@@ -253,7 +254,9 @@ def smooth(
     measurements : set of str, optional
         None: the position-domain STLS of the fixes. Else the measurement kinds (``pseudorange``
         and any of ``doppler``, ``phase``) of the measurement-domain alternation that starts from
-        it (:func:`gnss_cli.pipeline.identified.alternate_windows`; shared kernels).
+        it (:func:`gnss_cli.pipeline.identified.alternate_windows`; shared kernels), its spans
+        chosen by the behavior test (:func:`gnss_cli.pipeline.spans.tested_windows`) and, with
+        range rates or phase, solved together (:func:`gnss_cli.pipeline.tied.tie_spans`).
     factors : tuple of float, optional
         With ``measurements``: the variance factors of the kinds (a whole file's), else estimated on ``data``.
 
@@ -293,9 +296,16 @@ def smooth(
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     fits = fit_all(segs, jobs, opts)
     if measurements is not None:
-        from gnss_cli.pipeline.spans import tested_windows  # imports this module
+        from gnss_cli.pipeline.spans import tested_windows  # these import this module
+        from gnss_cli.pipeline.tied import tie_spans
 
-        jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, frozenset(measurements), factors)
+        kinds = frozenset(measurements)
+        if factors is None:
+            factors = factors_from_totals(free_misfit_totals(data, wls, config, kinds))
+        jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, kinds, factors)
+        if kinds != {"pseudorange"}:  # the range rates and phase pairs tie the spans (gnss_cli.pipeline.tied)
+            fits, gated_tied, tied = tie_spans(data, wls, config, segs, jobs, fits, kinds, factors)
+            gated = np.where(tied[:, None], gated_tied, gated)
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
         sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits)
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models

@@ -64,6 +64,11 @@ solution in the chosen behavior. A kernel that minimizes the measurement misfit 
 the range rates and phase pairs act on ``r`` directly) would need that descent over ``r``. Most
 iterations in the records are those of the residual gates (one to three per window).
 
+After the spans are chosen (:mod:`gnss_cli.pipeline.spans`), with range rates or phase, the
+kernels of this alternation are kept and the trajectories of consecutive spans are solved
+together in their piecewise behavior (:mod:`gnss_cli.pipeline.tied`): alone, a window holds
+its position only from its own pseudoranges.
+
 Measured before the behavior test of :mod:`gnss_cli.pipeline.spans` (``stls --lag 3``, windows
 of 15 epochs; 3D / horizontal RMS, m): pseudoranges alone, the joint
 problem with block-diagonal clock-reduced normals *is* the weighted STLS of the per-epoch fixes

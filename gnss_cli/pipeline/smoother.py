@@ -83,7 +83,14 @@ from numpy.typing import NDArray
 from scipy.stats import norm
 
 from gnss_cli.behavior import KernelRepresentation
-from gnss_cli.behavior.kinematic_solve import STEP_OFFSETS, Motion, kinematic_position_cov, solve_kinematic, step_weights
+from gnss_cli.behavior.kinematic_solve import (
+    STEP_OFFSETS,
+    Motion,
+    MotionTerms,
+    kinematic_position_cov,
+    solve_kinematic,
+    step_weights,
+)
 from gnss_cli.behavior.multi_epoch import epoch_information
 from gnss_cli.behavior.records import kernel_record
 from gnss_cli.behavior.window_solve import EpochNormals, reduce_epochs
@@ -207,9 +214,11 @@ def _segment_pairs(ph: EpochNormals, seg: NDArray[np.intp]) -> EpochNormals:
 
 
 def _solve_pass(segs: list[NDArray[np.intp]], normals: tuple[EpochNormals, EpochNormals | None, EpochNormals | None],
-                nominal: F64, t: F64, motion: Motion, out: dict[str, list]) -> tuple[F64, F64, float]:  # type: ignore[type-arg]
+                nominal: F64, t: F64, motion: Motion, out: dict[str, list],  # type: ignore[type-arg]
+                terms: list[MotionTerms] | None = None) -> tuple[F64, F64, float]:
     """Every segment solved at ``nominal``: positions and velocities (NaN off the solved segments), the
-    largest move; ``out``: per segment misfit, dof and rcond (in place)."""
+    largest move; ``out``: per segment misfit, dof and rcond (in place). ``terms``: each segment's
+    model, when it is not ``motion``'s."""
     pr, rr, ph = normals
     x, v = np.full((t.size, 3), np.nan), np.full((t.size, 3), np.nan)
     moved = 0.0
@@ -217,7 +226,7 @@ def _solve_pass(segs: list[NDArray[np.intp]], normals: tuple[EpochNormals, Epoch
         sub = _take(pr, seg)
         assert sub is not None
         sol = solve_kinematic(sub, _take(rr, seg), np.diff(nominal[seg], axis=0), np.diff(t[seg]), motion,
-                              None if ph is None else _segment_pairs(ph, seg))
+                              None if ph is None else _segment_pairs(ph, seg), None if terms is None else terms[i])
         out["rcond"][i] = sol.rcond
         out["dof"][i] = sol.dof
         if not sol.rcond >= MIN_RCOND:
@@ -231,20 +240,28 @@ def _solve_pass(segs: list[NDArray[np.intp]], normals: tuple[EpochNormals, Epoch
 
 def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfig, motion: Motion,
                    measurements: frozenset[str], *, gap_factor: float = 1.5,
-                   factors: tuple[float, ...] | None = None) -> SegmentRun | None:
+                   factors: tuple[float, ...] | None = None,
+                   plan: list[tuple[NDArray[np.intp], MotionTerms]] | None = None) -> SegmentRun | None:
     """Solve every segment (module docstring); None when WLS solved no epoch.
 
     ``data`` should carry the WLS exclusions in ``usable`` (:func:`smooth_segments` does);
     ``measurements`` are the kinds to use, checked against ``data`` by the caller.
     ``factors``: the variance factors, when they were estimated beforehand (a whole file's, for
-    a piece of it); else they are estimated from ``data``.
+    a piece of it); else they are estimated from ``data``. ``plan``: the segments (epoch indices)
+    and each one's model, instead of ``motion`` on the segments of ``data`` (``stls``'s identified
+    piecewise behavior, :mod:`gnss_cli.pipeline.tied`; ``motion`` then gives the state blocks,
+    and the covariance is left to the caller: NaN).
     """
     t = data.time_gps_s
     fix = np.isin(wls.status, PASSED_FIX) & np.isfinite(wls.x_ecef_m).all(axis=1)
     if not fix.any():
         return None
     doppler, phase = "doppler" in measurements, "phase" in measurements
-    segs = [s for s in segments(t, data.usable.any(axis=1), gap_factor) if s.size >= 2 and fix[s].any()]
+    if plan is None:
+        segs = [s for s in segments(t, data.usable.any(axis=1), gap_factor) if s.size >= 2 and fix[s].any()]
+        terms = None
+    else:
+        segs, terms = [p[0] for p in plan], [p[1] for p in plan]
     nominal = nominal_trajectory(t, np.where(fix[:, None], wls.x_ecef_m, np.nan))
     mult = np.ones((3, t.size, data.sv.size))  # robust weights times the gate (0: excluded): pr, rr, phase pairs
     gated = np.zeros((3, t.size, data.sv.size), dtype=bool)
@@ -261,7 +278,7 @@ def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         scale = (mult[0] / factors[0], mult[1] / factors[1])
         pr, rr = epoch_normals(rows, scale)
         ph = None if phr is None else reduce_epochs(phr["P6"], phr["w"] * mult[2] / factors[2], phr["y"], phr["C"])
-        x, v, moved = _solve_pass(segs, (pr, rr, ph), nominal, t, motion, out)
+        x, v, moved = _solve_pass(segs, (pr, rr, ph), nominal, t, motion, out, terms)
         have = np.isfinite(x).all(axis=1)
         z = np.where(have[:, None], x - nominal, 0.0)
         u = (standardized(rows["P"], rows["w"] / factors[0], rows["y"], rows["C"], z),
@@ -288,8 +305,9 @@ def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     assert factors is not None
     w_pr = rows["w"] * scale[0]
     solved = [s for s, r in zip(segs, out["rcond"]) if r >= MIN_RCOND]
+    n_cov = 3 + rows["C"].shape[-1]
     cov = _covariance(rows["P"], w_pr, rows["C"], None if rr is None else rr.M, solved, t, motion,
-                             None if ph is None else ph.M)
+                      None if ph is None else ph.M) if plan is None else np.full((t.size, n_cov, n_cov), np.nan)
     var0 = float(np.median(1.0 / w_pr[w_pr > 0])) if (w_pr > 0).any() else 1.0
     n_sat = ((rows["w"] > 0) & ~gated[0]).sum(axis=1).astype(np.int64)
     return SegmentRun(x, v, n_sat, segs, out["misfit"], out["dof"], out["rcond"], factors, passes, cov, var0, gated[0],

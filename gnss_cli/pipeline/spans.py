@@ -26,6 +26,9 @@ file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm prob
   untested 150-epoch window of a simulated drive was kept 62 m off. (Splitting the untested
   windows of the default 15 epochs too cost the training flights and drives 0-8 % of their RMS.)
 
+With range rates or phase, the spans that passed are then solved together, each in its own
+behavior and tied at the switches (:mod:`gnss_cli.pipeline.tied`).
+
 Every tested window stays in the model records, with its statistic, degrees of freedom and
 limit; a rejected one says so (status ``rejected``) and which windows took its epochs. Windows
 left in the position domain have no measurement-domain misfit and no statistic; with

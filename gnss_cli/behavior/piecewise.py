@@ -1,0 +1,155 @@
+"""A trajectory in a piecewise behavior: consecutive spans, each with its own identified shared kernel.
+
+The spans that ``stls --lag L`` chooses from the data (:mod:`gnss_cli.pipeline.spans`) each hold
+a kernel ``r_k(z) I_3`` (root at ``z = 1``). Solved one at a time, each span's position rests on
+its own pseudoranges only; the trajectory is one, however, and its measurements (the range rates
+of every epoch, the carrier-phase pairs that straddle a switch) tie the spans. This module writes
+the piecewise behavior as equality constraints on the per-epoch positions ``x_t`` and velocities
+``v_t`` of a run of ``N`` epochs, in the form of :class:`~gnss_cli.behavior.kinematic_solve.MotionTerms`
+(so the segment is solved by :func:`~gnss_cli.behavior.kinematic_solve.solve_kinematic`, with the
+rows, gates and passes of the measurement-domain smoother):
+
+* the kernel rows of span ``k`` (epochs ``p:q``): ``sum_i r_k,i x_{t0+i} = 0`` for every shift
+  ``t0`` whose ``l + 1`` epochs lie in the span;
+* the switch from span ``k`` to ``k + 1``: one more row of ``r_k`` at the shift ``t0 = q - l``,
+  the last ``l`` epochs of span ``k`` and the first of span ``k + 1`` (span ``k``'s behavior
+  carries the trajectory into the next span, whose own rows take over from there), as a soft
+  row of standard deviation ``switch_sigma_m``: a manoeuvre that begins between two epochs is
+  in neither behavior, so the switch holds only approximately (as a hard row it moved a
+  noise-free manoeuvring flight by 8 cm). Without the switch rows the spans would be
+  independent; with a hard row of either kernel at every shift the whole run would be a single
+  recursion with ``l`` free values per coordinate, which the behavior test rejected (that is
+  why the spans are there);
+* velocities: ``v_t = F_k[j] x_{t0 : t0+l}`` with ``F_k = log(A_k) / dt`` (the modes' derivative,
+  :func:`~gnss_cli.behavior.behavior_solve.mode_derivatives`) and ``t0`` the start of the ``l``
+  epochs of the span nearest to ``t`` (``j = t - t0``): exact in the behavior;
+* a span of fewer than ``l`` epochs (the epochs a short window supplies) is too short for its
+  kernel rows: its neighbours' switch rows and the measurements hold its positions. A kernel
+  row never reaches back into the span before its own (so a short span cannot carry a kernel
+  across several others: tried so, on a simulated drive of 148 spans of 2-4 epochs, the track
+  was 9 m off, WLS 3.6 m). Its velocities come from its kernel's modes on the ``l`` epochs
+  around it within its window (``windows``: the epochs on which the behavior test accepted
+  the kernel); without such rows the range rates could not carry the position from span to
+  span (that drive: 2.5 m with its velocities free, 0.8 m so). With range rates, the velocities of
+  a kernel without a real logarithm (a root on the negative real axis) are the range rates'
+  own (no row: a difference quotient of the positions, imposed, moved a noise-free flight by
+  10 cm); without range rates they are the central difference of the positions (a row that
+  touches nothing else).
+
+Every row's coefficients sum to zero (the root at ``z = 1``: a constant position has no kernel
+residual and no velocity), so the constraints on absolute positions are written on the
+corrections ``z`` and the steps of the linearization points (``hard_step``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from gnss_cli.behavior.behavior_solve import mode_derivatives
+from gnss_cli.behavior.kinematic_solve import MotionTerms
+
+__all__ = ["piecewise_terms"]
+
+F64 = NDArray[np.float64]
+
+
+def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F64]:
+    """Consecutive columns and coefficients of the (one-sided at the ends) difference quotient at ``t``."""
+    if n == 1:
+        return np.array([0]), np.array([0.0])
+    lo, hi = max(t - 1, 0), min(t + 1, n - 1)
+    coef = np.zeros(hi - lo + 1)
+    coef[0], coef[-1] = -1.0 / ((hi - lo) * dt), 1.0 / ((hi - lo) * dt)
+    return np.arange(lo, hi + 1), coef
+
+
+def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, switch_sigma_m: float,
+                    range_rates: bool = False, windows: NDArray[np.intp] | None = None) -> MotionTerms:
+    """The piecewise behavior of a run of ``n`` epochs as equality constraints (module docstring).
+
+    Parameters
+    ----------
+    kernels : ``(K, l+1)``
+        Ascending coefficients of each span's shared kernel (root at ``z = 1``).
+    starts : ``(K,)``
+        First epoch of each span (``starts[0] == 0``, increasing; span ``k`` ends where ``k + 1`` starts).
+    n : int
+        Epochs of the run (``>= l + 1``).
+    dt_s : ``(K,)``
+        Sampling interval of each span, s.
+    switch_sigma_m : float
+        Standard deviation of the switch rows' residuals, m (``> 0``).
+    range_rates : bool
+        Whether the epochs have range rates (they then observe the velocities the behavior does not give).
+    windows : ``(K, 2)``, optional
+        First and last + 1 epoch (of the run; may reach outside it) of the window each span's
+        kernel was identified and tested on (default: the span itself).
+
+    Returns
+    -------
+    MotionTerms
+        On ``u = [x_0..x_{n-1}, v_0..v_{n-1}]`` (per coordinate): the kernel and velocity rows
+        hard, the switch rows soft and counted in the misfit.
+
+    Examples
+    --------
+    A quadratic, then a straight line from epoch 5 on, satisfies its constraints:
+
+    >>> r = np.array([[-1.0, 3.0, -3.0, 1.0], [-0.5, 2.0, -2.5, 1.0]])  # (z - 1)^3, (z - 1)^2 (z - 0.5)
+    >>> t = np.arange(10.0)
+    >>> x = np.where(t <= 5, t**2, 25 + 10 * (t - 5))                   # velocity 2 t, then 10
+    >>> v = np.where(t < 5, 2 * t, 10.0)
+    >>> terms = piecewise_terms(r, np.array([0, 5]), 10, np.array([1.0, 1.0]), 0.1)
+    >>> u = np.concatenate([x, v])
+    >>> bool(np.allclose(terms.hard @ u, 0.0)), bool(np.allclose(terms.soft @ u, 0.0)), terms.soft.shape[0]
+    (True, True, 1)
+    """
+    lag = kernels.shape[1] - 1
+    ends = np.append(starts[1:], n)
+    deriv, has_v = mode_derivatives(kernels, dt_s)
+    rows: list[tuple[NDArray[np.intp], F64]] = []  # (position columns, coefficients); velocity rows below
+    switch: list[tuple[NDArray[np.intp], F64]] = []
+    vel: list[tuple[int, NDArray[np.intp], F64]] = []
+    for k, (p, q) in enumerate(zip(starts, ends)):
+        r = kernels[k]
+        for t0 in range(p, q - lag):
+            rows.append((np.arange(t0, t0 + lag + 1), r))
+        if q < n and q - lag >= p:  # the switch row at q - l, into the next span
+            switch.append((np.arange(q - lag, q + 1), r))
+        lo, hi = (p, q) if q - p >= lag or windows is None else (max(windows[k, 0], 0), min(windows[k, 1], n))
+        for t in range(p, q):
+            if has_v[k] and hi - lo >= lag:
+                t0 = min(max(t - (lag - 1) // 2, lo), hi - lag)
+                vel.append((t, np.arange(t0, t0 + lag), deriv[k, t - t0]))
+            elif not range_rates:
+                cols, coef = _central_difference(t, n, float(dt_s[k]))
+                vel.append((t, cols, coef))
+    hard, hard_step = _position_rows(rows + [(c, -f) for _, c, f in vel], n)
+    hard = hard + sp.csr_matrix((np.ones(len(vel)), (len(rows) + np.arange(len(vel)), n + np.array([t for t, _, _ in vel],
+                                dtype=np.intp))), shape=hard.shape)
+    soft, soft_step = _position_rows(switch, n)
+    weight = sp.eye(len(switch), format="csr") / switch_sigma_m**2
+    return MotionTerms(hard.tocsr(), hard_step, soft, soft_step, weight, True)
+
+
+def _position_rows(rows: list[tuple[NDArray[np.intp], F64]], n: int) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """Rows ``sum_i a_i x_{c_i}`` (consecutive columns ``c``, the ``a`` summing to 0) on ``u`` and on the steps:
+    ``sum_i a_i x_{c_i} = sum_j s_{c_0 + j} sum_{m > j} a_m`` for the linearization points' steps ``s``."""
+    r_i: list[int] = []
+    c_i: list[int] = []
+    val: list[float] = []
+    s_i: list[int] = []
+    s_c: list[int] = []
+    s_v: list[float] = []
+    for i, (cols, coef) in enumerate(rows):
+        r_i += [i] * cols.size
+        c_i += cols.tolist()
+        val += coef.tolist()
+        tail = np.cumsum(coef[::-1])[::-1][1:]
+        s_i += [i] * tail.size
+        s_c += cols[:-1].tolist()
+        s_v += tail.tolist()
+    return (sp.csr_matrix((val, (r_i, c_i)), shape=(len(rows), 2 * n)),
+            sp.csr_matrix((s_v, (s_i, s_c)), shape=(len(rows), max(n - 1, 0))))

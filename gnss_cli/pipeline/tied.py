@@ -1,0 +1,150 @@
+"""The spans of ``stls --lag L`` solved together: one trajectory in the piecewise identified behavior.
+
+The spans chosen by the behavior test (:mod:`gnss_cli.pipeline.spans`) are identified and
+alternated one at a time (:mod:`gnss_cli.pipeline.identified`): each span's kernel, and a
+trajectory that rests on that span's own measurements. This stage keeps the kernels and solves
+the trajectory of every run of consecutive spans at once, in the measurement domain, subject to
+the piecewise behavior (:func:`~gnss_cli.behavior.piecewise.piecewise_terms`: each span's kernel
+rows, one row of its kernel across each switch, velocities from its modes), with the rows,
+variance factors, residual gate and Gauss-Newton passes of ``smoother``
+(:func:`~gnss_cli.pipeline.smoother.solve_segments`). The model is the identified one; what the
+joint solve adds is that every measurement of the run counts for every span: the range rates
+and the carrier-phase pairs carry the position from span to span, so a span's position no
+longer rests on its own pseudoranges alone.
+
+Only with range rates or phase: with the pseudoranges alone nothing but the switch rows ties
+the spans, and each kernel then holds only its own span's epochs where, alone, it is fitted on
+its whole window. Measured on the six training flights and drives of
+``benchmarks/multi_epoch_fair.py`` (seeds 1-3, 1 m code noise, 3D RMS pooled): pseudoranges
+alone, tied 1.554 m against 1.479 m alone (worse on all three drives); with range rates 1.067
+against 1.115 m (better on four of six).
+
+A run is a maximal sequence of spans of one segment whose epochs follow without a gap and
+which each supplied a measurement-domain trajectory: a span whose epochs keep the WLS fix, or
+whose result stayed in the position domain (its kernel identified on the fixes alone, untested:
+tied in, such a kernel moved a simulated flight's track by metres), ends a run. A run
+whose system is singular keeps the spans' own trajectories; its windows' records say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms
+from gnss_cli.behavior.piecewise import piecewise_terms
+from gnss_cli.config import ProcessingConfig
+from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
+from gnss_cli.pipeline.results import EpochData, MethodSolution
+from gnss_cli.pipeline.smoother import solve_segments
+
+__all__ = ["tie_spans", "span_runs", "switch_sigma"]
+
+F64 = NDArray[np.float64]
+
+_MIN_SWITCH_SIGMA_M = 1e-3
+
+
+def span_runs(segs: list[Segment], jobs: list[WindowJob], fits: list[Fit]) -> list[list[int]]:
+    """Runs of consecutive spans (indices into ``jobs``) that each supplied a measurement-domain
+    trajectory (module docstring)."""
+    out: list[list[int]] = []
+    for s in range(len(segs)):
+        ks = sorted((k for k, (j, f) in enumerate(zip(jobs, fits)) if j.segment == s and j.hi > j.lo),
+                    key=lambda k: jobs[k].lo)
+        run: list[int] = []
+        for k in ks:
+            good = fits[k].w_hat is not None and fits[k].domain == "measurement" and fits[k].kernel is not None \
+                and fits[k].kernel.shared_coefficients is not None  # type: ignore[union-attr]
+            if good and run and jobs[run[-1]].hi == jobs[k].lo:
+                run.append(k)
+                continue
+            if run:
+                out.append(run)
+            run = [k] if good else []
+        if run:
+            out.append(run)
+    return out
+
+
+def switch_sigma(jobs: list[WindowJob], fits: list[Fit], run: list[int], lag: int) -> float:
+    """Standard deviation (m) of the switch rows of a run: the RMS, over its switches and the three
+    axes, of ``r_k`` on the spans' own trajectories at each switch (the last ``l`` epochs of span
+    ``k``, the first of span ``k + 1``). It holds the manoeuvres between spans and the spans' own
+    errors (so the switch rows are no stronger than the untied spans agree); 1 mm at least."""
+    res = []
+    for k, k_next in zip(run[:-1], run[1:]):
+        job, nxt = jobs[k], jobs[k_next]
+        if job.hi - job.lo < lag:
+            continue
+        w = fits[k].w_hat[job.hi - lag - job.a : job.hi - job.a]  # type: ignore[index]
+        w = np.vstack([w, fits[k_next].w_hat[nxt.lo - nxt.a]])  # type: ignore[index]
+        res.append(np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64) @ w)  # type: ignore[union-attr]
+    return max(float(np.sqrt(np.mean(np.square(res)))) if res else 0.0, _MIN_SWITCH_SIGMA_M)
+
+
+def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
+              jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
+              factors: tuple[float, ...]) -> tuple[list[Fit], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Every run of spans solved together (module docstring).
+
+    Parameters
+    ----------
+    data, wls, config : the prepared epochs (the WLS satellites and weights), the WLS solution, the configuration.
+    segs, jobs, fits : the segments, spans and their fits (:func:`~gnss_cli.pipeline.spans.tested_windows`).
+    kinds : the measurement kinds.
+    factors : the variance factors of the kinds (those the spans were solved with).
+
+    Returns
+    -------
+    fits : the fits with each tied span's supplied epochs replaced by the joint solution.
+    gated : ``(T, n)`` pseudoranges the joint solve's residual gate excluded (on the tied epochs).
+    tied : ``(T,)`` the epochs whose position is the joint solution.
+    """
+    lag = config.stls.lag
+    T = data.time_gps_s.size
+    plan: list[tuple[NDArray[np.intp], MotionTerms]] = []
+    members: list[list[int]] = []
+    sigmas: list[float] = []
+    for run in span_runs(segs, jobs, fits):
+        seg = segs[jobs[run[0]].segment]
+        lo = jobs[run[0]].lo
+        epochs = seg.epochs[lo : jobs[run[-1]].hi]
+        if epochs.size < lag + 1:
+            continue
+        kernels = np.stack([np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64)  # type: ignore[union-attr]
+                            for k in run])
+        starts = np.array([jobs[k].lo - lo for k in run], dtype=np.intp)
+        dt = np.array([float(np.median(np.diff(data.time_gps_s[seg.epochs[jobs[k].a : jobs[k].b]]))) for k in run])
+        windows = np.array([(jobs[k].a - lo, jobs[k].b - lo) for k in run], dtype=np.intp)
+        sigmas.append(switch_sigma(jobs, fits, run, lag))
+        plan.append((epochs, piecewise_terms(kernels, starts, epochs.size, dt, sigmas[-1], "doppler" in kinds, windows)))
+        members.append(run)
+    gated = np.zeros(data.usable.shape, dtype=bool)
+    tied = np.zeros(T, dtype=bool)
+    if not plan:
+        return fits, gated, tied
+    res = solve_segments(data, wls, config, Motion("quadrature"), kinds, factors=factors, plan=plan)
+    out = list(fits)
+    if res is None:
+        return out, gated, tied
+    for (epochs, _), run, bad, sigma, misfit, dof in zip(plan, members, res.degenerate, sigmas, res.misfit, res.dof):
+        if bad:
+            for k in run:
+                out[k] = replace(out[k], message=f"{out[k].message}; not tied to its neighbours: the joint system "
+                                                 "is singular")
+            continue
+        tied[epochs] = True
+        gated[epochs] = res.gated[epochs]
+        seg = segs[jobs[run[0]].segment]
+        for k in run:
+            job = jobs[k]
+            w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
+            own = seg.epochs[job.lo : job.hi]
+            w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
+            out[k] = replace(out[k], w_hat=w_hat, message=(
+                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run, tied (switch rows "
+                f"sigma {sigma:.3g} m; run misfit {misfit:.6g} over {dof} dof)"))
+    return out, gated, tied
