@@ -30,7 +30,7 @@ rows, gates and passes of the measurement-domain smoother):
   was 9 m off, WLS 3.6 m). Its velocities come from its kernel's modes on the ``l`` epochs
   around it within its window (``windows``: the epochs on which the behavior test accepted
   the kernel); without such rows the range rates could not carry the position from span to
-  span (that drive: 2.5 m with its velocities free, 0.8 m so). With range rates, the velocities of
+  span (that drive: 2.5 m 3D RMS with its velocities free, 1.1 m so). With range rates, the velocities of
   a kernel without a real logarithm (a root on the negative real axis) are the range rates'
   own (no row: a difference quotient of the positions, imposed, moved a noise-free flight by
   10 cm); without range rates they are the central difference of the positions (a row that

@@ -52,7 +52,6 @@ from gnss_cli.config import ProcessingConfig, StlsConfig
 from gnss_cli.errors import GnssError, UsageError
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.gnss.range_model import linearize
-from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
 from gnss_cli.pipeline.multi_epoch_dop import with_paper_gdop
 from gnss_cli.pipeline.results import (
     KEEPS_POSITION,
@@ -296,7 +295,9 @@ def smooth(
     segs, jobs = _schedule(data, wls, solved, status, opts, step, gap_factor)
     fits = fit_all(segs, jobs, opts)
     if measurements is not None:
-        from gnss_cli.pipeline.spans import tested_windows  # these import this module
+        # spans and tied import this module; measurements pulls in scipy.stats (not for a default run)
+        from gnss_cli.pipeline.measurements import factors_from_totals, free_misfit_totals
+        from gnss_cli.pipeline.spans import tested_windows
         from gnss_cli.pipeline.tied import tie_spans
 
         kinds = frozenset(measurements)
