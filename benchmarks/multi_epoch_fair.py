@@ -12,7 +12,8 @@ factors and gates:
   tst2 only, as a row for reference: it knows the antenna does not move, so it is not a peer of
   a kinematic solution);
 * ``stls`` with ``lag = 3`` (the identified Hankel STLS in the measurement domain, by
-  alternation, with the measurements of the set). The JSON and the table record what each
+  alternation, with the measurements of the set; with range rates or phase its spans solved
+  together, :mod:`gnss_cli.pipeline.tied`). The JSON and the table record what each
   method reported it ran (``estimator, model, lag, window, measurements`` of the run's settings).
 
 **Settings are chosen before anything is reported.** On the training seeds (1-3; drives 1001-1003,
@@ -53,9 +54,9 @@ in the JSON and in a second table.
 Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
-skipped). The full run took 38 min in one process on the shared 2-core machine, a second job
-beside it most of the time; the whole-segment stls candidates (``window`` 0) about doubled it
-(``--quick``: 1.3-1.7 min before them).
+skipped). The full run took 23 min in one process on the shared 2-core machine, a second job
+beside it most of the time (38 min in an earlier run); the whole-segment stls candidates
+(``window`` 0) about double it (``--quick``: 2 min).
 """
 
 from __future__ import annotations
@@ -332,7 +333,7 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
     choices = {label: c["choice"] for label, c in chosen.items()}
     return {
         "title": "Equal information: kf, smoother and identified stls (settings chosen on training seeds)",
-        "command": "nice -n 10 python benchmarks/multi_epoch_fair.py" + (" --quick" if quick else ""),
+        "command": "nice -n 5 python benchmarks/multi_epoch_fair.py" + (" --quick" if quick else ""),
         "table": {"columns": ["case", "measurements", "metric (m)", "wls", "best kf", "kf", "best smoother", "smoother",
                               "stls lag 3", "stls / best peer"], "rows": rows},
         "more_tables": [{"title": "Every method and measurement set",
@@ -350,7 +351,7 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
                   + " m). tst2: the static "
                   "antenna solved as a moving receiver, truth window; smoother static is listed for reference and is no "
                   "peer. Each method uses the set it is given (its settings say so: see what ran). "
-                  f"Whole run {seconds / 60:.1f} min ({eval_seconds / 60:.1f} min after training), one process, nice 10, "
+                  f"Whole run {seconds / 60:.1f} min ({eval_seconds / 60:.1f} min after training), one process, nice 5, "
                   "on the shared 2-core machine."),
         "settings_chosen": chosen,
         "cases": cases,
