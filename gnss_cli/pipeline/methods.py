@@ -106,8 +106,9 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
             window = f"{s.window} epochs" if s.window else "whole segments"
             if s.kernel == "shared":
+                tied = "" if kinds == "pseudorange" else ", spans tied"  # gnss_cli.pipeline.tied
                 out[m] = MethodSettings(m, "identified Hankel STLS (measurement domain, alternation)",
-                                        f"{kernel} identified per window", str(s.lag), window, kinds, tested)
+                                        f"{kernel} identified per window{tied}", str(s.lag), window, kinds, tested)
             else:  # the alternation is for shared kernels: the full kernel stays with the fixes
                 out[m] = MethodSettings(m, "identified Hankel STLS (position domain)", f"{kernel} identified per window",
                                         str(s.lag), window, "pseudorange (WLS fixes)", tested)
