@@ -16,8 +16,10 @@ Only with range rates or phase: with the pseudoranges alone nothing but the swit
 the spans, and each kernel then holds only its own span's epochs where, alone, it is fitted on
 its whole window. Measured on the six training flights and drives of
 ``benchmarks/multi_epoch_fair.py`` (seeds 1-3, 1 m code noise, 3D RMS pooled): pseudoranges
-alone, tied 1.554 m against 1.479 m alone (worse on all three drives); with range rates 1.067
-against 1.115 m (better on four of six).
+alone, tied 1.554 m against 1.479 m alone (30-epoch windows, switch rows at the whole
+disagreement; worse on all three drives) and 2.026 against 1.237 m (whole segments, 1e-3, a
+tenth of it: worse on all six); with range rates 1.067 against 1.115 m (whole segments, the
+whole disagreement; better on four of six).
 
 A run is a maximal sequence of spans of one segment whose epochs follow without a gap and
 which each supplied a measurement-domain trajectory: a span whose epochs keep the WLS fix, or
