@@ -56,9 +56,8 @@ F64 = NDArray[np.float64]
 
 
 def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F64]:
-    """Consecutive columns and coefficients of the (one-sided at the ends) difference quotient at ``t``."""
-    if n == 1:
-        return np.array([0]), np.array([0.0])
+    """Consecutive columns and coefficients of the (one-sided at the ends) difference quotient at
+    ``t`` of a run of ``n >= 2`` epochs."""
     lo, hi = max(t - 1, 0), min(t + 1, n - 1)
     coef = np.zeros(hi - lo + 1)
     coef[0], coef[-1] = -1.0 / ((hi - lo) * dt), 1.0 / ((hi - lo) * dt)

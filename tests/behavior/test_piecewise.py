@@ -79,7 +79,7 @@ def test_velocity_rows_are_the_derivative_of_the_continuous_motion() -> None:
 def test_step_form_equals_the_rows_on_absolute_positions(range_rates: bool) -> None:
     """Every row's coefficients sum to zero, so ``rows @ x == step rows @ diff(x)`` for any ``x``
     (the form in which the constraints act on corrections about linearization points); a span
-    shorter than the lag has no kernel rows and, with range rates, no velocity rows either."""
+    shorter than the lag has no kernel rows, and its velocities come from its window's modes."""
     kernels = np.stack([shared_kernel_coefficients((1.0, 0.9, 1.0)), shared_kernel_coefficients((1.0, 0.5, 0.7)),
                         shared_kernel_coefficients((1.0, 1.0, 1.0))])
     starts, n = np.array([0, 9, 11]), 20
