@@ -20,21 +20,31 @@ rows, gates and passes of the measurement-domain smoother):
   independent; with a hard row of either kernel at every shift the whole run would be a single
   recursion with ``l`` free values per coordinate, which the behavior test rejected (that is
   why the spans are there);
-* velocities: ``v_t = F_k[j] x_{t0 : t0+l}`` with ``F_k = log(A_k) / dt`` (the modes' derivative,
+* velocities, with range rates: the rows of the quadrature rule that links positions and
+  velocities in ``smoother`` (``x_{t+1} - x_t = dt sum_k c_k v_{t+k}``, the lag's rule, the
+  cubic one above lag 3, :func:`~gnss_cli.behavior.kinematic_solve.step_rule`), on every step
+  of the run. The range rates then carry the position from epoch to epoch through the
+  velocities they observe, and the kernel rows keep the positions in each span's behavior. The rule is exact for velocities
+  of degree ``l``, so not for every trajectory of an identified behavior, but its error is
+  small at GNSS rates (the noise-free manoeuvring flight stays exact to 1 mm). It replaced the
+  modes' derivatives below, which are exact in the behavior but hold the range rates to the
+  derivative of a kernel identified from noisy data: on the six training runs of
+  ``benchmarks/multi_epoch_fair.py`` (range rates, ``behavior_pfa`` 1e-12, 3D RMS pooled) the
+  quadrature rows gave 0.441 m against 1.002 m in whole segments, 0.548 against 0.625 m in
+  20-epoch windows (``benchmarks/stls_structure.py`` takes the two apart);
+* velocities, without range rates (they are then outputs only):
+  ``v_t = F_k[j] x_{t0 : t0+l}`` with ``F_k = log(A_k) / dt`` (the modes' derivative,
   :func:`~gnss_cli.behavior.behavior_solve.mode_derivatives`) and ``t0`` the start of the ``l``
-  epochs of the span nearest to ``t`` (``j = t - t0``): exact in the behavior;
+  epochs of the span nearest to ``t`` (``j = t - t0``): exact in the behavior. A span of fewer
+  than ``l`` epochs takes its velocities from its kernel's modes on the ``l`` epochs around it
+  within its window (``windows``: the epochs on which the behavior test accepted the kernel);
+  a kernel without a real logarithm (a root on the negative real axis), the central
+  difference of the positions (a row that touches nothing else);
 * a span of fewer than ``l`` epochs (the epochs a short window supplies) is too short for its
   kernel rows: its neighbours' switch rows and the measurements hold its positions. A kernel
   row never reaches back into the span before its own (so a short span cannot carry a kernel
   across several others: tried so, on a simulated drive of 148 spans of 2-4 epochs, the track
-  was 9 m off, WLS 3.6 m). Its velocities come from its kernel's modes on the ``l`` epochs
-  around it within its window (``windows``: the epochs on which the behavior test accepted
-  the kernel); without such rows the range rates could not carry the position from span to
-  span (that drive: 2.5 m 3D RMS with its velocities free, 1.1 m so). With range rates, the velocities of
-  a kernel without a real logarithm (a root on the negative real axis) are the range rates'
-  own (no row: a difference quotient of the positions, imposed, moved a noise-free flight by
-  10 cm); without range rates they are the central difference of the positions (a row that
-  touches nothing else).
+  was 9 m off, WLS 3.6 m).
 
 Every row's coefficients sum to zero (the root at ``z = 1``: a constant position has no kernel
 residual and no velocity), so the constraints on absolute positions are written on the
@@ -48,7 +58,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from gnss_cli.behavior.behavior_solve import mode_derivatives
-from gnss_cli.behavior.kinematic_solve import MotionTerms
+from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms, motion_terms
 
 __all__ = ["piecewise_terms"]
 
@@ -81,10 +91,11 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     switch_sigma_m : float
         Standard deviation of the switch rows' residuals, m (``> 0``).
     range_rates : bool
-        Whether the epochs have range rates (they then observe the velocities the behavior does not give).
+        Whether the epochs have range rates: the velocities are then tied to the positions by the
+        quadrature rule, else by the modes' derivatives (module docstring).
     windows : ``(K, 2)``, optional
-        First and last + 1 epoch (of the run; may reach outside it) of the window each span's
-        kernel was identified and tested on (default: the span itself).
+        Without range rates: first and last + 1 epoch (of the run; may reach outside it) of the
+        window each span's kernel was identified and tested on (default: the span itself).
 
     Returns
     -------
@@ -107,7 +118,6 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     """
     lag = kernels.shape[1] - 1
     ends = np.append(starts[1:], n)
-    deriv, has_v = mode_derivatives(kernels, dt_s)
     rows: list[tuple[NDArray[np.intp], F64]] = []  # (position columns, coefficients); velocity rows below
     switch: list[tuple[NDArray[np.intp], F64]] = []
     vel: list[tuple[int, NDArray[np.intp], F64]] = []
@@ -117,19 +127,26 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
             rows.append((np.arange(t0, t0 + lag + 1), r))
         if q < n and q - lag >= p:  # the switch row at q - l, into the next span
             switch.append((np.arange(q - lag, q + 1), r))
+    soft, soft_step = _position_rows(switch, n)
+    weight = sp.eye(len(switch), format="csr") / switch_sigma_m**2
+    if range_rates:
+        step = motion_terms(Motion("quadrature", lag=lag), np.repeat(dt_s, ends - starts)[:-1])
+        kern, kern_step = _position_rows(rows, n)
+        return MotionTerms(sp.vstack([kern, step.hard], format="csr"), sp.vstack([kern_step, step.hard_step], format="csr"),
+                           soft, soft_step, weight, True)
+    deriv, has_v = mode_derivatives(kernels, dt_s)
+    for k, (p, q) in enumerate(zip(starts, ends)):
         lo, hi = (p, q) if q - p >= lag or windows is None else (max(windows[k, 0], 0), min(windows[k, 1], n))
         for t in range(p, q):
             if has_v[k] and hi - lo >= lag:
                 t0 = min(max(t - (lag - 1) // 2, lo), hi - lag)
                 vel.append((t, np.arange(t0, t0 + lag), deriv[k, t - t0]))
-            elif not range_rates:
+            else:
                 cols, coef = _central_difference(t, n, float(dt_s[k]))
                 vel.append((t, cols, coef))
     hard, hard_step = _position_rows(rows + [(c, -f) for _, c, f in vel], n)
     hard = hard + sp.csr_matrix((np.ones(len(vel)), (len(rows) + np.arange(len(vel)), n + np.array([t for t, _, _ in vel],
                                 dtype=np.intp))), shape=hard.shape)
-    soft, soft_step = _position_rows(switch, n)
-    weight = sp.eye(len(switch), format="csr") / switch_sigma_m**2
     return MotionTerms(hard.tocsr(), hard_step, soft, soft_step, weight, True)
 
 

@@ -1,6 +1,6 @@
 """The piecewise identified behavior as constraints (:mod:`gnss_cli.behavior.piecewise`): a trajectory
 built span by span from its kernels satisfies every row, the velocity rows give the continuous-time
-derivative, the step form equals the rows on absolute positions, and a broken switch shows in its row."""
+derivative (without range rates) or integrate to the steps (with them), the step form equals the rows on absolute positions, and a broken switch shows in its row."""
 
 from __future__ import annotations
 
@@ -75,11 +75,30 @@ def test_velocity_rows_are_the_derivative_of_the_continuous_motion() -> None:
     assert np.abs(terms.hard @ np.concatenate([x, diff])).max() > 1e-3
 
 
+def test_with_range_rates_the_velocities_integrate_to_the_steps() -> None:
+    """With range rates, the velocity rows are the quadrature rule's: a sampled constant-rate turn
+    (1 s, 0.1 rad/s, 50 m/s) with its continuous velocity satisfies every hard row to 0.2 mm
+    (the rule's error, largest at the one-sided ends; the kernel rows exactly), a velocity 1 % too large does not."""
+    dt, w, speed = 1.0, 0.1, 50.0
+    t = np.arange(30) * dt
+    x = 7.0 + speed / w * np.sin(w * t)
+    v = speed * np.cos(w * t)
+    r = _kernel_with_roots([1.0, np.exp(1j * w * dt), np.exp(-1j * w * dt)])
+    terms = piecewise_terms(np.stack([r, r]), np.array([0, 14]), t.size, np.array([dt, dt]), 1.0, True)
+    n = t.size
+    velocity = np.asarray(abs(terms.hard[:, n:]).sum(axis=1)).ravel() != 0
+    assert int(velocity.sum()) == n - 1
+    assert np.abs(terms.hard[~velocity] @ np.concatenate([x, v])).max() < 1e-9 * speed / w
+    assert np.abs(terms.hard @ np.concatenate([x, v])).max() < 2e-4
+    assert np.abs(terms.hard @ np.concatenate([x, 1.01 * v])).max() > 0.1
+
+
 @pytest.mark.parametrize("range_rates", [False, True])
 def test_step_form_equals_the_rows_on_absolute_positions(range_rates: bool) -> None:
     """Every row's coefficients sum to zero, so ``rows @ x == step rows @ diff(x)`` for any ``x``
     (the form in which the constraints act on corrections about linearization points); a span
-    shorter than the lag has no kernel rows, and its velocities come from its window's modes."""
+    shorter than the lag has no kernel rows; without range rates its velocities come from its
+    window's modes (a row per epoch), with them every step has its quadrature row."""
     kernels = np.stack([shared_kernel_coefficients((1.0, 0.9, 1.0)), shared_kernel_coefficients((1.0, 0.5, 0.7)),
                         shared_kernel_coefficients((1.0, 1.0, 1.0))])
     starts, n = np.array([0, 9, 11]), 20
@@ -93,7 +112,7 @@ def test_step_form_equals_the_rows_on_absolute_positions(range_rates: bool) -> N
     starts_of_rows = np.array([row.indices.min() for row in kernel_rows])
     assert not np.isin(starts_of_rows, [9, 10]).any()
     n_velocity_rows = int(np.asarray(terms.hard[:, n:].sum(axis=1)).ravel().astype(bool).sum())
-    assert n_velocity_rows == n  # its velocities from its window's modes (epochs 8-11 within 6:15)
+    assert n_velocity_rows == (n - 1 if range_rates else n)  # without: epochs 9-10 from their window 6:15
 
 
 def test_a_broken_switch_shows_in_its_row() -> None:
