@@ -75,7 +75,8 @@ def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F6
 
 
 def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, switch_sigma_m: float,
-                    range_rates: bool = False, windows: NDArray[np.intp] | None = None) -> MotionTerms:
+                    range_rates: bool = False, windows: NDArray[np.intp] | None = None,
+                    free: NDArray[np.bool_] | None = None) -> MotionTerms:
     """The piecewise behavior of a run of ``n`` epochs as equality constraints (module docstring).
 
     Parameters
@@ -96,6 +97,10 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     windows : ``(K, 2)``, optional
         Without range rates: first and last + 1 epoch (of the run; may reach outside it) of the
         window each span's kernel was identified and tested on (default: the span itself).
+    free : ``(K,)`` bool, optional
+        Spans without a behavior (no kernel rows, no switch row into the next span): those whose
+        behavior the run's measurements rejected (:mod:`gnss_cli.pipeline.tied`). Without range
+        rates their velocities are the central differences.
 
     Returns
     -------
@@ -121,8 +126,11 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     rows: list[tuple[NDArray[np.intp], F64]] = []  # (position columns, coefficients); velocity rows below
     switch: list[tuple[NDArray[np.intp], F64]] = []
     vel: list[tuple[int, NDArray[np.intp], F64]] = []
+    free = np.zeros(len(starts), dtype=bool) if free is None else free
     for k, (p, q) in enumerate(zip(starts, ends)):
         r = kernels[k]
+        if free[k]:
+            continue
         for t0 in range(p, q - lag):
             rows.append((np.arange(t0, t0 + lag + 1), r))
         if q < n and q - lag >= p:  # the switch row at q - l, into the next span
@@ -138,7 +146,7 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     for k, (p, q) in enumerate(zip(starts, ends)):
         lo, hi = (p, q) if q - p >= lag or windows is None else (max(windows[k, 0], 0), min(windows[k, 1], n))
         for t in range(p, q):
-            if has_v[k] and hi - lo >= lag:
+            if has_v[k] and hi - lo >= lag and not free[k]:
                 t0 = min(max(t - (lag - 1) // 2, lo), hi - lag)
                 vel.append((t, np.arange(t0, t0 + lag), deriv[k, t - t0]))
             else:

@@ -106,7 +106,9 @@ class Fit:
     measurement-domain alternation (:mod:`gnss_cli.pipeline.identified`) its iterations, whether it
     converged, the domain of the result (``position``: the STLS of the fixes), its behavior test
     (statistic and degrees of freedom, :func:`~gnss_cli.pipeline.identified.behavior_tests`) and
-    whether the test rejected it (:mod:`gnss_cli.pipeline.spans`)."""
+    whether the test rejected it (:mod:`gnss_cli.pipeline.spans`); the measurement kinds of the
+    alternation whose result the window supplies (None: not solved in the measurement domain, or
+    not through :func:`~gnss_cli.pipeline.spans.tested_windows`)."""
 
     w_hat: F64 | None
     kernel: KernelRecord | None
@@ -120,6 +122,7 @@ class Fit:
     test_stat: float | None = None
     test_dof: int | None = None
     rejected: bool = False
+    measurements: frozenset[str] | None = None
 
 
 def _failed(message: str) -> Fit:

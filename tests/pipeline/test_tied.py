@@ -75,6 +75,8 @@ def test_the_tied_track_lies_in_each_spans_behavior(drive: Path, monkeypatch: py
         for k, k_next in zip(run, [*run[1:], None]):
             job = jobs[k]  # type: ignore[index]
             epochs = segs[job.segment].epochs  # type: ignore[index]
+            if "without its kernel rows" in models[k].message:
+                continue  # a span in its run without a behavior (tests/behavior/test_piecewise.py)
             r = np.asarray(models[k].kernel.shared_coefficients)
             own = epochs[job.lo : job.hi]
             x = sol.x_ecef_m[own] - sol.x_ecef_m[own[0]]
@@ -88,7 +90,7 @@ def test_the_tied_track_lies_in_each_spans_behavior(drive: Path, monkeypatch: py
 
 def test_tying_beats_the_spans_solved_alone(drive: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """With range rates, the same spans and kernels solved together rather than one at a time are
-    closer to the truth (measured on this drive, 3D RMS: 1.03 m tied, 1.24 m alone, with
+    closer to the truth (measured on this drive, 3D RMS: 0.38 m tied, 1.24 m alone, with
     ``behavior_pfa`` 1e-12); with the pseudoranges alone the spans are not tied."""
     cfg, data, wls, truth = _load(drive, "pseudorange,doppler")
     cfg = replace(cfg, stls=replace(cfg.stls, behavior_pfa=1e-12))
