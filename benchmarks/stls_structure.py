@@ -35,7 +35,7 @@ range rates; 3D RMS pooled):
 each for whole segments (``window`` 0, halved where the behavior test rejects) and for
 20-epoch windows, both at ``behavior_pfa`` 1e-12; beside them ``smoother`` (quadrature, lag 3)
 and ``kf ca`` (jerk PSD 0.1 m^2/s^5). Nothing is chosen here (``multi_epoch_fair.py`` chooses the
-settings). Prints a table and writes ``benchmarks/results/stls_structure.json``. About 3 minutes
+settings). Prints a table and writes ``benchmarks/results/stls_structure.json``. About 6 minutes
 (``--quick``: one flight and one drive, 120 s).
 """
 
