@@ -24,10 +24,10 @@ rows, gates and passes of the measurement-domain smoother):
   velocities in ``smoother`` (``x_{t+1} - x_t = dt sum_k c_k v_{t+k}``, the lag's rule, the
   cubic one above lag 3, :func:`~gnss_cli.behavior.kinematic_solve.step_rule`), on every step
   of the run. The range rates then carry the position from epoch to epoch through the
-  velocities they observe, and the kernel rows keep the positions in each span's behavior. The rule is exact for velocities
-  of degree ``l``, so not for every trajectory of an identified behavior, but its error is
-  small at GNSS rates (the noise-free manoeuvring flight stays exact to 1 mm). It replaced the
-  modes' derivatives below, which are exact in the behavior but hold the range rates to the
+  velocities they observe, and the kernel rows keep the positions in each span's behavior. The
+  rule is exact for velocities of degree ``l``, so not for every trajectory of an identified
+  behavior, but its error is small at GNSS rates (the noise-free manoeuvring flight stays
+  exact to 1 mm). It replaced the modes' derivatives below, which are exact in the behavior but hold the range rates to the
   derivative of a kernel identified from noisy data: on the six training runs of
   ``benchmarks/multi_epoch_fair.py`` (range rates, ``behavior_pfa`` 1e-12, 3D RMS pooled) the
   quadrature rows give 0.437 m against 0.531 m in whole segments, 0.532 against 0.580 m in
@@ -140,8 +140,8 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     if range_rates:
         step = motion_terms(Motion("quadrature", lag=lag), np.repeat(dt_s, ends - starts)[:-1])
         kern, kern_step = _position_rows(rows, n)
-        return MotionTerms(sp.vstack([kern, step.hard], format="csr"), sp.vstack([kern_step, step.hard_step], format="csr"),
-                           soft, soft_step, weight, True)
+        return MotionTerms(sp.vstack([kern, step.hard], format="csr"),
+                           sp.vstack([kern_step, step.hard_step], format="csr"), soft, soft_step, weight, True)
     deriv, has_v = mode_derivatives(kernels, dt_s)
     for k, (p, q) in enumerate(zip(starts, ends)):
         lo, hi = (p, q) if q - p >= lag or windows is None else (max(windows[k, 0], 0), min(windows[k, 1], n))

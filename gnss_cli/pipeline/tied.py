@@ -175,8 +175,8 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
             w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
             own = seg.epochs[job.lo : job.hi]
             w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
-            free = "" if not _free(out[k], kinds) else (
-                f", without its kernel rows (its behavior was rejected with {'+'.join(kind for kind in KINDS if kind in kinds)})")
+            used = "+".join(kind for kind in KINDS if kind in kinds)
+            free = f", without its kernel rows (its behavior was rejected with {used})" if _free(out[k], kinds) else ""
             out[k] = replace(out[k], w_hat=w_hat, message=(
                 f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied (switch rows "
                 f"sigma {sigma:.3g} m; run misfit {misfit:.6g} over {dof} dof)"))

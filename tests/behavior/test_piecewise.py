@@ -1,6 +1,7 @@
 """The piecewise identified behavior as constraints (:mod:`gnss_cli.behavior.piecewise`): a trajectory
 built span by span from its kernels satisfies every row, the velocity rows give the continuous-time
-derivative (without range rates) or integrate to the steps (with them), the step form equals the rows on absolute positions, and a broken switch shows in its row."""
+derivative (without range rates) or integrate to the steps (with them), the step form equals the
+rows on absolute positions, a free span has no behavior, and a broken switch shows in its row."""
 
 from __future__ import annotations
 
