@@ -75,7 +75,9 @@ held within 1e-6 + 2 eps DOP^2: an inverse's first-order sensitivity to last-bit
 normal matrix, which a near-singular epoch (a simulated flight's HDOP of 9e6) magnifies."""
 
 
-def _same_numbers(name: str, a: bytes, b: bytes) -> None:
+def _same_numbers(name: str, a: bytes, b: bytes, flipped_rows: float = 0.0) -> None:
+    """The same numbers (module note on numpy 1.x) and words; CSV rows that differ may make up at most
+    ``flipped_rows`` of the rows (a decision at its threshold that last bits flipped)."""
     import io
     import json
 
@@ -95,6 +97,8 @@ def _same_numbers(name: str, a: bytes, b: bytes) -> None:
         return
     da, db = (pd.read_csv(io.BytesIO(x)) for x in (a, b))
     assert list(da.columns) == list(db.columns) and da.shape == db.shape, name
+    bad = np.zeros(len(da), dtype=bool)
+    first: dict[str, str] = {}
     for c in da.columns:
         if da[c].dtype.kind == "f":
             x, y = da[c].to_numpy(), db[c].to_numpy()
@@ -103,9 +107,14 @@ def _same_numbers(name: str, a: bytes, b: bytes) -> None:
             rtol = 1e-6 + (1e-9 * np.nan_to_num(y) ** 2 if "dop" in c else 0.0)
             with np.errstate(invalid="ignore"):  # (inf - inf)
                 close = (x == y) | (np.isnan(x) & np.isnan(y)) | (np.abs(x - y) <= 2e-4 + rtol * np.abs(y))
-            assert close.all(), f"{name}:{c}: {x[~close][:5]} against {y[~close][:5]}"
+            if not close.all():
+                first.setdefault(c, f"{name}:{c}: {x[~close][:5]} against {y[~close][:5]}")
         else:
-            assert (da[c].fillna("") == db[c].fillna("")).all(), f"{name}:{c}"
+            close = (da[c].fillna("") == db[c].fillna("")).to_numpy()
+            if not close.all():
+                first.setdefault(c, f"{name}:{c}")
+        bad |= ~close
+    assert bad.mean() <= flipped_rows, f"{bad.sum()} of {bad.size} rows differ; " + "; ".join(first.values())
 
 
 def _without_command(text: bytes) -> bytes:
@@ -121,9 +130,9 @@ def _without_command(text: bytes) -> bytes:
     return buf.getvalue().encode()
 
 
-def same_outputs(got: dict[str, bytes], expected: dict[str, bytes], what: str) -> None:
+def same_outputs(got: dict[str, bytes], expected: dict[str, bytes], what: str, flipped_rows: float = 0.0) -> None:
     """The same output files: byte for byte with numpy 2, the same numbers with numpy 1.x
-    (summary.csv without the command line)."""
+    (summary.csv without the command line), where ``flipped_rows`` of a CSV's rows may differ."""
     assert sorted(got) == sorted(expected)
     got, expected = dict(got), dict(expected)
     for name in ("summary.csv",):
@@ -133,7 +142,7 @@ def same_outputs(got: dict[str, bytes], expected: dict[str, bytes], what: str) -
         if NUMPY_2:
             assert got[name] == expected[name], f"{name} differs: {what}"
         else:
-            _same_numbers(name, got[name], expected[name])
+            _same_numbers(name, got[name], expected[name], flipped_rows)
 
 
 def _same_bytes(args: list[object], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, bytes]:
