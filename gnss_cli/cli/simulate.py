@@ -93,6 +93,9 @@ def simulate(
     dual_frequency: Annotated[
         Optional[bool], typer.Option("--dual-frequency/--single-frequency", rich_help_panel="Scenario", help="Also C2W / C7Q / C7I.", show_default="dual" if _SIM.get("simulate", {}).get("dual_frequency") else "single")
     ] = None,
+    phase: Annotated[
+        Optional[bool], typer.Option("--phase/--no-phase", rich_help_panel="Scenario", help="Also carrier phases (L1C ...) in open sky: continuous, noise from the C/N0 (the street canyon always writes them, with slips). RINEX 3.", show_default="phase" if _SIM.get("simulate", {}).get("phase") else "no-phase")
+    ] = None,
     truth_ranges: Annotated[
         Optional[bool], typer.Option("--truth-ranges/--no-truth-ranges", rich_help_panel="Output", help="Also write truth_ranges.csv.", show_default="truth-ranges" if _SIM.get("simulate", {}).get("truth_ranges") else "no-truth-ranges")
     ] = None,
@@ -127,7 +130,7 @@ def simulate(
             "simulate": {
                 "trajectory": trajectory, "start": start, "duration_s": duration, "interval_s": interval,
                 "systems": systems, "seed": seed, "elevation_mask_deg": elevation_mask, **site,
-                "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency,
+                "rinex_version": _RINEX_VERSIONS.get(rinex_version or ""), "dual_frequency": dual_frequency, "phase": phase,
                 "truth_ranges": truth_ranges, "errors": errors, "environment": environment, "receiver": receiver,
             },
             "errors": {

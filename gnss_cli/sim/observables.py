@@ -19,9 +19,12 @@ Signal model (the convention a standard single-frequency receiver inverts, e.g. 
   ``+ (f1/f7)^2 c BGD``, BeiDou B2I ``+ c TGD2``; ionosphere scaled by ``(f_L1/f)^2``.
 - Doppler ``D = -(d rho/dt + b_dot - c dt_sv_dot) / lambda`` (Hz), the derivatives by central
   differences over 1 s of the light-time range and of the broadcast clock.
-- Carrier phase (street canyon only): ``Phi = (rho + b - c dt_sv + T - I) / lambda + N`` cycles
-  (no group delays; the ionosphere advances the phase); the canyon (:mod:`gnss_cli.sim.urban`)
-  adds the NLOS path to code and carrier and chooses the integers ``N``.
+- Carrier phase (in the street canyon, and in open sky when asked):
+  ``Phi = (rho + b - c dt_sv + T - I) / lambda + N`` cycles (no group delays; the ionosphere
+  advances the phase); the canyon (:mod:`gnss_cli.sim.urban`) adds the NLOS path to code and
+  carrier and chooses the integers ``N``. In open sky the carrier is continuous (no slips, one
+  random ``N`` per satellite and signal), without multipath, and its noise (with ``noise``) the
+  thermal jitter of a PLL at the written C/N0 (:func:`~gnss_cli.sim.urban.phase_sigma_m`).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from gnss_cli.sim.urban import (
     UrbanConfig,
     UrbanLabels,
     UrbanObservables,
+    phase_sigma_m,
     street_heading_rad,
     urban_observables,
 )
@@ -173,29 +177,24 @@ def simulate_observations(
     klobuchar_beta: F64,
     elevation_mask_deg: float = 5.0,
     canyon: tuple[UrbanConfig, ReceiverProfile, np.random.Generator] | None = None,
+    phase_pll_bandwidth_hz: float | None = None,
 ) -> Observations:
     """Observables of every satellite of the systems in ``truth`` at the trajectory's epochs.
 
     Parameters
     ----------
-    trajectory
-        Antenna positions/velocities at the epoch labels (receiver clock time).
-    truth
-        System letter -> truth broadcast records.
-    tgd2_s
-        System letter -> second-signal group delay per record of ``truth`` (BeiDou TGD2), s.
-    cfg
-        Error sources.
-    rng
-        Random generator (the only source of randomness).
-    klobuchar_alpha, klobuchar_beta
-        Broadcast ionosphere coefficients ``(4,)`` each.
-    elevation_mask_deg
-        Satellites below are marked not visible.
+    trajectory : antenna positions/velocities at the epoch labels (receiver clock time).
+    truth : system letter -> truth broadcast records.
+    tgd2_s : system letter -> second-signal group delay per record of ``truth`` (BeiDou TGD2), s.
+    cfg, rng : error sources; the random generator (the only source of randomness).
+    klobuchar_alpha, klobuchar_beta : broadcast ionosphere coefficients ``(4,)`` each.
+    elevation_mask_deg : satellites below are marked not visible.
     canyon
         A street canyon, the receiver in it and the canyon's own generator
         (:func:`~gnss_cli.sim.urban.urban_observables`; it replaces the open-sky noise,
         multipath and SNR models and adds carrier phases); None: open sky.
+    phase_pll_bandwidth_hz
+        Open sky: also carrier phases, the noise of a PLL of this bandwidth (Hz); None: none.
 
     Returns
     -------
@@ -237,6 +236,8 @@ def simulate_observations(
     fault = random_outliers_m(cfg, el, rng.spawn(1)[0]) if cfg.outlier_rate > 0 else None
     if fault is not None:
         pr = pr + fault[..., None]
+    if canyon is None and phase_pll_bandwidth_hz is not None:  # drawn last: the rest is the run's without phases
+        phase = _open_sky_phase(cfg, rng.spawn(1)[0], np.concatenate(parts["phase"], axis=1), sv_all, snr, phase_pll_bandwidth_hz)
     return Observations(
         phase_cycles=phase,
         urban=labels,
@@ -350,6 +351,20 @@ def _add_errors(
         snr1 = snr1 + rng.normal(0.0, 0.5, snr1.shape)
     snr = np.stack([snr1, snr1 - 3.0], axis=-1)
     return pr, dop, snr
+
+
+def _open_sky_phase(cfg: ErrorConfig, rng: np.random.Generator, phase_m: F64, sv_all: NDArray[np.str_], snr_dbhz: F64,
+                    pll_bandwidth_hz: float) -> F64:
+    """Open-sky carrier phases ``(T, n, 2)``, cycles: the error-free phase ``phase_m`` (m), one
+    random integer per satellite and signal, and (with ``noise``) the PLL's thermal jitter at
+    ``snr_dbhz``. Its draws come from ``rng``, a child spawned after all others, so the other
+    observables are those of the same run without phases."""
+    wavelength_m = _wavelengths(sv_all)
+    cycles = phase_m / wavelength_m[None] + rng.integers(-100_000, 100_000, (1, *phase_m.shape[1:]))
+    if cfg.on("noise"):
+        sigma_m = phase_sigma_m(wavelength_m[None], snr_dbhz, pll_bandwidth_hz)
+        cycles = cycles + rng.normal(0.0, 1.0, phase_m.shape) * sigma_m / wavelength_m[None]
+    return np.asarray(cycles)
 
 
 def _canyon(

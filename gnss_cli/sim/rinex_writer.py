@@ -39,11 +39,14 @@ class ObsLayout:
     dual_frequency : write the second pseudorange (C2W / C7Q / C7I).
     doppler : write Doppler (D1C, D2I ...).
     snr : write signal strength (S1C ...).
+    phase : carrier phases (L1C ...) in open sky (continuous, :mod:`gnss_cli.sim.observables`);
+        the street canyon always writes them. RINEX 3 only.
     """
 
     dual_frequency: bool = False
     doppler: bool = True
     snr: bool = True
+    phase: bool = False
 
 
 def _calendar(t_gps_s: float) -> dt.datetime:

@@ -307,6 +307,8 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
         raise UsageError(f"--rinex-version: expected 3 (3.04), 3.05 or 2 (2.11), got {config.rinex_version!r}")
     if config.rinex_version == "2.11" and ("C" in config.systems or "J" in config.systems):
         raise UsageError("RINEX 2.11 does not define BeiDou or QZSS observations: use --rinex-version 3")
+    if config.rinex_version == "2.11" and config.layout.phase:
+        raise UsageError("--phase: carrier phases are written in RINEX 3 only: use --rinex-version 3")
     with_receiver_profile(config)
     rng = np.random.default_rng(config.seed)
     # the path, the canyon and the start time draw from their own streams (the children of
@@ -334,6 +336,7 @@ def run_scenario(config: ScenarioConfig) -> Scenario:
         klobuchar_beta=np.asarray(config.klobuchar_beta),
         elevation_mask_deg=config.elevation_mask_deg,
         canyon=(config.urban, RECEIVERS[config.receiver], own[1]) if own and config.environment == "urban" else None,
+        phase_pll_bandwidth_hz=config.urban.pll_bandwidth_hz if config.layout.phase else None,
     )
     nav = dict(truth)
     if config.errors.on("orbit"):

@@ -289,6 +289,12 @@ def _gauss_markov(shape: tuple[int, int], interval_s: float, tau_s: float, rng: 
     return np.asarray(lfilter([1.0], [1.0, -phi], drive, axis=0))
 
 
+def phase_sigma_m(wavelength_m: F64, cn0_dbhz: F64, pll_bandwidth_hz: float) -> F64:
+    """Standard deviation of the carrier phase's thermal noise, m: ``lambda / (2 pi) sqrt(B_n / 10^(C/N0 / 10))``
+    (the PLL's thermal jitter, Kaplan and Hegarty 2017, eq. 8.34; the arguments broadcast)."""
+    return np.asarray(wavelength_m / (2.0 * np.pi) * np.sqrt(pll_bandwidth_hz * 10.0 ** (-np.asarray(cn0_dbhz) / 10.0)))
+
+
 def urban_observables(
     cfg: UrbanConfig,
     profile: ReceiverProfile,
@@ -370,7 +376,7 @@ def urban_observables(
     cn0 = np.where(nlos, los_cn0_dbhz(cfg, profile, el_rad) - loss[arc], los_cn0_dbhz(cfg, profile, el_rad))
     cn0_2 = np.stack([cn0, cn0 - 3.0], axis=-1)  # the second signal 3 dB weaker, as in open sky
     sigma_code = np.sqrt(profile.sigma_a_m2 + profile.sigma_b_m2_hz * 10.0 ** (-cn0_2 / 10.0))
-    sigma_phase = wavelength_m[None] / (2.0 * np.pi) * np.sqrt(cfg.pll_bandwidth_hz * 10.0 ** (-cn0_2 / 10.0))
+    sigma_phase = phase_sigma_m(wavelength_m[None], cn0_2, cfg.pll_bandwidth_hz)
     # a new signal path (direct <-> reflected, another reflector) breaks the carrier
     new_path = np.zeros((n_t, n), dtype=bool)
     new_path[1:] = (nlos[1:] != nlos[:-1]) | (nlos[1:] & ((arc[1:] != arc[:-1]) | (block[1:] != block[:-1])[:, None]))
