@@ -46,6 +46,13 @@ rows, gates and passes of the measurement-domain smoother):
   across several others: tried so, on a simulated drive of 148 spans of 2-4 epochs, the track
   was 9 m off, WLS 3.6 m).
 
+With ``latency_sigma_m > 0`` the kernel rows are soft, of that standard deviation (m): the
+trajectory is then the behavior's driven by a latent input ``e``, ``r_k(z) x = e`` (the
+*latency* of Markovsky's misfit-and-latency models, beside the measurements' misfit), so a
+manoeuvre the identified kernel does not hold can leave it at a cost. Zero keeps the trajectory
+exactly in each span's behavior; a large value leaves the kernel nothing to say, and the run is
+then the quadrature smoother's (with range rates) plus the switch rows.
+
 Every row's coefficients sum to zero (the root at ``z = 1``: a constant position has no kernel
 residual and no velocity), so the constraints on absolute positions are written on the
 corrections ``z`` and the steps of the linearization points (``hard_step``).
@@ -76,7 +83,7 @@ def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F6
 
 def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, switch_sigma_m: float,
                     range_rates: bool = False, windows: NDArray[np.intp] | None = None,
-                    free: NDArray[np.bool_] | None = None) -> MotionTerms:
+                    free: NDArray[np.bool_] | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
     """The piecewise behavior of a run of ``n`` epochs as equality constraints (module docstring).
 
     Parameters
@@ -101,12 +108,16 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
         Spans without a behavior (no kernel rows, no switch row into the next span): those whose
         behavior the run's measurements rejected (:mod:`gnss_cli.pipeline.tied`). Without range
         rates their velocities are the central differences.
+    latency_sigma_m : float
+        Standard deviation of the latent input, m (module docstring): 0 (default) makes the
+        kernel rows hard, ``> 0`` soft rows of that standard deviation.
 
     Returns
     -------
     MotionTerms
-        On ``u = [x_0..x_{n-1}, v_0..v_{n-1}]`` (per coordinate): the kernel and velocity rows
-        hard, the switch rows soft and counted in the misfit.
+        On ``u = [x_0..x_{n-1}, v_0..v_{n-1}]`` (per coordinate): the kernel rows hard (soft with
+        a latency) and the velocity rows hard, the switch rows soft; the soft rows are counted
+        in the misfit.
 
     Examples
     --------
@@ -135,8 +146,12 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
             rows.append((np.arange(t0, t0 + lag + 1), r))
         if q < n and q - lag >= p:  # the switch row at q - l, into the next span
             switch.append((np.arange(q - lag, q + 1), r))
-    soft, soft_step = _position_rows(switch, n)
-    weight = sp.eye(len(switch), format="csr") / switch_sigma_m**2
+    soft_rows, sigmas = switch, np.full(len(switch), switch_sigma_m)
+    if latency_sigma_m > 0:  # the kernel rows join the switch rows as soft rows
+        soft_rows, sigmas = rows + switch, np.concatenate([np.full(len(rows), latency_sigma_m), sigmas])
+        rows = []
+    soft, soft_step = _position_rows(soft_rows, n)
+    weight = sp.diags(sigmas**-2.0, format="csr")
     if range_rates:
         step = motion_terms(Motion("quadrature", lag=lag), np.repeat(dt_s, ends - starts)[:-1])
         kern, kern_step = _position_rows(rows, n)

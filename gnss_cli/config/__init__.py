@@ -454,7 +454,7 @@ def _apply(cfg: ProcessingConfig, data: Mapping[str, Any], source: str) -> Proce
             if "orbit_sigma_m" in table:
                 cfg = replace(cfg, orbit_sigma_m=float(table.pop("orbit_sigma_m")))
             cfg = replace(cfg, stls=_apply_table(cfg.stls, table, "stls", source, text=("kernel",),
-                                                 floats=("tolerance", "behavior_pfa")))
+                                                 floats=("tolerance", "behavior_pfa", "latency_m")))
         if "wtls" in data:
             tbad = set(data["wtls"]) - {"column_scaling"}
             if tbad:

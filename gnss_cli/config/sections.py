@@ -50,6 +50,12 @@ MEASUREMENT_KINDS = ("pseudorange", "doppler", "phase")
 """What the multi-epoch methods (``stls`` with ``lag >= 1`` through its fixes, ``smoother``, ``kf``) may use."""
 
 
+MIN_LATENCY_M = 1e-4
+"""The smallest non-zero ``stls.latency_m``, m: at 1e-5 m the soft kernel rows (weight 1e10 per
+m^2) made the tied runs of a simulated drive singular, so they were not tied; from 1e-4 m on the
+track equals the exact behavior's (0.1 mm)."""
+
+
 @dataclass(frozen=True)
 class StlsConfig:
     """The ``stls`` method (``[stls]`` in ``gnss_cli/configs/default.toml``).
@@ -57,8 +63,10 @@ class StlsConfig:
     ``lag = 0``: single-epoch structured TLS. ``lag >= 1``: the paper's behavioral method -- a
     kernel identified from the data by weighted Hankel STLS in sliding windows of ``window``
     epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a full kernel), each window's
-    behavior tested at the false-alarm probability ``behavior_pfa`` (:mod:`gnss_cli.pipeline.spans`).
-    The defaults equal the packaged TOML.
+    behavior tested at the false-alarm probability ``behavior_pfa`` (:mod:`gnss_cli.pipeline.spans`);
+    where the spans are tied (range rates or phase), ``latency_m`` is the standard deviation of
+    the latent input that may drive the trajectory out of each span's behavior (m; 0: exactly in
+    it; :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
     """
 
     lag: int = 0
@@ -68,6 +76,7 @@ class StlsConfig:
     tolerance: float = 1e-6
     max_iterations: int = 200
     behavior_pfa: float = 1e-12
+    latency_m: float = 0.0
 
     @property
     def full_order(self) -> int | None:
@@ -91,6 +100,9 @@ class StlsConfig:
             raise ConfigError(f"stls.kernel: expected one of {', '.join(STLS_KERNELS)}; received {self.kernel!r}")
         if not self.tolerance > 0:
             raise ConfigError(f"stls.tolerance: expected > 0; received {self.tolerance}")
+        if not (self.latency_m == 0 or MIN_LATENCY_M <= self.latency_m < float("inf")):
+            raise ConfigError(f"stls.latency_m: expected 0 (the exact behavior) or a finite value >= {MIN_LATENCY_M:g} m "
+                              f"(smaller ones leave the tied system ill-conditioned); received {self.latency_m}")
         if not 0 < self.behavior_pfa < 1:
             raise ConfigError(f"stls.behavior_pfa: expected a probability between 0 and 1; received {self.behavior_pfa}")
         if self.lag == 0:

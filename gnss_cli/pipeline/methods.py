@@ -107,6 +107,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             window = f"{s.window} epochs" if s.window else "whole segments"
             if s.kernel == "shared":
                 tied = "" if kinds == "pseudorange" else ", spans tied"  # gnss_cli.pipeline.tied
+                if tied and s.latency_m > 0:
+                    tied += f", latency {s.latency_m:g} m"
                 out[m] = MethodSettings(m, "identified Hankel STLS (measurement domain, alternation)",
                                         f"{kernel} identified per window{tied}", str(s.lag), window, kinds, tested)
             else:  # the alternation is for shared kernels: the full kernel stays with the fixes

@@ -151,7 +151,7 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
         sigmas.append(SWITCH_SIGMA_FACTOR * switch_sigma(jobs, fits, run, lag))
         free = np.array([_free(fits[k], kinds) for k in run])
         plan.append((epochs, piecewise_terms(kernels, starts, epochs.size, dt, sigmas[-1], "doppler" in kinds, windows,
-                                             free)))
+                                             free, config.stls.latency_m)))
         members.append(run)
     gated = np.zeros(data.usable.shape, dtype=bool)
     tied = np.zeros(T, dtype=bool)
@@ -161,6 +161,7 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
     out = list(fits)
     if res is None:
         return out, gated, tied
+    latency = f" kernel rows soft, latency {config.stls.latency_m:.3g} m;" if config.stls.latency_m > 0 else ""
     for (epochs, _), run, bad, sigma, misfit, dof in zip(plan, members, res.degenerate, sigmas, res.misfit, res.dof):
         if bad:
             for k in run:
@@ -179,5 +180,5 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
             free = f", without its kernel rows (its behavior was rejected with {used})" if _free(out[k], kinds) else ""
             out[k] = replace(out[k], w_hat=w_hat, message=(
                 f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied (switch rows "
-                f"sigma {sigma:.3g} m; run misfit {misfit:.6g} over {dof} dof)"))
+                f"sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))
     return out, gated, tied

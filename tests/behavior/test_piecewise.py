@@ -152,3 +152,21 @@ def test_a_broken_switch_shows_in_its_row() -> None:
     assert abs((terms.soft[:, :n] @ x)[0]) < 1e-12
     assert (terms.soft[:, :n] @ x_jump)[0] == pytest.approx(r[-1] * 0.3, abs=1e-12)
     assert np.abs(terms.hard[:, :n][np.asarray(terms.hard[:, n:].sum(axis=1)).ravel() == 0] @ x_jump).max() < 1e-9
+
+
+@pytest.mark.parametrize("range_rates", [False, True])
+def test_a_latency_moves_the_kernel_rows_to_the_soft_rows(range_rates: bool) -> None:
+    """With ``latency_sigma_m`` the kernel rows leave the equality constraints and lead the soft
+    rows, unchanged and weighted ``1 / sigma^2``, before the switch rows and their own weight; the
+    velocity rows stay hard."""
+    kernels = np.stack([shared_kernel_coefficients((1.0, 0.9, 1.0)), shared_kernel_coefficients((1.0, 1.0, 1.0))])
+    starts, n = np.array([0, 9]), 18
+    exact = piecewise_terms(kernels, starts, n, np.ones(2), 0.1, range_rates)
+    soft = piecewise_terms(kernels, starts, n, np.ones(2), 0.1, range_rates, latency_sigma_m=0.02)
+    kernel = np.asarray(abs(exact.hard[:, n:]).sum(axis=1)).ravel() == 0
+    k = int(kernel.sum())
+    assert k == (9 - 3) + (9 - 3) and soft.hard.shape[0] == exact.hard.shape[0] - k
+    assert (soft.hard != exact.hard[~kernel]).nnz == 0 and (soft.hard_step != exact.hard_step[~kernel]).nnz == 0
+    assert (soft.soft[:k] != exact.hard[kernel]).nnz == 0 and (soft.soft[k:] != exact.soft).nnz == 0
+    assert (soft.soft_step[:k] != exact.hard_step[kernel]).nnz == 0
+    assert np.allclose(soft.soft_weight.diagonal(), np.r_[np.full(k, 0.02**-2), np.full(exact.soft.shape[0], 0.1**-2)])
