@@ -32,11 +32,17 @@ run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an
 drive of ``benchmarks/multi_epoch_fair.py``), it put that drive's first epochs 7 m off; on the
 six training runs the rule took the pooled 3D RMS from 0.441 to 0.437 m.
 
+A span whose result stayed in the position domain (its kernel identified on the fixes alone and
+untested, or without a velocity for the range rates) is in its run the same way, without a
+behavior: tied in with its kernel rows, such a kernel moved a simulated flight's track by
+metres; ending the run, as it did before, it kept its position-domain result (4.4 m off on an
+evaluation drive with phase of ``benchmarks/multi_epoch_fair.py``, where the spans around it
+were within 0.4 m) and cut the segment into runs whose pseudoranges were averaged apart.
+
 A run is a maximal sequence of spans of one segment whose epochs follow without a gap and
-which each supplied a measurement-domain trajectory: a span whose epochs keep the WLS fix, or
-whose result stayed in the position domain (its kernel identified on the fixes alone, untested:
-tied in, such a kernel moved a simulated flight's track by metres), ends a run. A run
-whose system is singular keeps the spans' own trajectories; its windows' records say so.
+which each supplied a trajectory with a shared kernel: a span whose epochs keep the WLS fix, or a
+gap, ends a run. A run whose system is singular keeps the spans' own trajectories; its windows'
+records say so.
 """
 
 from __future__ import annotations
@@ -71,21 +77,29 @@ SWITCH_SIGMA_FACTOR = 0.1
 
 
 def _free(fit: Fit, kinds: frozenset[str]) -> bool:
-    """Whether a span enters its run without a behavior: the run's measurements rejected its windows
-    down to the shortest, and it passed with the pseudoranges alone (:mod:`gnss_cli.pipeline.spans`)."""
-    return fit.measurements is not None and fit.measurements != kinds
+    """Whether a span enters its run without a behavior: its result stayed in the position domain,
+    or the run's measurements rejected its windows down to the shortest and it passed with the
+    pseudoranges alone (:mod:`gnss_cli.pipeline.spans`)."""
+    return fit.domain != "measurement" or (fit.measurements is not None and fit.measurements != kinds)
+
+
+def _why_free(fit: Fit, kinds: frozenset[str]) -> str:
+    """The record's words for a span in its run without a behavior (:func:`_free`)."""
+    if fit.domain != "measurement":
+        return "its result stayed in the position domain"
+    return f"its behavior was rejected with {'+'.join(kind for kind in KINDS if kind in kinds)}"
 
 
 def span_runs(segs: list[Segment], jobs: list[WindowJob], fits: list[Fit]) -> list[list[int]]:
-    """Runs of consecutive spans (indices into ``jobs``) that each supplied a measurement-domain
-    trajectory (module docstring)."""
+    """Runs of consecutive spans (indices into ``jobs``) that each supplied a trajectory with a
+    shared kernel (module docstring)."""
     out: list[list[int]] = []
     for s in range(len(segs)):
         ks = sorted((k for k, (j, f) in enumerate(zip(jobs, fits)) if j.segment == s and j.hi > j.lo),
                     key=lambda k: jobs[k].lo)
         run: list[int] = []
         for k in ks:
-            good = fits[k].w_hat is not None and fits[k].domain == "measurement" and fits[k].kernel is not None \
+            good = fits[k].w_hat is not None and fits[k].kernel is not None \
                 and fits[k].kernel.shared_coefficients is not None  # type: ignore[union-attr]
             if good and run and jobs[run[-1]].hi == jobs[k].lo:
                 run.append(k)
@@ -106,7 +120,7 @@ def switch_sigma(jobs: list[WindowJob], fits: list[Fit], run: list[int], lag: in
     res = []
     for k, k_next in zip(run[:-1], run[1:]):
         job, nxt = jobs[k], jobs[k_next]
-        if job.hi - job.lo < lag:
+        if job.hi - job.lo < lag or fits[k].domain != "measurement" or fits[k_next].domain != "measurement":
             continue
         w = fits[k].w_hat[job.hi - lag - job.a : job.hi - job.a]  # type: ignore[index]
         w = np.vstack([w, fits[k_next].w_hat[nxt.lo - nxt.a]])  # type: ignore[index]
@@ -176,8 +190,7 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
             w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
             own = seg.epochs[job.lo : job.hi]
             w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
-            used = "+".join(kind for kind in KINDS if kind in kinds)
-            free = f", without its kernel rows (its behavior was rejected with {used})" if _free(out[k], kinds) else ""
+            free = f", without its kernel rows ({_why_free(out[k], kinds)})" if _free(out[k], kinds) else ""
             out[k] = replace(out[k], w_hat=w_hat, message=(
                 f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied (switch rows "
                 f"sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))

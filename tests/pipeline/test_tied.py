@@ -15,7 +15,7 @@ from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, solve_method
 from gnss_cli.pipeline.behavioral import Fit, WindowJob
 from gnss_cli.pipeline.methods import solve_multi_epoch
-from gnss_cli.pipeline.tied import span_runs
+from gnss_cli.pipeline.tied import _free, span_runs
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
 
@@ -125,8 +125,9 @@ def test_a_latency_relaxes_the_behavior_and_never_raises_the_runs_cost(drive: Pa
     assert np.nanmax(np.abs(tracks[-1] - tracks[0])) > 1e-2
 
 
-def test_runs_are_maximal_sequences_of_measurement_domain_spans() -> None:
-    """A span that keeps the WLS fix, or stayed in the position domain, or a gap, ends a run."""
+def test_runs_are_maximal_sequences_of_spans_with_a_trajectory() -> None:
+    """A span that keeps the WLS fix, or a gap, ends a run; a span whose result stayed in the
+    position domain joins its run without a behavior (no kernel rows, no switch row out of it)."""
     from gnss_cli.pipeline.behavioral import Segment
 
     seg = Segment(np.arange(40), np.zeros(3), np.eye(3), np.zeros((40, 3)), np.zeros((40, 3, 3)))
@@ -138,4 +139,7 @@ def test_runs_are_maximal_sequences_of_measurement_domain_spans() -> None:
     jobs = [WindowJob(0, i, lo, lo + 10, lo, lo + 5) for i, lo in enumerate(range(0, 40, 5))]
     fits = [fit(), fit(), fit(w=False), fit(), fit(domain="position"), fit(), fit(), fit()]
     jobs[6] = replace(jobs[6], lo=31, hi=35)  # a gap before it (epoch 30 supplied by no span)
-    assert span_runs([seg], jobs, fits) == [[0, 1], [3], [5], [6, 7]]
+    assert span_runs([seg], jobs, fits) == [[0, 1], [3, 4, 5], [6, 7]]
+    kinds = frozenset({"pseudorange", "doppler"})
+    assert [_free(f, kinds) for f in fits[3:6]] == [False, True, False]
+    assert _free(replace(fits[3], measurements=frozenset({"pseudorange"})), kinds)
