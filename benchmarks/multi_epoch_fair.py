@@ -22,9 +22,11 @@ flights and drives with 1 m code noise, a small grid per method and measurement 
 the best 3D RMS (pooled over the training seeds of both trajectories) picked: ``kf cv``
 ``accel_psd_m2_s3``, ``kf ca`` ``jerk_psd_m2_s5``, the smoother's quadrature lag, the stls
 window (0: whole segments, halved where the behavior test rejects) and its behavior test's
-false-alarm probability (``behavior_pfa``). They are written to the JSON and then fixed for the evaluation seeds (101-110), the
-noise-free flight and the real sets; the phase set, which the simulator does not write, uses the
-Doppler set's choices.
+false-alarm probability (``behavior_pfa``); then, where its spans are tied (range rates or
+phase), stls's ``latency_m`` at those (:data:`LATENCY_M`). They are written to the JSON and then
+fixed for the evaluation seeds (101-110), the noise-free flight and the real sets. The simulated
+files carry open-sky carrier phases (``gnss-simulate --phase``: continuous, millimetre PLL jitter,
+no multipath), so the phase set is chosen on its own training runs too.
 
 Cases:
 
@@ -32,7 +34,7 @@ Every method of a case and measurement set is compared on the same epochs: those
 them have a position (the rows say how many each solved).
 
 * ``flight`` / ``drive``: ``gnss-simulate --trajectory flight|drive`` (path and start time drawn
-  from the seed), GPS, 1 Hz, 300 s, ``--errors noise --noise-sigma 1``, solved with ``iono none, tropo
+  from the seed), GPS, 1 Hz, 300 s, ``--errors noise --noise-sigma 1 --phase``, solved with ``iono none, tropo
   none``; errors against ``truth.csv``, pooled over the evaluation seeds: 3D RMS, horizontal RMS,
   95th percentile of the 3D error.
 * ``flight exact``: the same with ``--errors none`` (evaluation seed 101): the largest 3D error
@@ -54,9 +56,9 @@ in the JSON and in a second table.
 Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
-skipped). The full run took 23 min in one process on the shared 2-core machine, a second job
-beside it most of the time (38 min in an earlier run); the whole-segment stls candidates
-(``window`` 0) about double it (``--quick``: 2 min).
+skipped). The full run took 41 min in one process on the shared 2-core machine, a second job
+beside it part of the time (the phase set, trained and evaluated on the simulated runs since they
+carry phase, and the latency stage about doubled it; ``--quick``: 3 min).
 """
 
 from __future__ import annotations
@@ -100,6 +102,9 @@ GRID: dict[str, tuple[str, tuple[Any, ...]]] = {
 }
 """The setting tuned per method (config key, candidates; keys joined by commas take tuples of
 values); smoother cv / ca have none."""
+LATENCY_M = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3)
+"""Candidates of ``stls.latency_m``, chosen after stls's window and false-alarm probability, at
+those, where spans are tied (range rates or phase); with the pseudoranges alone it does nothing."""
 
 
 def setting(key: str, candidate: Any) -> dict[str, Any]:
@@ -123,10 +128,12 @@ PEERS = ("kf cv", "kf ca", "smoother quadrature", "smoother cv", "smoother ca")
 
 
 def simulate(out: Path, kind: str, seed: int, duration_s: float, errors: str) -> Path:
-    """``gnss-simulate --trajectory KIND --seed SEED --errors ERRORS --noise-sigma 1`` (GPS, 1 Hz)."""
+    """``gnss-simulate --trajectory KIND --seed SEED --errors ERRORS --noise-sigma 1 --phase`` (GPS,
+    1 Hz; the carrier phases leave the other observables, and the sets without phase, unchanged)."""
     base = ScenarioConfig()
     cfg = replace(base, trajectory=kind, seed=seed, duration_s=duration_s, interval_s=1.0, systems=("G",),
-                  errors=replace(base.errors.with_sources(parse_error_list(errors)), noise_sigma_m=1.0))
+                  errors=replace(base.errors.with_sources(parse_error_list(errors)), noise_sigma_m=1.0),
+                  layout=replace(base.layout, phase=True))
     write_scenario(run_scenario(cfg), out)
     return out
 
@@ -209,17 +216,20 @@ def variants_for(chosen: dict[str, Any], names: tuple[str, ...]) -> dict[str, di
         v = dict(BASE[name])
         if name in GRID:
             v.update(setting(GRID[name][0], chosen[name]))
+        if name == "stls":
+            v["stls.latency_m"] = chosen.get("stls latency_m", 0.0)
         out[name] = v
     return out
 
 
 def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dict[str, Any]]:
-    """Per measurement set (pr, pr+doppler): each tuned variant's candidate with the best pooled
-    3D RMS over the training seeds of the flight and the drive, and every candidate's RMS."""
+    """Per measurement set: each tuned variant's candidate with the best pooled 3D RMS over the
+    training seeds of the flight and the drive, and every candidate's RMS; then, where spans are
+    tied, stls's latency (:data:`LATENCY_M`) at its chosen window and false-alarm probability."""
     files = [simulate(tmp / f"train-{kind}-{seed}", kind, seed + SEED_OFFSET[kind], duration_s, "noise")
              for kind in ("flight", "drive") for seed in seeds]
     chosen: dict[str, dict[str, Any]] = {}
-    for label in ("pr", "pr+doppler"):
+    for label in SETS:
         common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
         scores: dict[str, dict[str, float]] = {name: {} for name in GRID}
         n = max(len(c) for _, c in GRID.values())
@@ -234,10 +244,18 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
         for name, (key, cands) in GRID.items():
             best = min(cands, key=lambda c: scores[name][label_of(c)])
             chosen[label]["choice"][name] = best
-        print(f"training {label}: " + ", ".join(f"{n} {GRID[n][0]}={c}" for n, c in chosen[label]["choice"].items()),
+        if label != "pr":
+            stls = {**BASE["stls"], **setting(GRID["stls"][0], chosen[label]["choice"]["stls"])}
+            lat = {0.0: scores["stls"][label_of(chosen[label]["choice"]["stls"])]}
+            for value in LATENCY_M[1:]:
+                runs = [solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv",
+                                       {"stls": {**stls, "stls.latency_m": value}}, common) for d in files]
+                lat[value] = stats(pooled(runs, "stls"))["rms_3d_m"]
+            chosen[label]["choice"]["stls latency_m"] = min(LATENCY_M, key=lat.__getitem__)
+            scores["stls latency_m"] = {str(v): r for v, r in lat.items()}
+        print(f"training {label}: " + ", ".join(f"{n} {GRID[n][0] if n in GRID else ''}={c}"
+                                                for n, c in chosen[label]["choice"].items()),
               file=sys.stderr)
-    chosen["pr+doppler+phase"] = {"choice": dict(chosen["pr+doppler"]["choice"]), "rms_3d_m": {},
-                                  "note": "the simulator writes no phase: the pr+doppler choices"}
     return chosen
 
 
@@ -269,14 +287,14 @@ def main() -> None:
             files = [simulate(tmp / f"eval-{kind}-{seed}", kind, seed + SEED_OFFSET[kind], duration_s, "noise")
                      for seed in eval_seeds]
             cases[kind] = {}
-            for label in ("pr", "pr+doppler"):
+            for label in SETS:
                 common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
                 runs = [solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv",
                                        variants_for(chosen[label]["choice"], names), common) for d in files]
                 cases[kind][label] = evaluate(runs)
         d = simulate(tmp / "exact", "flight", eval_seeds[0], duration_s, "none")
         cases["flight exact"] = {}
-        for label in ("pr", "pr+doppler"):
+        for label in SETS:
             common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
             run = solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv", variants_for(chosen[label]["choice"], names), common)
             cases["flight exact"][label] = evaluate([run])

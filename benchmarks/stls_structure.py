@@ -24,18 +24,19 @@ range rates; 3D RMS pooled):
 * ``as it ships``;
 * ``velocities from the modes' derivatives``: ``v_t = log(A_k) / dt`` applied to ``l`` positions of
   the span (a kernel without a real logarithm: the central difference);
-* ``kernel rows also where the range rates rejected``: the spans that passed the behavior test
-  only with the pseudoranges alone keep their kernel rows (they ship without);
+* ``kernel rows in every span (also rejected or untested)``: the spans that passed the behavior
+  test only with the pseudoranges alone, and those whose result stayed in the position domain,
+  keep their kernel rows (they ship without);
 * ``(z - 1)^3 in the same spans``: every span's kernel replaced by ``(z - 1)^3`` (exact
   quadratics), the spans unchanged: what a kernel known in advance would give in this structure;
-* ``kernel rows soft, sigma S m``: each span's kernel rows as soft rows of standard deviation
-  ``S`` m (the behavior with an equation error, "latency", beside the measurement misfit),
+* ``latency S m``: each span's kernel rows as soft rows of standard deviation ``S`` m
+  (``stls.latency_m``: the behavior driven by a latent input beside the measurement misfit),
   its velocity and switch rows as shipped;
 
 each for whole segments (``window`` 0, halved where the behavior test rejects) and for
-20-epoch windows, both at ``behavior_pfa`` 1e-12; beside them ``smoother`` (quadrature) and
-``kf ca`` with the settings ``multi_epoch_fair.py``'s training chose for them (read from its
-committed results: lag 3, jerk PSD 0.1 m^2/s^5). Nothing is chosen here (``multi_epoch_fair.py``
+20-epoch windows, both at ``behavior_pfa`` 1e-12 and at the ``latency_m`` the training of
+``multi_epoch_fair.py`` chose with range rates; beside them ``smoother`` (quadrature) and ``kf
+ca`` with the settings that training chose for them (all read from its committed results). Nothing is chosen here (``multi_epoch_fair.py``
 chooses the settings). Prints a table and writes ``benchmarks/results/stls_structure.json``. About 6 minutes
 (``--quick``: one flight and one drive, 120 s).
 """
@@ -53,7 +54,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from multi_epoch_fair import OUT as FAIR  # noqa: E402
@@ -70,7 +70,8 @@ WINDOWS = {"whole segments": {"stls.window": 0, "stls.behavior_pfa": 1e-12},
 PEERS = ("smoother quadrature", "kf ca")
 """The peers, with the settings ``multi_epoch_fair.py``'s training chose for them with range rates
 (read from its committed results)."""
-SOFT_SIGMAS_M = (0.1, 0.3, 1.0)
+LATENCIES_M = (0.0, 0.01, 0.1, 1.0)
+"""The ``stls.latency_m`` rows (one is the shipped choice: marked so)."""
 CUBE = np.array([-1.0, 3.0, -3.0, 1.0])
 """``(z - 1)^3``, ascending and monic, as the identified shared kernels are written."""
 
@@ -80,37 +81,21 @@ def cube_kernels(kernels: np.ndarray, *args: Any, **kwargs: Any) -> MotionTerms:
     return piecewise_terms(np.broadcast_to(CUBE, kernels.shape).copy(), *args, **kwargs)
 
 
-def soft_kernel_rows(sigma_m: float) -> Callable[..., MotionTerms]:
-    """:func:`piecewise_terms` with the kernel rows (the hard rows on positions only) moved to the
-    soft rows with standard deviation ``sigma_m``; velocity and switch rows unchanged."""
-
-    def terms(*args: Any, **kwargs: Any) -> MotionTerms:
-        t = piecewise_terms(*args, **kwargs)
-        n = t.hard.shape[1] // 2
-        kernel = np.asarray(abs(t.hard[:, n:]).sum(axis=1)).ravel() == 0
-        k = int(kernel.sum())
-        return MotionTerms(t.hard[~kernel], t.hard_step[~kernel], sp.vstack([t.hard[kernel], t.soft], format="csr"),
-                           sp.vstack([t.hard_step[kernel], t.soft_step], format="csr"),
-                           sp.block_diag([sp.eye(k) / sigma_m**2, t.soft_weight], format="csr"), True)
-
-    return terms
-
-
 def mode_velocities(kernels: np.ndarray, starts: np.ndarray, n: int, dt_s: np.ndarray, switch_sigma_m: float,
                     range_rates: bool = False, windows: np.ndarray | None = None,
-                    free: np.ndarray | None = None) -> MotionTerms:
+                    free: np.ndarray | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
     """:func:`piecewise_terms` with the velocities tied to the positions by the kernels' modes'
     derivatives (its form without range rates; a kernel without a real logarithm, the central
     difference) in place of the quadrature rule."""
-    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, False, windows, free)
+    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, False, windows, free, latency_sigma_m)
 
 
 def rejected_kernels(kernels: np.ndarray, starts: np.ndarray, n: int, dt_s: np.ndarray, switch_sigma_m: float,
                      range_rates: bool = False, windows: np.ndarray | None = None,
-                     free: np.ndarray | None = None) -> MotionTerms:
+                     free: np.ndarray | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
     """:func:`piecewise_terms` with the kernel rows of every span, also of those whose behavior the
-    range rates rejected (which ship without them)."""
-    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, range_rates, windows)
+    range rates rejected or whose result stayed in the position domain (which ship without them)."""
+    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, range_rates, windows, None, latency_sigma_m)
 
 
 def _settings_text(settings: dict[str, Any]) -> str:
@@ -138,11 +123,13 @@ def main() -> None:
     t0 = time.perf_counter()
     seeds, duration_s = (TRAIN_SEEDS[:1], 120.0) if args.quick else (TRAIN_SEEDS, 300.0)
     common = {"measurements": SETS["pr+doppler"], "iono": "none", "tropo": "none"}
-    variants: dict[str, Callable[..., MotionTerms] | None] = {
-        "as it ships": None, "velocities from the modes' derivatives": mode_velocities,
-        "kernel rows also where the range rates rejected": rejected_kernels,
-        "(z - 1)^3 in the same spans": cube_kernels}
-    variants |= {f"kernel rows soft, sigma {s:g} m": soft_kernel_rows(s) for s in SOFT_SIGMAS_M}
+    chosen = json.loads(FAIR.read_text())["settings_chosen"]["pr+doppler"]["choice"]
+    shipped = {"stls.latency_m": chosen.get("stls latency_m", 0.0)}
+    variants: dict[str, tuple[Callable[..., MotionTerms] | None, dict[str, float]]] = {
+        "as it ships": (None, shipped), "velocities from the modes' derivatives": (mode_velocities, shipped),
+        "kernel rows in every span (also rejected or untested)": (rejected_kernels, shipped),
+        "(z - 1)^3 in the same spans": (cube_kernels, shipped)}
+    variants |= {f"latency {v:g} m": (None, {"stls.latency_m": v}) for v in LATENCIES_M if v != shipped["stls.latency_m"]}
     rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -154,16 +141,15 @@ def main() -> None:
             name = next(iter(method_settings))
             return stats(pooled(runs, name))["rms_3d_m"], [stats(r[name]["enu_m"])["rms_3d_m"] for r in runs]
 
-        chosen = json.loads(FAIR.read_text())["settings_chosen"]["pr+doppler"]["choice"]
         for peer, settings in variants_for(chosen, PEERS).items():
             label = f"{peer} ({_settings_text(settings)})"
             total, each = rms({peer: settings})
             rows.append({"method": label, "windows": "", "rms_3d_m": total, "per_run_m": each})
             print(f"{label:60s} {total:.3f} m", file=sys.stderr)
         for wname, wset in WINDOWS.items():
-            for vname, build in variants.items():
+            for vname, (build, extra) in variants.items():
                 with terms_of(build):
-                    total, each = rms({"stls": {"stls.lag": 3, **wset}})
+                    total, each = rms({"stls": {"stls.lag": 3, **wset, **extra}})
                 rows.append({"method": f"stls, {vname}", "windows": wname, "rms_3d_m": total, "per_run_m": each})
                 print(f"stls, {vname:48s} {wname:17s} {total:.3f} m", file=sys.stderr)
     best_peer = min(r["rms_3d_m"] for r in rows if not r["windows"])

@@ -30,7 +30,9 @@ no kernel rows and no switch row out of it, its positions held by the measuremen
 range rates) the quadrature rows alone. Its kernel contradicts the range rates or phase the
 run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an evaluation
 drive of ``benchmarks/multi_epoch_fair.py``), it put that drive's first epochs 7 m off; on the
-six training runs the rule took the pooled 3D RMS from 0.441 to 0.437 m.
+six training runs the rule (with the position-domain spans below) takes the pooled 3D RMS from
+0.437 to 0.433 m in whole segments, from 0.466 to 0.443 m in 20-epoch windows
+(``benchmarks/stls_structure.py``).
 
 A span whose result stayed in the position domain (its kernel identified on the fixes alone and
 untested, or without a velocity for the range rates) is in its run the same way, without a
