@@ -36,8 +36,9 @@ range rates; 3D RMS pooled):
 each for whole segments (``window`` 0, halved where the behavior test rejects) and for
 20-epoch windows, both at ``behavior_pfa`` 1e-12 and at the ``latency_m`` the training of
 ``multi_epoch_fair.py`` chose with range rates; beside them ``smoother`` (quadrature) and ``kf
-ca`` with the settings that training chose for them (all read from its committed results). Nothing is chosen here (``multi_epoch_fair.py``
-chooses the settings). Prints a table and writes ``benchmarks/results/stls_structure.json``. About 6 minutes
+ca`` with the settings that training chose for them (all read from its committed results).
+Nothing is chosen here (``multi_epoch_fair.py`` chooses the settings). Prints a table and writes
+``benchmarks/results/stls_structure.json``. About 10 minutes
 (``--quick``: one flight and one drive, 120 s).
 """
 
@@ -71,7 +72,7 @@ PEERS = ("smoother quadrature", "kf ca")
 """The peers, with the settings ``multi_epoch_fair.py``'s training chose for them with range rates
 (read from its committed results)."""
 LATENCIES_M = (0.0, 0.01, 0.1, 1.0)
-"""The ``stls.latency_m`` rows (one is the shipped choice: marked so)."""
+"""The ``stls.latency_m`` rows (the shipped choice among them is the ``as it ships`` row)."""
 CUBE = np.array([-1.0, 3.0, -3.0, 1.0])
 """``(z - 1)^3``, ascending and monic, as the identified shared kernels are written."""
 

@@ -52,8 +52,8 @@ MEASUREMENT_KINDS = ("pseudorange", "doppler", "phase")
 
 MIN_LATENCY_M = 1e-4
 """The smallest non-zero ``stls.latency_m``, m: at 1e-5 m the soft kernel rows (weight 1e10 per
-m^2) made the tied runs of a simulated drive singular, so they were not tied; from 1e-4 m on the
-track equals the exact behavior's (0.1 mm)."""
+m^2) made the tied runs of a simulated drive singular, so they were not tied; at 1e-4 m the
+track is the exact behavior's to 1 mm (``tests/pipeline/test_tied.py``)."""
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The spans of ``stls --lag 3`` solved together (:mod:`gnss_cli.pipeline.tied`): the result lies in
-each span's identified behavior, the runs are those of the spans, and tying them beats solving them
-one at a time."""
+each span's identified behavior, the runs are those of the spans, tying them beats solving them
+one at a time, and a latency relaxes the behavior."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from gnss_cli.config import load_config
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, solve_method
 from gnss_cli.pipeline.behavioral import Fit, WindowJob
-from gnss_cli.pipeline.methods import solve_multi_epoch
+from gnss_cli.pipeline.methods import method_settings, solve_multi_epoch
 from gnss_cli.pipeline.tied import _free, span_runs
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
@@ -119,6 +119,8 @@ def test_a_latency_relaxes_the_behavior_and_never_raises_the_runs_cost(drive: Pa
         costs.append(sum(float(r.split()[0]) for r in runs))
         tracks.append(sol.x_ecef_m)
         assert (f"latency {latency:.3g} m;" in models[0].message) == (latency > 0) or "run misfit" not in models[0].message
+        model = method_settings(one, True, False)["stls"].model
+        assert model.endswith("spans tied" + (f", latency {latency:g} m" if latency else "")), model
     assert all(b <= a * (1 + 1e-6) for a, b in zip(costs, costs[1:])), costs
     assert costs[-1] < 0.99 * costs[0], costs
     assert np.nanmax(np.abs(tracks[1] - tracks[0])) < 1e-3

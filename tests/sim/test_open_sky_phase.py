@@ -43,10 +43,8 @@ def test_the_noise_is_the_pll_jitter_and_nothing_else_changes() -> None:
         assert np.array_equal(getattr(plain, name), getattr(with_phase, name)), name
     quiet = run_scenario(_config("clock", True)).observations
     lam = _wavelengths(with_phase.sv)[None]
-    noise_m = (with_phase.phase_cycles - quiet.phase_cycles) * lam
-    noise_m -= np.round(noise_m[:1] / lam) * lam  # the runs draw other ambiguities
-    noise_m -= noise_m[:1]
-    # first differences of the jitter: each sqrt(2) times the PLL's sigma at the written C/N0
+    noise_m = (with_phase.phase_cycles - quiet.phase_cycles) * lam  # the jitter, plus constant ambiguities
+    # first differences of the jitter (the ambiguities cancel): each sqrt(2) times the PLL's sigma at the written C/N0
     both = with_phase.visible[1:] & with_phase.visible[:-1]
     sigma = phase_sigma_m(lam, with_phase.snr_dbhz, UrbanConfig().pll_bandwidth_hz)
     expected = np.sqrt(np.mean((sigma[1:] ** 2 + sigma[:-1] ** 2)[both]))
