@@ -78,20 +78,22 @@ def _cholesky(gam: F64, kd: int) -> tuple[F64, NDArray[np.bool_]]:
     Column by column for all matrices at once (``m`` small, ``B`` large); only the lower
     triangle of ``gam`` is read. ``ok`` is False where a pivot is not positive or falls below
     ``SINGULAR_RTOL`` times the largest diagonal entry (the test of the banded per-series
-    factorization); such factors are replaced by the identity.
+    factorization), or where an entry overflowed; such factors are replaced by the identity.
     """
     n_b, m, _ = gam.shape
     chol = np.zeros_like(gam)
     diag_max = einsum_windows("bii->bi", gam).max(axis=1)
     ok = (diag_max > 0.0) & (diag_max < np.inf)
     floor = SINGULAR_RTOL * np.where(ok, diag_max, 1.0)
-    for j in range(m):
-        lo, hi = max(0, j - kd), min(m, j + kd + 1)
-        v = gam[:, j:hi, j] - np.matmul(chol[:, j:hi, lo:j], chol[:, j, lo:j, None])[..., 0]
-        piv = v[:, 0]
-        good = piv > floor
-        ok &= good
-        chol[:, j:hi, j] = v / np.sqrt(np.where(good, piv, 1.0))[:, None]
+    with np.errstate(over="ignore", invalid="ignore"):  # a window whose entries overflow fails its pivot test below
+        for j in range(m):
+            lo, hi = max(0, j - kd), min(m, j + kd + 1)
+            v = gam[:, j:hi, j] - np.matmul(chol[:, j:hi, lo:j], chol[:, j, lo:j, None])[..., 0]
+            piv = v[:, 0]
+            good = piv > floor
+            ok &= good
+            chol[:, j:hi, j] = v / np.sqrt(np.where(good, piv, 1.0))[:, None]
+    ok &= np.isfinite(chol).all(axis=(1, 2))
     chol[~ok] = np.eye(m)
     return chol, ok
 
