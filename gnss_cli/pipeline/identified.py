@@ -56,7 +56,11 @@ coefficients of ``r(z) / (z - 1)`` about ``z = 1``, from four starts, with the w
 tied into one trajectory): 3D RMS with range rates on an in-class semicircle 1.30 -> 0.32 m
 (``smoother`` 0.36 m), on the 600 s standard flight 1.25 -> 0.66 m (``smoother`` 0.38 m), but
 about 9 times slower (the Yamatogawa walk 2.7 -> 24.7 s: every trial kernel needs the matrix
-logarithms of its modes), so it is not in (docs/results.md). What this
+logarithms of its modes), so it is not in (docs/results.md). Since the spans are tied (with
+range rates), the kernels no longer limit the result on the simulated manoeuvring tracks: the
+kernels that best fit the true track on each span's window give the identified ones' RMS
+(0.432 against 0.433 m on the training runs, ``benchmarks/stls_structure.py``), so a descent over
+``r`` has nothing left to find there. What this
 alternation can and cannot do: its kernels are the position-domain one and the STLS kernel of
 the free fixes (with the range rates' velocities), re-identified when the gate changes; the
 measurement misfit chooses between them and the trajectory is the exact measurement-domain
