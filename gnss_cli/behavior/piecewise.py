@@ -21,14 +21,14 @@ rows, gates and passes of the measurement-domain smoother):
   recursion with ``l`` free values per coordinate, which the behavior test rejected (that is
   why the spans are there);
 * velocities, with range rates: the rows of the quadrature rule that links positions and
-  velocities in ``smoother`` (``x_{t+1} - x_t = dt sum_k c_k v_{t+k}``, the lag's rule, the
-  cubic one above lag 3, :func:`~gnss_cli.behavior.kinematic_solve.step_rule`), on every step
-  of the run. The range rates then carry the position from epoch to epoch through the
-  velocities they observe, and the kernel rows keep the positions in each span's behavior. The
-  rule is exact for velocities of degree ``l``, so not for every trajectory of an identified
-  behavior, but its error is small at GNSS rates (the noise-free manoeuvring flight stays
-  exact to 1 mm). It replaced the modes' derivatives below, which are exact in the behavior but hold the range rates to the
-  derivative of a kernel identified from noisy data: on the six training runs of
+  velocities in ``smoother`` (``x_{t+1} - x_t = dt sum_k c_k v_{t+k}``,
+  :func:`~gnss_cli.behavior.kinematic_solve.step_rule`), the kernels' lag's rule but at most
+  the quadratic one (:data:`VELOCITY_RULE_LAG`), on every step of the run. The range rates
+  then carry the position from epoch to epoch through the velocities they observe, and the
+  kernel rows keep the positions in each span's behavior. The rule is exact for velocities of
+  its degree, so not for every trajectory of an identified behavior, but its error is small at
+  GNSS rates (the noise-free manoeuvring flight stays exact to 1 cm). It replaced the modes'
+  derivatives below, which are exact in the behavior but hold the range rates to the derivative of a kernel identified from noisy data: on the six training runs of
   ``benchmarks/multi_epoch_fair.py`` (range rates, ``behavior_pfa`` 1e-12, 3D RMS pooled) the
   quadrature rows give 0.433 m against 0.524 m in whole segments, 0.443 against 0.508 m in
   20-epoch windows (``benchmarks/stls_structure.py``);
@@ -67,9 +67,23 @@ from numpy.typing import NDArray
 from gnss_cli.behavior.behavior_solve import mode_derivatives
 from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms, motion_terms
 
-__all__ = ["piecewise_terms"]
+__all__ = ["piecewise_terms", "VELOCITY_RULE_LAG"]
 
 F64 = NDArray[np.float64]
+
+#: The largest lag of the quadrature rule that ties the velocities to the positions with range
+#: rates (below it, the kernels' lag: the trapezoid for a static ``--lag 1``): the quadratic rule
+#: ``dt/12 (-v_{t-1} + 8 v_t + 5 v_{t+1})``. The cubic rule (the kernels' lag 3, used before)
+#: integrates a velocity whose acceleration changes abruptly (a car entering a corner) with an
+#: error of centimetres per step, which the millimetre phase pairs then carry into
+#: the positions: on a simulated drive with phase outside the training and evaluation seeds of
+#: ``benchmarks/multi_epoch_fair.py`` (seed 1007) the error stepped by 0.2 m at each of two
+#: corners (3D RMS 0.41 m, ``kf ca`` 0.16 m). Chosen on that benchmark's six training runs
+#: (``stls --lag 3``, its chosen settings; 3D RMS pooled), lag 1 / 2 / 3: with phase 0.183 /
+#: 0.170 / 0.176 m, with range rates 0.434 / 0.435 / 0.433 m; on the four drives of seeds 1004-1007
+#: with phase 0.17 / 0.11, 0.32 / 0.24, 0.20 / 0.13, 0.41 / 0.19 m for lag 3 / 2 (their flights
+#: unchanged to 6 mm). ``smoother``'s training chose its quadratic rule with phase too.
+VELOCITY_RULE_LAG = 2
 
 
 def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F64]:
@@ -153,7 +167,7 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     soft, soft_step = _position_rows(soft_rows, n)
     weight = sp.diags(sigmas**-2.0, format="csr")
     if range_rates:
-        step = motion_terms(Motion("quadrature", lag=lag), np.repeat(dt_s, ends - starts)[:-1])
+        step = motion_terms(Motion("quadrature", lag=min(lag, VELOCITY_RULE_LAG)), np.repeat(dt_s, ends - starts)[:-1])
         kern, kern_step = _position_rows(rows, n)
         return MotionTerms(sp.vstack([kern, step.hard], format="csr"),
                            sp.vstack([kern_step, step.hard_step], format="csr"), soft, soft_step, weight, True)

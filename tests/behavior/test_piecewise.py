@@ -77,9 +77,10 @@ def test_velocity_rows_are_the_derivative_of_the_continuous_motion() -> None:
 
 
 def test_with_range_rates_the_velocities_integrate_to_the_steps() -> None:
-    """With range rates, the velocity rows are the quadrature rule's: a sampled constant-rate turn
-    (1 s, 0.1 rad/s, 50 m/s) with its continuous velocity satisfies every hard row to 0.2 mm
-    (the rule's error, largest at the one-sided ends; the kernel rows exactly), a velocity 1 % too large does not."""
+    """With range rates, the velocity rows are the quadratic quadrature rule's: a sampled
+    constant-rate turn (1 s, 0.1 rad/s, 50 m/s) with its continuous velocity satisfies every hard
+    row to 2.5 mm (the rule's error, about ``dt^4 / 24`` times the velocity's third derivative:
+    2.1 mm; the kernel rows exactly), a velocity 1 % too large does not."""
     dt, w, speed = 1.0, 0.1, 50.0
     t = np.arange(30) * dt
     x = 7.0 + speed / w * np.sin(w * t)
@@ -90,7 +91,7 @@ def test_with_range_rates_the_velocities_integrate_to_the_steps() -> None:
     velocity = np.asarray(abs(terms.hard[:, n:]).sum(axis=1)).ravel() != 0
     assert int(velocity.sum()) == n - 1
     assert np.abs(terms.hard[~velocity] @ np.concatenate([x, v])).max() < 1e-9 * speed / w
-    assert np.abs(terms.hard @ np.concatenate([x, v])).max() < 2e-4
+    assert np.abs(terms.hard @ np.concatenate([x, v])).max() < 2.5e-3
     assert np.abs(terms.hard @ np.concatenate([x, 1.01 * v])).max() > 0.1
 
 
