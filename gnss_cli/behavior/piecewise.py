@@ -30,7 +30,7 @@ rows, gates and passes of the measurement-domain smoother):
   GNSS rates (the noise-free manoeuvring flight stays exact to 1 cm). It replaced the modes'
   derivatives below, which are exact in the behavior but hold the range rates to the derivative of a kernel identified from noisy data: on the six training runs of
   ``benchmarks/multi_epoch_fair.py`` (range rates, ``behavior_pfa`` 1e-12, 3D RMS pooled) the
-  quadrature rows give 0.433 m against 0.524 m in whole segments, 0.443 against 0.508 m in
+  quadrature rows give 0.435 m against 0.524 m in whole segments, 0.443 against 0.508 m in
   20-epoch windows (``benchmarks/stls_structure.py``);
 * velocities, without range rates (they are then outputs only):
   ``v_t = F_k[j] x_{t0 : t0+l}`` with ``F_k = log(A_k) / dt`` (the modes' derivative,

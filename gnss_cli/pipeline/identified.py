@@ -59,7 +59,7 @@ about 9 times slower (the Yamatogawa walk 2.7 -> 24.7 s: every trial kernel need
 logarithms of its modes), so it is not in (docs/results.md). Since the spans are tied (with
 range rates), the kernels no longer limit the result on the simulated manoeuvring tracks: the
 kernels that best fit the true track on each span's window give the identified ones' RMS
-(0.432 against 0.433 m on the training runs, ``benchmarks/stls_structure.py``), so a descent over
+(0.434 against 0.435 m on the training runs, ``benchmarks/stls_structure.py``), so a descent over
 ``r`` has nothing left to find there. What this
 alternation can and cannot do: its kernels are the position-domain one and the STLS kernel of
 the free fixes (with the range rates' velocities), re-identified when the gate changes; the
