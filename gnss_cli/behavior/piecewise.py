@@ -27,8 +27,9 @@ rows, gates and passes of the measurement-domain smoother):
   then carry the position from epoch to epoch through the velocities they observe, and the
   kernel rows keep the positions in each span's behavior. The rule is exact for velocities of
   its degree, so not for every trajectory of an identified behavior, but its error is small at
-  GNSS rates (the noise-free manoeuvring flight stays exact to 1 cm). It replaced the modes'
-  derivatives below, which are exact in the behavior but hold the range rates to the derivative of a kernel identified from noisy data: on the six training runs of
+  GNSS rates (the noise-free manoeuvring flight stays exact to 1 mm). It replaced the modes'
+  derivatives below, which are exact in the behavior but hold the range rates to the derivative
+  of a kernel identified from noisy data: on the six training runs of
   ``benchmarks/multi_epoch_fair.py`` (range rates, ``behavior_pfa`` 1e-12, 3D RMS pooled) the
   quadrature rows give 0.435 m against 0.524 m in whole segments, 0.443 against 0.508 m in
   20-epoch windows (``benchmarks/stls_structure.py``);
@@ -75,8 +76,8 @@ F64 = NDArray[np.float64]
 #: rates (below it, the kernels' lag: the trapezoid for a static ``--lag 1``): the quadratic rule
 #: ``dt/12 (-v_{t-1} + 8 v_t + 5 v_{t+1})``. The cubic rule (the kernels' lag 3, used before)
 #: integrates a velocity whose acceleration changes abruptly (a car entering a corner) with an
-#: error of centimetres per step, which the millimetre phase pairs then carry into
-#: the positions: on a simulated drive with phase outside the training and evaluation seeds of
+#: error of centimetres per step, which the millimetre phase pairs then carry into the
+#: positions: on a simulated drive with phase outside the training and evaluation seeds of
 #: ``benchmarks/multi_epoch_fair.py`` (seed 1007) the error stepped by 0.2 m at each of two
 #: corners (3D RMS 0.41 m, ``kf ca`` 0.16 m). Chosen on that benchmark's six training runs
 #: (``stls --lag 3``, its chosen settings; 3D RMS pooled), lag 1 / 2 / 3: with phase 0.183 /
