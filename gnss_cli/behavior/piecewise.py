@@ -68,7 +68,7 @@ from numpy.typing import NDArray
 from gnss_cli.behavior.behavior_solve import mode_derivatives
 from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms, motion_terms
 
-__all__ = ["piecewise_terms", "VELOCITY_RULE_LAG"]
+__all__ = ["piecewise_terms", "VELOCITY_RULE_LAG", "velocity_rule"]
 
 F64 = NDArray[np.float64]
 
@@ -85,6 +85,18 @@ F64 = NDArray[np.float64]
 #: with phase 0.17 / 0.11, 0.32 / 0.24, 0.20 / 0.13, 0.41 / 0.19 m for lag 3 / 2 (their flights
 #: unchanged to 6 mm). ``smoother``'s training chose its quadratic rule with phase too.
 VELOCITY_RULE_LAG = 2
+
+
+def velocity_rule(lag: int, range_rates: bool) -> str:
+    """How a tied run's velocities are linked to its positions, in the words of the records (module
+    docstring): with range rates the quadrature rule of lag ``min(lag, VELOCITY_RULE_LAG)``, else
+    the modes' derivatives.
+
+    >>> velocity_rule(3, True), velocity_rule(1, True), velocity_rule(3, False)
+    ('velocities by the lag-2 quadrature', 'velocities by the lag-1 quadrature', "velocities from the modes' derivatives")
+    """
+    return f"velocities by the lag-{min(lag, VELOCITY_RULE_LAG)} quadrature" if range_rates \
+        else "velocities from the modes' derivatives"
 
 
 def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F64]:

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from gnss_cli.behavior.piecewise import velocity_rule
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, as_wls_used
 
@@ -106,7 +107,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
             window = f"{s.window} epochs" if s.window else "whole segments"
             if s.kernel == "shared":
-                tied = "" if kinds == "pseudorange" else ", spans tied"  # gnss_cli.pipeline.tied
+                tied = "" if kinds == "pseudorange" else \
+                    f", spans tied ({velocity_rule(s.lag, 'doppler' in kinds.split('+'))})"  # gnss_cli.pipeline.tied
                 if tied and s.latency_m > 0:
                     tied += f", latency {s.latency_m:g} m"
                 out[m] = MethodSettings(m, "identified Hankel STLS (measurement domain, alternation)",

@@ -12,7 +12,9 @@ and system and one clock drift per epoch. Observations (``measurements``, a subs
 and FDE exclusions); with ``"doppler"`` the range rates of those satellites; with ``"phase"``
 the time-differenced carrier phase of consecutive epochs (:mod:`gnss_cli.pipeline.phase_rows`;
 with quadrature lag 3 and Doppler, on the Yamatogawa walk 2.72 -> 2.49 m 3D RMS, on the urban
-tst2 set 2.52 -> 1.37 m). Epochs with 1-3 satellites are included (such an epoch is ``ok`` and
+tst2 set 2.52 -> 1.37 m). An epoch alone between two gaps (a segment of one) is not smoothed:
+it keeps its WLS fix with the status ``fallback_wls`` (the Yamatogawa walk's first epoch, two
+seconds before the rest). Epochs with 1-3 satellites are included (such an epoch is ``ok`` and
 ``n_sat`` says how many pseudoranges it had; with a single satellite its clock absorbs the
 pseudorange and the position comes from the motion and its neighbours). Without Doppler the
 velocities come from the motion model alone (and the phase pairs, where given).
@@ -358,7 +360,9 @@ def smooth_segments(data: EpochData, wls: MethodSolution, config: ProcessingConf
     if run is None:
         return replace(wls, method=method), ()
     smoothed = np.isfinite(run.x_ecef_m).all(axis=1)
-    status = np.where(smoothed, EpochStatus.OK.value, wls.status.astype("<U24"))
+    # an epoch left out of every segment (alone between two gaps) keeps its WLS fix, and says so
+    status = np.where(smoothed, EpochStatus.OK.value,
+                      np.where(wls.status == EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value, wls.status.astype("<U24")))
     for seg, bad in zip(run.segments, run.degenerate):
         if bad:
             status[seg] = np.where(wls.status[seg] == EpochStatus.OK.value, EpochStatus.FALLBACK_WLS.value,

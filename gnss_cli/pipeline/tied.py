@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms
-from gnss_cli.behavior.piecewise import piecewise_terms
+from gnss_cli.behavior.piecewise import piecewise_terms, velocity_rule
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
 from gnss_cli.pipeline.measurements import KINDS
@@ -177,6 +177,7 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
     out = list(fits)
     if res is None:
         return out, gated, tied
+    rule = velocity_rule(lag, "doppler" in kinds)
     latency = f" kernel rows soft, latency {config.stls.latency_m:.3g} m;" if config.stls.latency_m > 0 else ""
     for (epochs, _), run, bad, sigma, misfit, dof in zip(plan, members, res.degenerate, sigmas, res.misfit, res.dof):
         if bad:
@@ -194,6 +195,6 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
             w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
             free = f", without its kernel rows ({_why_free(out[k], kinds)})" if _free(out[k], kinds) else ""
             out[k] = replace(out[k], w_hat=w_hat, message=(
-                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied (switch rows "
-                f"sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))
+                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied ({rule}; "
+                f"switch rows sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))
     return out, gated, tied

@@ -15,6 +15,7 @@ from gnss_cli.errors import ConfigError
 from gnss_cli.gnss.frames import geodetic2ecef
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
+from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.smoother import default_measurements, smooth_segments
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, epochs_gps_s, run_scenario, write_scenario
@@ -165,6 +166,22 @@ def test_a_degenerate_segment_keeps_the_wls_fixes_by_status(noisy: Path) -> None
     assert (sol.status[others] == "ok").all()
     cv, _ = _smooth(data, wls, cfg, "cv", PR)  # white acceleration ties the two velocities: solved
     assert (cv.status[52:54] == "ok").all()
+
+
+def test_an_epoch_alone_before_a_gap_keeps_its_wls_fix_by_status(noisy: Path) -> None:
+    """A file whose first step is two sampling intervals (the Yamatogawa walk's): its first epoch is a
+    segment of one, not smoothed, so it keeps the WLS fix as ``fallback_wls`` -- not ``ok``, which
+    names a smoothed epoch -- and the epochs after the gap are smoothed."""
+    cfg = load_config(None, BASE)
+    full = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
+    rows = np.r_[0, 2:full.time_gps_s.size]
+    data = take_epochs(full, rows)
+    wls = solve_method(data, "wls", cfg)
+    sol, models = _smooth(data, wls, cfg)
+    assert wls.status[0] == "ok" and sol.status[0] == "fallback_wls"
+    np.testing.assert_array_equal(sol.x_ecef_m[0], wls.x_ecef_m[0])
+    assert (sol.status[1:] == "ok").all() and not np.array_equal(sol.x_ecef_m[1:], wls.x_ecef_m[1:])
+    assert sum(m.n_epochs for m in models) == rows.size - 1
 
 
 def test_epochs_with_one_to_three_satellites_get_positions(noisy: Path) -> None:

@@ -68,7 +68,7 @@ def test_the_tied_track_lies_in_each_spans_behavior(drive: Path, monkeypatch: py
     monkeypatch.setattr(tied, "tie_spans", spy)
     cfg, data, wls, _ = _load(drive, "pseudorange,doppler")
     sol, models = solve_multi_epoch("stls", data, wls, cfg)
-    assert any("tied (switch rows sigma" in m.message for m in models)
+    assert any("tied (velocities by the lag-2 quadrature; switch rows sigma" in m.message for m in models)
     segs, jobs, runs = seen["segs"], seen["jobs"], seen["runs"]
     inside, across = [], []
     for run in runs:  # type: ignore[attr-defined]
@@ -122,7 +122,8 @@ def test_a_latency_relaxes_the_behavior_and_never_raises_the_runs_cost(drive: Pa
         tracks.append(sol.x_ecef_m)
         assert (f"latency {latency:.3g} m;" in models[0].message) == (latency > 0) or "run misfit" not in models[0].message
         model = method_settings(one, True, False)["stls"].model
-        assert model.endswith("spans tied" + (f", latency {latency:g} m" if latency else "")), model
+        assert model.endswith("spans tied (velocities by the lag-2 quadrature)"
+                              + (f", latency {latency:g} m" if latency else "")), model
     same_gate = [(a, b) for a, b, m, n in zip(costs, costs[1:], dofs, dofs[1:]) if m == n]
     assert len(same_gate) >= 2 and all(b <= a * (1 + 1e-6) for a, b in same_gate), (costs, dofs)
     assert costs[-1] < 0.99 * costs[0], costs
