@@ -104,19 +104,19 @@ def cube_kernels(kernels: np.ndarray, *args: Any, **kwargs: Any) -> MotionTerms:
 
 def mode_velocities(kernels: np.ndarray, starts: np.ndarray, n: int, dt_s: np.ndarray, switch_sigma_m: float,
                     range_rates: bool = False, windows: np.ndarray | None = None,
-                    free: np.ndarray | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
+                    free: np.ndarray | None = None, latency_sigma_m: float = 0.0, **more: Any) -> MotionTerms:
     """:func:`piecewise_terms` with the velocities tied to the positions by the kernels' modes'
     derivatives (its form without range rates; a kernel without a real logarithm, the central
     difference) in place of the quadrature rule."""
-    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, False, windows, free, latency_sigma_m)
+    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, False, windows, free, latency_sigma_m, **more)
 
 
 def rejected_kernels(kernels: np.ndarray, starts: np.ndarray, n: int, dt_s: np.ndarray, switch_sigma_m: float,
                      range_rates: bool = False, windows: np.ndarray | None = None,
-                     free: np.ndarray | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
+                     free: np.ndarray | None = None, latency_sigma_m: float = 0.0, **more: Any) -> MotionTerms:
     """:func:`piecewise_terms` with the kernel rows of every span, also of those whose behavior the
     range rates rejected or whose result stayed in the position domain (which ship without them)."""
-    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, range_rates, windows, None, latency_sigma_m)
+    return piecewise_terms(kernels, starts, n, dt_s, switch_sigma_m, range_rates, windows, None, latency_sigma_m, **more)
 
 
 _SIGNATURE = inspect.signature(piecewise_terms)

@@ -143,11 +143,16 @@ class KinematicSolution:
     rcond: float
 
 
+def _interval_weights(nodes: F64) -> F64:
+    """Weights ``c`` with ``sum_k c_k p(nodes_k) = int_0^1 p`` for every polynomial ``p`` of degree
+    below ``len(nodes)`` (the nodes in units of the step, distinct)."""
+    j = np.arange(nodes.size)
+    return np.linalg.solve(nodes[None, :] ** j[:, None], 1.0 / (j + 1.0))
+
+
 @lru_cache(maxsize=64)
 def _weights(offsets: tuple[int, ...]) -> tuple[float, ...]:
-    o = np.asarray(offsets, dtype=np.float64)
-    j = np.arange(o.size)
-    return tuple(np.linalg.solve(o[None, :] ** j[:, None], 1.0 / (j + 1.0)).tolist())
+    return tuple(_interval_weights(np.asarray(offsets, dtype=np.float64)).tolist())
 
 
 def step_weights(offsets: tuple[int, ...]) -> F64:
@@ -169,11 +174,18 @@ def step_rule(t: int, n: int, lag: int) -> tuple[NDArray[np.intp], F64]:
 
 
 def _quadrature_rows(dt_s: F64, lag: int) -> sp.csr_matrix:
-    """Rows ``x_{t+1} - x_t - sum_k c_k dt v_{t+k}`` (scalar, per coordinate) on ``[x_0..x_{N-1}, v_0..v_{N-1}]``."""
+    """Rows ``x_{t+1} - x_t - sum_k c_k dt v_{t+k}`` (scalar, per coordinate) on ``[x_0..x_{N-1}, v_0..v_{N-1}]``.
+
+    Where the steps around ``t`` differ (a missed epoch), ``c`` interpolates the velocities at their
+    own times (:func:`_interval_weights`), so the rule stays exact for velocities of its degree."""
     n = dt_s.size + 1
+    t_s = np.concatenate([[0.0], np.cumsum(dt_s)])
     rows, cols, vals = [], [], []
     for t in range(n - 1):
         offs, wts = step_rule(t, n, lag)
+        tau = (t_s[t + offs] - t_s[t]) / dt_s[t]
+        if np.abs(tau - offs).max() > 1e-6:
+            wts = _interval_weights(tau)
         rows += [t, t]
         cols += [t + 1, t]
         vals += [1.0, -1.0]

@@ -110,7 +110,8 @@ def _central_difference(t: int, n: int, dt: float) -> tuple[NDArray[np.intp], F6
 
 def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, switch_sigma_m: float,
                     range_rates: bool = False, windows: NDArray[np.intp] | None = None,
-                    free: NDArray[np.bool_] | None = None, latency_sigma_m: float = 0.0) -> MotionTerms:
+                    free: NDArray[np.bool_] | None = None, latency_sigma_m: float = 0.0,
+                    steps_s: F64 | None = None, gap_after: NDArray[np.bool_] | None = None) -> MotionTerms:
     """The piecewise behavior of a run of ``n`` epochs as equality constraints (module docstring).
 
     Parameters
@@ -138,6 +139,12 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     latency_sigma_m : float
         Standard deviation of the latent input, m (module docstring): 0 (default) makes the
         kernel rows hard, ``> 0`` soft rows of that standard deviation.
+    steps_s : ``(n - 1,)``, optional
+        With range rates: the run's time steps, s, where they are not each span's interval (a run
+        bridging missed epochs, :mod:`gnss_cli.pipeline.tied`); the quadrature rows take them.
+    gap_after : ``(K,)`` bool, optional
+        Spans followed by a gap (missed epochs): no switch row into the next span, whose first
+        epoch is not on the kernel's sampling grid.
 
     Returns
     -------
@@ -165,13 +172,14 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     switch: list[tuple[NDArray[np.intp], F64]] = []
     vel: list[tuple[int, NDArray[np.intp], F64]] = []
     free = np.zeros(len(starts), dtype=bool) if free is None else free
+    gap_after = np.zeros(len(starts), dtype=bool) if gap_after is None else gap_after
     for k, (p, q) in enumerate(zip(starts, ends)):
         r = kernels[k]
         if free[k]:
             continue
         for t0 in range(p, q - lag):
             rows.append((np.arange(t0, t0 + lag + 1), r))
-        if q < n and q - lag >= p:  # the switch row at q - l, into the next span
+        if q < n and q - lag >= p and not gap_after[k]:  # the switch row at q - l, into the next span
             switch.append((np.arange(q - lag, q + 1), r))
     soft_rows, sigmas = switch, np.full(len(switch), switch_sigma_m)
     if latency_sigma_m > 0:  # the kernel rows join the switch rows as soft rows
@@ -180,7 +188,8 @@ def piecewise_terms(kernels: F64, starts: NDArray[np.intp], n: int, dt_s: F64, s
     soft, soft_step = _position_rows(soft_rows, n)
     weight = sp.diags(sigmas**-2.0, format="csr")
     if range_rates:
-        step = motion_terms(Motion("quadrature", lag=min(lag, VELOCITY_RULE_LAG)), np.repeat(dt_s, ends - starts)[:-1])
+        steps = np.repeat(dt_s, ends - starts)[:-1] if steps_s is None else steps_s
+        step = motion_terms(Motion("quadrature", lag=min(lag, VELOCITY_RULE_LAG)), steps)
         kern, kern_step = _position_rows(rows, n)
         return MotionTerms(sp.vstack([kern, step.hard], format="csr"),
                            sp.vstack([kern_step, step.hard_step], format="csr"), soft, soft_step, weight, True)

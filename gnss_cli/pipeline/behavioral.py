@@ -267,8 +267,9 @@ def smooth(
     solution : MethodSolution
         Smoothed positions (ECEF, m), re-estimated clocks (m), estimator covariances
         ``cov_m2`` (ECEF + clock, m^2) and multi-epoch DOPs. Status ``ok`` for smoothed
-        epochs, ``fallback_wls`` where a segment is too short or the window fit failed
-        (the WLS fix, covariance and DOPs are kept), the WLS status word elsewhere.
+        epochs, ``fallback_wls`` where a segment is too short (unless a tied run took it in across
+        missed epochs) or the window fit failed (the WLS fix, covariance and DOPs are kept), the
+        WLS status word elsewhere.
     models : tuple of WindowModel
         One record per window, in time order.
 
@@ -307,11 +308,14 @@ def smooth(
         if factors is None:
             factors = factors_from_totals(free_misfit_totals(data, wls, config, kinds))
         jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, kinds, factors)
+        bridged = None
         if kinds != {"pseudorange"}:  # the range rates and phase pairs tie the spans (gnss_cli.pipeline.tied)
-            fits, gated_tied, tied = tie_spans(data, wls, config, segs, jobs, fits, kinds, factors)
+            short = np.flatnonzero(solved & (status == FALLBACK))  # segments too short for a window
+            fits, gated_tied, tied, bridged = tie_spans(data, wls, config, segs, jobs, fits, kinds, factors, short)
             gated = np.where(tied[:, None], gated_tied, gated)
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
-        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits)
+        sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits,
+                                     bridged=bridged)
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models
     return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 
@@ -319,12 +323,16 @@ def smooth(
 def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
                    jobs: list[WindowJob], status: NDArray[np.str_], method: str = "stls",
                    segment_ids: list[int] | None = None, fits: list[Fit] | None = None,
-                   limits: dict[int, float] | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
+                   limits: dict[int, float] | None = None,
+                   bridged: F64 | None = None) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """Fit the windows ``jobs`` of the segments ``segs`` and finish the smoothed solution of
     :func:`smooth` (``status``: the WLS words, ``fallback_wls`` set for too short segments).
     ``segment_ids``: the ``segment`` number of each of ``segs`` in the model records
     (default: its index). ``fits``: the windows' fits when already computed (one per job).
-    ``limits``: the behavior test's limit of the tested windows (by job index, :mod:`gnss_cli.pipeline.spans`)."""
+    ``limits``: the behavior test's limit of the tested windows (by job index, :mod:`gnss_cli.pipeline.spans`).
+    ``bridged``: ``(T, 3)`` ECEF positions (m, NaN elsewhere) of epochs of too short segments that a tied
+    run took in across missed epochs (:func:`~gnss_cli.pipeline.tied.tie_spans`): ``ok``, their clocks
+    re-estimated, their covariance and DOPs the WLS ones (no window of theirs has a behavior)."""
     opts = config.stls
     T = data.time_gps_s.size
     x_s = wls.x_ecef_m.copy()
@@ -354,6 +362,9 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         smoothed[mine] = True
         if fit.basis is not None and fit.basis.shape[2] > 0:
             dop_windows.append((seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis), mine))
+    if bridged is not None:
+        took = np.all(np.isfinite(bridged), axis=1)
+        x_s[took], status[took], smoothed[took] = bridged[took], _OK, True
     sol = finish_smoothing(data, wls, config, x_s, status, smoothed, dop_windows, method)
     sol, no_paper_gdop = with_paper_gdop(sol, segs, jobs, fits, opts.lag, opts.kernel)
     for k, why in no_paper_gdop.items():  # the window's record says why its epochs have no gdop_paper

@@ -23,7 +23,6 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from gnss_cli.behavior.piecewise import velocity_rule
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, as_wls_used
 
@@ -107,6 +106,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
             window = f"{s.window} epochs" if s.window else "whole segments"
             if s.kernel == "shared":
+                from gnss_cli.behavior.piecewise import velocity_rule  # scipy: imported when stls runs
+
                 tied = "" if kinds == "pseudorange" else \
                     f", spans tied ({velocity_rule(s.lag, 'doppler' in kinds.split('+'))})"  # gnss_cli.pipeline.tied
                 if tied and s.latency_m > 0:
@@ -182,9 +183,11 @@ def solve_multi_epoch(method: str, data: EpochData, wls: MethodSolution, config:
             solved = replace(data, usable=data.usable & ~spans)
     if method in ("smoother", "kf"):  # stls tests each window's behavior itself (pipeline.spans)
         from gnss_cli.pipeline.segment_misfit import tested_segments
+        from gnss_cli.pipeline.smoother import GAP_FACTOR
 
         sol, models = tested_segments(method, solved, wls, config, sol, models,
-                                      lambda sub, sub_wls: _solve_one(method, sub, sub_wls, config, factors))
+                                      lambda sub, sub_wls: _solve_one(method, sub, sub_wls, config, factors),
+                                      GAP_FACTOR if method == "smoother" else 1.5)
     no_levels = np.full(sol.status.size, np.nan)  # built from the WLS rows: their levels are WLS's, not this method's
     return tested(data, replace(sol, hpl_m=no_levels, vpl_m=no_levels.copy()), wls, config), models
 

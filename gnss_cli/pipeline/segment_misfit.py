@@ -64,17 +64,18 @@ def segment_misfit(data: EpochData, sol: MethodSolution, seg: NDArray[np.intp]) 
 
 
 def tested_segments(method: str, data: EpochData, wls: MethodSolution, config: ProcessingConfig,
-                    sol: MethodSolution, models: tuple[WindowModel, ...], solve: Solve
+                    sol: MethodSolution, models: tuple[WindowModel, ...], solve: Solve, gap_factor: float = 1.5
                     ) -> tuple[MethodSolution, tuple[WindowModel, ...]]:
     """``sol`` with every segment that fails the misfit test solved again shorter (module
-    docstring); ``models`` with a record per rejected segment and the records of the halves."""
+    docstring); ``models`` with a record per rejected segment and the records of the halves.
+    ``gap_factor``: the method's own segments (:func:`~gnss_cli.behavior.windows.segments`)."""
     limit = config.max_segment_misfit
     if config.integrity == "off" or not np.isfinite(limit):
         return sol, models
     t = data.time_gps_s
     records = list(models)
     sol = replace(sol, status=sol.status.astype("<U24"))  # room for fallback_wls
-    queue = list(enumerate(segments(t, np.isfinite(sol.x_ecef_m).all(axis=1))))
+    queue = list(enumerate(segments(t, np.isfinite(sol.x_ecef_m).all(axis=1), gap_factor)))
     while queue:
         number, seg = queue.pop(0)
         m, dof = segment_misfit(data, sol, seg)

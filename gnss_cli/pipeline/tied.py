@@ -42,9 +42,18 @@ evaluation drive with phase of ``benchmarks/multi_epoch_fair.py``, where the spa
 were within 0.4 m) and cut the segment into runs whose pseudoranges were averaged apart.
 
 A run is a maximal sequence of spans of one segment whose epochs follow without a gap and
-which each supplied a trajectory with a shared kernel: a span whose epochs keep the WLS fix, or a
-gap, ends a run. A run whose system is singular keeps the spans' own trajectories; its windows'
-records say so.
+which each supplied a trajectory with a shared kernel: a span whose epochs keep the WLS fix ends
+a run. With range rates a run bridges missed epochs, as ``smoother`` does
+(:data:`~gnss_cli.pipeline.smoother.MAX_STEP_INTERVALS`): the runs of spans on either side of a
+step of up to five sampling intervals, and the epochs of a segment too short for a window between
+them, are one run (:func:`bridged_runs`). The identification stays on uniformly sampled segments
+(a kernel is a recursion at the sampling interval), so across such a step there is no switch row;
+the quadrature rows, at the epochs' own times, and the phase pair carry the trajectory over it,
+and a short segment's epochs are in the run without a behavior (``ok``, their covariance and DOPs
+the WLS ones). On the Yamatogawa walk, whose first epoch is two seconds before the rest, that
+epoch had kept its WLS fix (1.5 m off horizontally): with phase 0.371 -> 0.358 m horizontal RMS,
+with Doppler 0.567 -> 0.561 m. Without range rates nothing ties the spans across a gap. A run
+whose system is singular keeps the spans' own trajectories; its windows' records say so.
 """
 
 from __future__ import annotations
@@ -60,9 +69,9 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
 from gnss_cli.pipeline.measurements import KINDS
 from gnss_cli.pipeline.results import EpochData, MethodSolution
-from gnss_cli.pipeline.smoother import solve_segments
+from gnss_cli.pipeline.smoother import GAP_FACTOR, SegmentRun, solve_segments
 
-__all__ = ["tie_spans", "span_runs", "switch_sigma", "SWITCH_SIGMA_FACTOR"]
+__all__ = ["tie_spans", "span_runs", "bridged_runs", "switch_sigma", "SWITCH_SIGMA_FACTOR"]
 
 F64 = NDArray[np.float64]
 
@@ -114,11 +123,8 @@ def span_runs(segs: list[Segment], jobs: list[WindowJob], fits: list[Fit]) -> li
     return out
 
 
-def switch_sigma(jobs: list[WindowJob], fits: list[Fit], run: list[int], lag: int) -> float:
-    """How far the untied spans of a run disagree at their switches (m): the RMS, over its switches
-    and the three axes, of ``r_k`` on the spans' own trajectories at each switch (the last ``l``
-    epochs of span ``k``, the first of span ``k + 1``); 1 mm at least. It holds the manoeuvres
-    between spans and the spans' own errors; the switch rows take :data:`SWITCH_SIGMA_FACTOR` of it."""
+def _switch_residuals(jobs: list[WindowJob], fits: list[Fit], run: list[int], lag: int) -> list[F64]:
+    """``r_k`` on the spans' own trajectories at each switch of ``run`` (:func:`switch_sigma`)."""
     res = []
     for k, k_next in zip(run[:-1], run[1:]):
         job, nxt = jobs[k], jobs[k_next]
@@ -127,12 +133,86 @@ def switch_sigma(jobs: list[WindowJob], fits: list[Fit], run: list[int], lag: in
         w = fits[k].w_hat[job.hi - lag - job.a : job.hi - job.a]  # type: ignore[index]
         w = np.vstack([w, fits[k_next].w_hat[nxt.lo - nxt.a]])  # type: ignore[index]
         res.append(np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64) @ w)  # type: ignore[union-attr]
+    return res
+
+
+def switch_sigma(jobs: list[WindowJob], fits: list[Fit], runs: list[list[int]], lag: int) -> float:
+    """How far the untied spans of a run disagree at their switches (m): the RMS, over its switches
+    and the three axes, of ``r_k`` on the spans' own trajectories at each switch (the last ``l``
+    epochs of span ``k``, the first of span ``k + 1``); 1 mm at least. It holds the manoeuvres
+    between spans and the spans' own errors; the switch rows take :data:`SWITCH_SIGMA_FACTOR` of it.
+    ``runs``: the runs of spans a bridged run joins (no switch across a gap)."""
+    res = [r for run in runs for r in _switch_residuals(jobs, fits, run, lag)]
     return max(float(np.sqrt(np.mean(np.square(res)))) if res else 0.0, _MIN_SWITCH_SIGMA_M)
 
 
+Part = tuple[list[int], NDArray[np.intp]]
+"""A part of a tied run: a run of spans (indices into the jobs) and its epochs, or no spans and the
+epochs of a segment too short for a window."""
+
+
+def bridged_runs(t: F64, segs: list[Segment], jobs: list[WindowJob], fits: list[Fit], short: NDArray[np.intp],
+                 bridge: bool) -> list[list[Part]]:
+    """The runs of spans (:func:`span_runs`), each joined with its neighbours across missed epochs
+    when ``bridge`` (module docstring): consecutive parts whose epochs follow one another with a step
+    of up to :data:`~gnss_cli.pipeline.smoother.MAX_STEP_INTERVALS` sampling intervals, the epochs
+    ``short`` of segments too short for a window among them. Every run holds at least one run of spans."""
+    parts: list[Part] = [(run, segs[jobs[run[0]].segment].epochs[jobs[run[0]].lo : jobs[run[-1]].hi])
+                         for run in span_runs(segs, jobs, fits)]
+    if not bridge:
+        return [[p] for p in parts]
+    parts += [([], g) for g in np.split(short, np.flatnonzero(np.diff(short) > 1) + 1) if g.size]
+    parts.sort(key=lambda p: int(p[1][0]))
+    steps = np.diff(t)
+    nominal = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
+    out: list[list[Part]] = []
+    for part in parts:
+        a = int(out[-1][-1][1][-1]) if out else -2
+        b = int(part[1][0])
+        if b == a + 1 and 0.0 < t[b] - t[a] <= GAP_FACTOR * nominal:
+            out[-1].append(part)
+        else:
+            out.append([part])
+    return [run for run in out if any(spans for spans, _ in run)]
+
+
+def _run_plan(data: EpochData, segs: list[Segment], jobs: list[WindowJob], fits: list[Fit], run: list[Part],
+              kinds: frozenset[str], sigma: float, config: ProcessingConfig) -> tuple[NDArray[np.intp], MotionTerms]:
+    """The epochs of a tied run and its piecewise behavior (:func:`piecewise_terms`): each span's kernel,
+    the short segments' epochs without a behavior, no switch row across a gap."""
+    lag = config.stls.lag
+    t = data.time_gps_s
+    epochs = np.concatenate([e for _, e in run])
+    kernels, starts, dt, windows, free, gap_after = [], [], [], [], [], []
+    offset = 0
+    for i, (spans, e) in enumerate(run):
+        if spans:
+            seg, lo = segs[jobs[spans[0]].segment], jobs[spans[0]].lo
+            for k in spans:
+                kernels.append(np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64))  # type: ignore[union-attr]
+                starts.append(offset + jobs[k].lo - lo)
+                dt.append(float(np.median(np.diff(t[seg.epochs[jobs[k].a : jobs[k].b]]))))
+                windows.append((offset + jobs[k].a - lo, offset + jobs[k].b - lo))
+                free.append(_free(fits[k], kinds))
+                gap_after.append(False)
+        else:  # a segment too short for a window: its epochs without a behavior
+            kernels.append(np.zeros(lag + 1))
+            starts.append(offset)
+            dt.append(float(np.median(np.diff(t[epochs]))))
+            windows.append((offset, offset + e.size))
+            free.append(True)
+            gap_after.append(False)
+        gap_after[-1] = i < len(run) - 1
+        offset += e.size
+    bridge = {} if len(run) == 1 else {"steps_s": np.diff(t[epochs]), "gap_after": np.array(gap_after)}
+    return epochs, piecewise_terms(np.stack(kernels), np.array(starts, dtype=np.intp), epochs.size, np.array(dt), sigma,
+                                   "doppler" in kinds, np.array(windows, dtype=np.intp), np.array(free),
+                                   config.stls.latency_m, **bridge)
+
+
 def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
-              jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str],
-              factors: tuple[float, ...]) -> tuple[list[Fit], NDArray[np.bool_], NDArray[np.bool_]]:
+              jobs: list[WindowJob], fits: list[Fit], kinds: frozenset[str], factors: tuple[float, ...],
+              short: NDArray[np.intp] | None = None) -> tuple[list[Fit], NDArray[np.bool_], NDArray[np.bool_], F64]:
     """Every run of spans solved together (module docstring).
 
     Parameters
@@ -141,60 +221,73 @@ def tie_spans(data: EpochData, wls: MethodSolution, config: ProcessingConfig, se
     segs, jobs, fits : the segments, spans and their fits (:func:`~gnss_cli.pipeline.spans.tested_windows`).
     kinds : the measurement kinds.
     factors : the variance factors of the kinds (those the spans were solved with).
+    short : the epochs (with a WLS fix) of segments too short for a window; with range rates a run
+        takes them in where only missed epochs separate them from its spans.
 
     Returns
     -------
     fits : the fits with each tied span's supplied epochs replaced by the joint solution.
     gated : ``(T, n)`` pseudoranges the joint solve's residual gate excluded (on the tied epochs).
     tied : ``(T,)`` the epochs whose position is the joint solution.
+    bridged : ``(T, 3)`` ECEF positions (m) of the ``short`` epochs a run took in, NaN elsewhere.
     """
     lag = config.stls.lag
     T = data.time_gps_s.size
+    short = np.zeros(0, dtype=np.intp) if short is None else short
     plan: list[tuple[NDArray[np.intp], MotionTerms]] = []
-    members: list[list[int]] = []
+    members: list[list[Part]] = []
     sigmas: list[float] = []
-    for run in span_runs(segs, jobs, fits):
-        seg = segs[jobs[run[0]].segment]
-        lo = jobs[run[0]].lo
-        epochs = seg.epochs[lo : jobs[run[-1]].hi]
-        if epochs.size < lag + 1:
+    for run in bridged_runs(data.time_gps_s, segs, jobs, fits, short, "doppler" in kinds):
+        if sum(e.size for _, e in run) < lag + 1:
             continue
-        kernels = np.stack([np.asarray(fits[k].kernel.shared_coefficients, dtype=np.float64)  # type: ignore[union-attr]
-                            for k in run])
-        starts = np.array([jobs[k].lo - lo for k in run], dtype=np.intp)
-        dt = np.array([float(np.median(np.diff(data.time_gps_s[seg.epochs[jobs[k].a : jobs[k].b]]))) for k in run])
-        windows = np.array([(jobs[k].a - lo, jobs[k].b - lo) for k in run], dtype=np.intp)
-        sigmas.append(SWITCH_SIGMA_FACTOR * switch_sigma(jobs, fits, run, lag))
-        free = np.array([_free(fits[k], kinds) for k in run])
-        plan.append((epochs, piecewise_terms(kernels, starts, epochs.size, dt, sigmas[-1], "doppler" in kinds, windows,
-                                             free, config.stls.latency_m)))
+        sigmas.append(SWITCH_SIGMA_FACTOR * switch_sigma(jobs, fits, [spans for spans, _ in run if spans], lag))
+        plan.append(_run_plan(data, segs, jobs, fits, run, kinds, sigmas[-1], config))
         members.append(run)
     gated = np.zeros(data.usable.shape, dtype=bool)
     tied = np.zeros(T, dtype=bool)
+    bridged = np.full((T, 3), np.nan)
     if not plan:
-        return fits, gated, tied
+        return fits, gated, tied, bridged
     res = solve_segments(data, wls, config, Motion("quadrature"), kinds, factors=factors, plan=plan)
     out = list(fits)
     if res is None:
-        return out, gated, tied
+        return out, gated, tied, bridged
+    return _write_back(out, res, plan, members, sigmas, segs, jobs, kinds, config, gated, tied, bridged)
+
+
+def _write_back(out: list[Fit], res: SegmentRun, plan: list[tuple[NDArray[np.intp], MotionTerms]], members: list[list[Part]],
+                sigmas: list[float], segs: list[Segment], jobs: list[WindowJob], kinds: frozenset[str],
+                config: ProcessingConfig, gated: NDArray[np.bool_], tied: NDArray[np.bool_],
+                bridged: F64) -> tuple[list[Fit], NDArray[np.bool_], NDArray[np.bool_], F64]:
+    """The joint solution into the fits of the tied spans (their records say so) and the bridged epochs."""
+    lag = config.stls.lag
     rule = velocity_rule(lag, "doppler" in kinds)
     latency = f" kernel rows soft, latency {config.stls.latency_m:.3g} m;" if config.stls.latency_m > 0 else ""
     for (epochs, _), run, bad, sigma, misfit, dof in zip(plan, members, res.degenerate, sigmas, res.misfit, res.dof):
+        spans = [k for part, _ in run for k in part]
         if bad:
-            for k in run:
+            for k in spans:
                 out[k] = replace(out[k], message=f"{out[k].message}; not tied to its neighbours: the joint system "
                                                  "is singular")
             continue
         tied[epochs] = True
         gated[epochs] = res.gated[epochs]
-        seg = segs[jobs[run[0]].segment]
-        for k in run:
-            job = jobs[k]
-            w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
-            own = seg.epochs[job.lo : job.hi]
-            w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
-            free = f", without its kernel rows ({_why_free(out[k], kinds)})" if _free(out[k], kinds) else ""
-            out[k] = replace(out[k], w_hat=w_hat, message=(
-                f"{out[k].message}; its epochs solved with the {len(run)} spans of their run{free}, tied ({rule}; "
-                f"switch rows sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))
-    return out, gated, tied
+        extra = sum(e.size for part, e in run if not part)
+        across = "" if len(run) == 1 else (
+            f", across {len(run) - 1} gap{'s' if len(run) > 2 else ''} of missed epochs"
+            + (f" with {extra} epoch{'s' if extra > 1 else ''} of segments too short for a window" if extra else ""))
+        for part, e in run:
+            if not part:
+                bridged[e] = res.x_ecef_m[e]
+                continue
+            seg = segs[jobs[part[0]].segment]
+            for k in part:
+                job = jobs[k]
+                w_hat = out[k].w_hat.copy()  # type: ignore[union-attr]
+                own = seg.epochs[job.lo : job.hi]
+                w_hat[job.lo - job.a : job.hi - job.a] = np.einsum("ij,tj->ti", seg.rot, res.x_ecef_m[own] - seg.origin)
+                free = f", without its kernel rows ({_why_free(out[k], kinds)})" if _free(out[k], kinds) else ""
+                out[k] = replace(out[k], w_hat=w_hat, message=(
+                    f"{out[k].message}; its epochs solved with the {len(spans)} spans of their run{across}{free}, "
+                    f"tied ({rule}; switch rows sigma {sigma:.3g} m;{latency} run misfit {misfit:.6g} over {dof} dof)"))
+    return out, gated, tied, bridged

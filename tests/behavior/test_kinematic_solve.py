@@ -98,6 +98,27 @@ def test_quadrature_rule_of_lag_3_is_exact_for_cubic_velocity(lag: int, exact: b
     assert (err < 1e-7) if exact else (err > 1e-4)
 
 
+@pytest.mark.parametrize("lag", [1, 2, 3])
+def test_quadrature_rows_are_exact_at_uneven_steps(lag: int) -> None:
+    """Steps of 1, 2 and 4 s (missed epochs): a trajectory whose velocity is a polynomial of degree
+    ``lag`` satisfies every row ``x_{t+1} - x_t - dt sum_k c_k v_{t+k}`` (weights at the epochs' own
+    times); the weights of even steps are off there by centimetres to metres (lag 1, the trapezoid,
+    has no other node and is exact either way)."""
+    dt = np.array([2.0, 1.0, 1.0, 1.0, 4.0, 1.0, 1.0, 2.0, 1.0, 1.0])
+    t = np.r_[0.0, np.cumsum(dt)] + 3.0
+    pos_coef = np.array([0.0, 2.0, -0.25, 0.1, -0.01])[: lag + 2]  # degree lag + 1
+    pos = np.polyval(pos_coef[::-1], t)
+    vel = np.polyval(np.polyder(pos_coef[::-1]), t)
+    hard = motion_terms(Motion("quadrature", lag), dt).hard
+    assert np.abs(hard @ np.r_[pos, vel]).max() < 1e-9 * np.abs(pos).max()
+    even = []
+    for k in range(dt.size):
+        offs, wts = step_rule(k, dt.size + 1, lag)
+        even.append(pos[k + 1] - pos[k] - dt[k] * wts @ vel[k + offs])
+    off = np.abs(even).max()
+    assert (off > 1e-2) if lag > 1 else (off < 1e-9), off
+
+
 def _process_noise(dt: float, n_kin: int, psd: float) -> tuple[np.ndarray, np.ndarray]:
     """Transition and covariance of white acceleration (2) / jerk (3) over ``dt``, integrated here from
     ``Q = int_0^dt F(s) B B^T F(s)^T psd ds`` with ``B`` the last unit vector (Simpson on a fine grid)."""

@@ -16,7 +16,7 @@ from gnss_cli.gnss.frames import geodetic2ecef
 from gnss_cli.io.reference import reference_from_csv
 from gnss_cli.pipeline import load_epochs, process, solve_method
 from gnss_cli.pipeline.integrity import take_epochs
-from gnss_cli.pipeline.smoother import default_measurements, smooth_segments
+from gnss_cli.pipeline.smoother import MAX_STEP_INTERVALS, default_measurements, smooth_segments
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, epochs_gps_s, run_scenario, write_scenario
 
@@ -168,13 +168,35 @@ def test_a_degenerate_segment_keeps_the_wls_fixes_by_status(noisy: Path) -> None
     assert (cv.status[52:54] == "ok").all()
 
 
-def test_an_epoch_alone_before_a_gap_keeps_its_wls_fix_by_status(noisy: Path) -> None:
-    """A file whose first step is two sampling intervals (the Yamatogawa walk's): its first epoch is a
-    segment of one, not smoothed, so it keeps the WLS fix as ``fallback_wls`` -- not ``ok``, which
-    names a smoothed epoch -- and the epochs after the gap are smoothed."""
+@pytest.mark.parametrize("motion, kinds, bound_m", [("quadrature", PR, 2e-3), ("cv", PR_DOP, 2e-3), ("ca", PR_DOP, 2e-3),
+                                                     ("quadrature", PR_DOP, 2e-2)])
+def test_missed_epochs_are_bridged(tmp_path: Path, motion: str, kinds: frozenset[str], bound_m: float) -> None:
+    """Epochs 1 and 50-52 missing from a noise-free flight (the Yamatogawa walk's first step is two
+    seconds): the steps of 2 and 4 intervals stay inside the segment -- one segment, every epoch
+    ``ok`` -- and the track is the truth to the millimetre; with exact range rates the quadrature
+    rule's own error over the 4 s step of a manoeuvre remains (1.5 cm with lag 3, its weights at the
+    epochs' own times; 3.4 cm with the weights of even steps)."""
+    d = simulate_flight(tmp_path, "none", duration_s=120.0)
+    cfg = load_config(None, BASE)
+    full = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
+    rows = np.r_[0, 2:50, 53:full.time_gps_s.size]
+    data = take_epochs(full, rows)
+    wls = solve_method(data, "wls", cfg)
+    ref = reference_from_csv(d / "truth.csv", data.time_gps_s)
+    sol, models = _smooth(data, wls, cfg, motion, kinds)
+    assert len(models) == 1 and models[0].n_epochs == rows.size
+    assert (sol.status == "ok").all()
+    assert _err(sol.x_ecef_m, ref).max() < bound_m
+
+
+def test_an_epoch_alone_between_long_gaps_keeps_its_wls_fix_by_status(noisy: Path) -> None:
+    """A first epoch six intervals before the rest (a step longer than the bridged
+    ``MAX_STEP_INTERVALS``): a segment of one, not smoothed, so it keeps the WLS fix as
+    ``fallback_wls`` -- not ``ok``, which names a smoothed epoch -- and the rest is smoothed."""
     cfg = load_config(None, BASE)
     full = load_epochs(noisy / "obs.rnx", [noisy / "nav.rnx"], cfg)
-    rows = np.r_[0, 2:full.time_gps_s.size]
+    assert MAX_STEP_INTERVALS == 5
+    rows = np.r_[0, 6:full.time_gps_s.size]
     data = take_epochs(full, rows)
     wls = solve_method(data, "wls", cfg)
     sol, models = _smooth(data, wls, cfg)

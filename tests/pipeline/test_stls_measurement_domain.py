@@ -255,7 +255,8 @@ def test_with_range_rates_no_window_loses_them_to_a_kernel_without_velocity(nois
     import gnss_cli.pipeline.tied as tied
 
     monkeypatch.setattr(tied, "tie_spans", lambda data, wls, config, segs, jobs, fits, *rest: (
-        fits, np.zeros(data.usable.shape, dtype=bool), np.zeros(data.time_gps_s.size, dtype=bool)))
+        fits, np.zeros(data.usable.shape, dtype=bool), np.zeros(data.time_gps_s.size, dtype=bool),
+        np.full((data.time_gps_s.size, 3), np.nan)))
     cfg, data, wls, truth = _load(noisy, "pseudorange,doppler")
 
     def lost(models) -> int:  # type: ignore[no-untyped-def]
