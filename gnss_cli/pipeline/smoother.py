@@ -11,7 +11,7 @@ and system and one clock drift per epoch. Observations (``measurements``, a subs
 :data:`KINDS`): every pseudorange the WLS solution used (its satellites, elevation mask, weights
 and FDE exclusions); with ``"doppler"`` the range rates of those satellites; with ``"phase"``
 the time-differenced carrier phase of consecutive epochs (:mod:`gnss_cli.pipeline.phase_rows`;
-with quadrature lag 3 and Doppler, on the Yamatogawa walk 2.72 -> 2.49 m 3D RMS, on the urban
+with quadrature lag 3 and Doppler, on the Yamatogawa walk 2.71 -> 2.48 m 3D RMS, on the urban
 tst2 set 2.52 -> 1.37 m). A segment bridges missed epochs: a step of up to
 :data:`MAX_STEP_INTERVALS` sampling intervals stays inside it (the quadrature rule at the epochs'
 own times, the phase pair across the step); the Yamatogawa walk's first epoch, two seconds
