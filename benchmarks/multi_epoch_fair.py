@@ -7,7 +7,10 @@ where the file has it) every multi-epoch method runs through the same public pat
 ``measurements`` set explicitly, so all of them get the same observations, weights, variance
 factors and gates:
 
-* ``kf`` with ``kalman.model`` ``cv`` and ``ca``;
+* ``kf`` with ``kalman.model`` ``cv`` and ``ca``; each also with ``free clocks`` (its receiver clock
+  model, random walks of the clocks and drift, removed: every epoch's clock free, as the smoother
+  and stls have them), reported beside the peers, not a peer: how much of the kf's result comes
+  from that model;
 * ``smoother`` with each ``smoother.motion``: ``quadrature``, ``cv``, ``ca`` (and ``static`` on
   tst2 only, as a row for reference: it knows the antenna does not move, so it is not a peer of
   a kinematic solution);
@@ -40,9 +43,10 @@ them have a position (the rows say how many each solved).
 * ``flight exact``: the same with ``--errors none`` (evaluation seed 101): the largest 3D error
   of each method.
 * ``yamatogawa``: the u-blox walk against its RTK trajectory (``rtk_ref_rover.pos``), default
-  processing: horizontal RMS, and the vertical RMS after removing the mean vertical error common
-  to all methods (one number per measurement set, over every method's compared epochs: the RTK
-  base fixes the absolute height only to a few metres).
+  processing: horizontal RMS, and the vertical and horizontal RMS after removing the mean
+  vertical, east and north error common to all methods (one number each per measurement set,
+  over every method's compared epochs: the RTK base fixes the absolute position only to a few
+  metres, the shape to centimetres).
 * ``tst2``: the Hong Kong urban static antenna solved as a kinematic receiver with the open-sky
   settings (``environment = "open"``, the defaults when this was measured: the default ``auto``
   now judges tst2 a street canyon and starts every method alike from the NLOS detector's fixes,
@@ -56,9 +60,7 @@ in the JSON and in a second table.
 Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
-skipped). The full run took 41 min in one process on the shared 2-core machine, a second job
-beside it part of the time (the phase set, trained and evaluated on the simulated runs since they
-carry phase, and the latency stage about doubled it; ``--quick``: 3 min).
+skipped). The full run took 34 min in one process on the shared 2-core machine (``--quick``: 3 min).
 """
 
 from __future__ import annotations

@@ -42,14 +42,15 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def gapped(flight: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The flight without the epochs 100-104, 200-202 and 206-208: three segments of the
-    smoothing, one of them (203-205) too short for a window."""
+    """The flight without the epochs 100-104, 150, 194-202 and 206-214: a missed epoch the
+    smoothing bridges (150), three segments, one of them (203-205) too short for a window and
+    between gaps too long to bridge (ten seconds)."""
     out = tmp_path_factory.mktemp("gapped")
     text = (flight / "obs.rnx").read_text()
     head, _, body = text.partition("END OF HEADER\n")
     records = [">" + r for r in body.split("\n>")]
     records[0] = records[0][1:]
-    drop = set(range(100, 105)) | {200, 201, 202, 206, 207, 208}
+    drop = set(range(100, 105)) | {150} | set(range(194, 203)) | set(range(206, 215))
     kept = [r for k, r in enumerate(records) if k not in drop]
     (out / "obs.rnx").write_text(head + "END OF HEADER\n" + "\n".join(kept))
     (out / "nav.rnx").write_bytes((flight / "nav.rnx").read_bytes())
@@ -245,6 +246,7 @@ def test_segments_and_short_segments_across_parts(gapped: Path, tmp_path: Path, 
     _close_to_whole(args, tmp_path, capsys, 1.0)
     out = _solve(args, tmp_path / "again", CHUNK, capsys)
     assert "fallback_wls" in out["positions.csv"].decode()  # the three epochs between the second and third gap
+    assert b"across 1 gap of missed epochs" in out["models.json"]  # epoch 150
     assert b'"segment": 2' in out["models.json"] and b'"method": "stls"' in out["models.json"]
 
 
