@@ -15,8 +15,8 @@ with quadrature lag 3 and Doppler, on the Yamatogawa walk 2.71 -> 2.48 m 3D RMS,
 tst2 set 2.52 -> 1.37 m). A segment bridges missed epochs: a step of up to
 :data:`MAX_STEP_INTERVALS` sampling intervals stays inside it (the quadrature rule at the epochs'
 own times, the phase pair across the step); the Yamatogawa walk's first epoch, two seconds
-before the rest, was a segment of one before (its WLS fix, 1.5 m off: 0.371 -> 0.356 m
-horizontal RMS with phase). An epoch alone between two longer gaps is not smoothed: it keeps its
+before the rest, was a segment of one before (its WLS fix, 1.5 m off: 0.371 -> 0.358 m
+horizontal RMS with phase, ``benchmarks/multi_epoch_fair.py``). An epoch alone between two longer gaps is not smoothed: it keeps its
 WLS fix with the status ``fallback_wls``. Epochs with 1-3 satellites are included (such an epoch is ``ok`` and
 ``n_sat`` says how many pseudoranges it had; with a single satellite its clock absorbs the
 pseudorange and the position comes from the motion and its neighbours). Without Doppler the
@@ -394,7 +394,10 @@ def _models(data: EpochData, run: SegmentRun, method: str = "smoother") -> list[
     used = "+".join(k for k in KINDS if k in run.measurements)
     models = []
     for k, seg in enumerate(run.segments):
-        dt = float(np.median(np.diff(data.time_gps_s[seg])))
+        steps = np.diff(data.time_gps_s[seg])
+        dt = float(np.median(steps))
+        gaps = int(np.count_nonzero(steps > 1.5 * dt))
+        bridged = f", bridging {gaps} step{'s' if gaps > 1 else ''} of missed epochs" if gaps else ""
         common = dict(segment=k, window=0, start_time_gps_s=float(data.time_gps_s[seg[0]]),
                       end_time_gps_s=float(data.time_gps_s[seg[-1]]), n_epochs=int(seg.size), model=f"motion {mot.name}",
                       structure="full", method=method)
@@ -405,7 +408,7 @@ def _models(data: EpochData, run: SegmentRun, method: str = "smoother") -> list[
             continue
         models.append(WindowModel(
             **common, kernel=kernel_record(motion_kernel(mot, dt)), misfit=run.misfit[k], status="converged",  # type: ignore[arg-type]
-            message=(f"{what}, {used}; measurement domain, {run.dof[k]} degrees of freedom, misfit per degree of "
+            message=(f"{what}, {used}; measurement domain{bridged}, {run.dof[k]} degrees of freedom, misfit per degree of "
                      f"freedom {run.misfit[k] / max(run.dof[k], 1):.3g}; variance factors: "
                      f"pseudoranges {run.factors[0]:.4g}"
                      + (f", range rates {run.factors[1]:.4g}" if "doppler" in run.measurements else "")

@@ -52,7 +52,7 @@ the quadrature rows, at the epochs' own times, and the phase pair carry the traj
 and a short segment's epochs are in the run without a behavior (``ok``, their covariance and DOPs
 the WLS ones). On the Yamatogawa walk, whose first epoch is two seconds before the rest, that
 epoch had kept its WLS fix (1.5 m off horizontally): with phase 0.371 -> 0.358 m horizontal RMS,
-with Doppler 0.567 -> 0.561 m. Without range rates nothing ties the spans across a gap. A run
+with Doppler 0.571 -> 0.566 m (``benchmarks/multi_epoch_fair.py``). Without range rates nothing ties the spans across a gap. A run
 whose system is singular keeps the spans' own trajectories; its windows' records say so.
 """
 
@@ -65,6 +65,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms
 from gnss_cli.behavior.piecewise import piecewise_terms, velocity_rule
+from gnss_cli.behavior.windows import segments
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
 from gnss_cli.pipeline.measurements import KINDS
@@ -162,18 +163,16 @@ def bridged_runs(t: F64, segs: list[Segment], jobs: list[WindowJob], fits: list[
     if not bridge:
         return [[p] for p in parts]
     parts += [([], g) for g in np.split(short, np.flatnonzero(np.diff(short) > 1) + 1) if g.size]
-    parts.sort(key=lambda p: int(p[1][0]))
-    steps = np.diff(t)
-    nominal = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
-    out: list[list[Part]] = []
-    for part in parts:
-        a = int(out[-1][-1][1][-1]) if out else -2
-        b = int(part[1][0])
-        if b == a + 1 and 0.0 < t[b] - t[a] <= GAP_FACTOR * nominal:
-            out[-1].append(part)
-        else:
-            out.append([part])
-    return [run for run in out if any(spans for spans, _ in run)]
+    member = np.zeros(t.size, dtype=bool)
+    for _, e in parts:
+        member[e] = True
+    joined = np.full(t.size, -1)  # the smoother's segments of the parts' epochs: one rule for a bridgeable step
+    for j, seg in enumerate(segments(t, member, GAP_FACTOR)):
+        joined[seg] = j
+    out: dict[int, list[Part]] = {}
+    for part in sorted(parts, key=lambda p: int(p[1][0])):
+        out.setdefault(int(joined[part[1][0]]), []).append(part)
+    return [run for run in out.values() if any(spans for spans, _ in run)]
 
 
 def _run_plan(data: EpochData, segs: list[Segment], jobs: list[WindowJob], fits: list[Fit], run: list[Part],

@@ -185,6 +185,7 @@ def test_missed_epochs_are_bridged(tmp_path: Path, motion: str, kinds: frozenset
     ref = reference_from_csv(d / "truth.csv", data.time_gps_s)
     sol, models = _smooth(data, wls, cfg, motion, kinds)
     assert len(models) == 1 and models[0].n_epochs == rows.size
+    assert "bridging 2 steps of missed epochs" in models[0].message
     assert (sol.status == "ok").all()
     assert _err(sol.x_ecef_m, ref).max() < bound_m
 
