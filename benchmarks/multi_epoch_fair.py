@@ -23,7 +23,8 @@ factors and gates:
 :data:`SEED_OFFSET`) of simulated
 flights and drives with 1 m code noise, a small grid per method and measurement set is run and
 the best 3D RMS (pooled over the training seeds of both trajectories) picked: ``kf cv``
-``accel_psd_m2_s3``, ``kf ca`` ``jerk_psd_m2_s5``, the smoother's quadrature lag, the stls
+``accel_psd_m2_s3``, ``kf ca`` ``jerk_psd_m2_s5``, the same PSDs for ``smoother cv`` and
+``smoother ca`` (chosen on their own), the smoother's quadrature lag, the stls
 window (0: whole segments, halved where the behavior test rejects) and its behavior test's
 false-alarm probability (``behavior_pfa``); then, where its spans are tied (range rates or
 phase), stls's ``latency_m`` at those (:data:`LATENCY_M`). They are written to the JSON and then
@@ -100,10 +101,13 @@ GRID: dict[str, tuple[str, tuple[Any, ...]]] = {
     "kf cv": ("kalman.accel_psd_m2_s3", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "kf ca": ("kalman.jerk_psd_m2_s5", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "smoother quadrature": ("smoother.lag", (1, 2, 3)),
+    "smoother cv": ("kalman.accel_psd_m2_s3", (0.01, 0.1, 1.0, 10.0, 100.0)),
+    "smoother ca": ("kalman.jerk_psd_m2_s5", (0.01, 0.1, 1.0, 10.0, 100.0)),
     "stls": ("stls.window,stls.behavior_pfa", tuple((w, p) for w in (0, 10, 15, 20, 30) for p in (1e-3, 1e-6, 1e-9, 1e-12))),
 }
 """The setting tuned per method (config key, candidates; keys joined by commas take tuples of
-values); smoother cv / ca have none."""
+values). The smoother's ``cv`` and ``ca`` take the kf's process noise keys (the same model:
+white acceleration / jerk of that PSD), each chosen on its own."""
 LATENCY_M = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3)
 """Candidates of ``stls.latency_m``, chosen after stls's window and false-alarm probability, at
 those, where spans are tied (range rates or phase); with the pseudoranges alone it does nothing."""
@@ -152,12 +156,14 @@ def solve_variants(obs: Path, navs: list[Path], reference: Any, variants: dict[s
     """Errors (E, N, U, ``(T, 3)``, m) and reported settings of each variant, with ``wls``.
 
     Variants of different methods share a run (they do not see each other: each starts from the
-    same WLS fixes and observations); a method's variants take one run each.
+    same WLS fixes and observations) unless they set a key to different values (the smoother's cv
+    and the kf's cv share ``kalman.accel_psd_m2_s3``); a method's variants take one run each.
     """
     rounds: list[dict[str, dict[str, Any]]] = []
     for name, settings in variants.items():
         method = name.split()[0]
-        slot = next((r for r in rounds if all(n.split()[0] != method for n in r)), None)
+        slot = next((r for r in rounds if all(n.split()[0] != method for n in r)
+                     and all(o.get(k, v) == v for o in r.values() for k, v in settings.items())), None)
         if slot is None:
             rounds.append(slot := {})
         slot[name] = settings
