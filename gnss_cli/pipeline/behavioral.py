@@ -353,7 +353,9 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
             model="identified", structure=opts.kernel, kernel=fit.kernel, misfit=fit.misfit,
             status=WINDOW_REJECTED if fit.rejected else window_status_word(fit.status), message=fit.message,
             method=method, iterations=fit.iterations, converged=fit.converged, test_stat=fit.test_stat,
-            test_dof=fit.test_dof, test_limit=limits.get(k),
+            test_dof=fit.test_dof, test_limit=limits.get(k), n_supplied=int(mine.size),
+            supplied_start_time_gps_s=float(data.time_gps_s[mine[0]]) if mine.size else None,
+            supplied_end_time_gps_s=float(data.time_gps_s[mine[-1]]) if mine.size else None,
         ))
         status[mine] = window_epoch_status(fit.status if fit.w_hat is not None else None).value
         if fit.w_hat is None:

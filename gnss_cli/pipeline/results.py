@@ -195,6 +195,15 @@ class WindowModel:
     """Its degrees of freedom."""
     test_limit: float | None = None
     """Its limit at ``[stls] behavior_pfa`` (above it the window is ``rejected``, :mod:`gnss_cli.pipeline.spans`)."""
+    n_supplied: int | None = None
+    """Epochs the window answers for (``stls``: overlapping windows each supply the epochs nearest
+    their centre, so two records of one window can supply different epochs; a rejected window: 0
+    when its epochs were solved again, else those that kept their WLS fix, as its message says;
+    None: every epoch of the window, as a ``smoother`` segment)."""
+    supplied_start_time_gps_s: float | None = None
+    """First epoch the window supplies, s since the GPS epoch (None when it supplies none or all)."""
+    supplied_end_time_gps_s: float | None = None
+    """Last epoch it supplies."""
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-serialisable record (the ``windows`` entries of ``--model-out``)."""
@@ -208,6 +217,11 @@ class WindowModel:
         else:
             out.update(self.kernel.to_dict())
             out.update({"misfit": self.misfit, "status": self.status, "message": self.message})
+        if self.n_supplied is not None:
+            out["n_supplied"] = self.n_supplied
+            if self.supplied_start_time_gps_s is not None:
+                out.update({"supplied_start_time_gps_s": self.supplied_start_time_gps_s,
+                            "supplied_end_time_gps_s": self.supplied_end_time_gps_s})
         if self.iterations is not None:
             out.update({"iterations": self.iterations, "converged": self.converged})
         if self.test_stat is not None:

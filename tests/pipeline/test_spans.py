@@ -116,6 +116,15 @@ def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path,
     assert rejected and all(m.test_stat > m.test_limit for m in rejected)
     assert all(m.test_stat <= m.test_limit for m in models if m.test_stat is not None and m.status != "rejected")
     assert (sol.status == "ok").sum() > 0.5 * sol.status.size  # most epochs still come from a behavior
+    t, answered = data.time_gps_s, np.zeros(data.time_gps_s.size, dtype=int)
+    for m in models:  # the records' supplied spans: every epoch answered for by one record, once
+        if m.n_supplied:
+            mine = (t >= m.supplied_start_time_gps_s) & (t <= m.supplied_end_time_gps_s)
+            assert mine.sum() == m.n_supplied and m.start_time_gps_s <= t[mine][0] <= t[mine][-1] <= m.end_time_gps_s
+            answered += mine
+        else:
+            assert m.status == "rejected" and "solved again" in m.message and m.supplied_start_time_gps_s is None
+    np.testing.assert_array_equal(answered, 1)
     untested, _ = solve_multi_epoch("stls", data, wls, replace(cfg, integrity="off"))
     assert np.nanmax(np.linalg.norm(untested.x_ecef_m - ref, axis=1)) > 0.1
 
