@@ -11,8 +11,8 @@ epochs, and how many there are):
 
 Data: the Yamatogawa walk against its RTK trajectory; tst2 (urban, static) on its 157 truth
 epochs; simulated 1 Hz flights (600 s, GPS, ``--seeds``) with ``--errors noise`` (solved with
-``--iono none --tropo none``) and ``--errors all``. Every seed flies the same path (the
-simulator's flight is deterministic); the seed draws the errors.
+``--iono none --tropo none``) and ``--errors all``; the seed draws the path, the start time and
+the errors.
 
 The position-domain models this smoother replaced (``stls --lag 3 --model pva|static|kinematic``
 before the method vocabulary of ``smoother``) were measured on the same data with the code of
@@ -149,6 +149,21 @@ def print_table(title: str, rows: dict[str, dict]) -> None:
               + (f" {r['rms_3d_wls_ok_m']:8.3f}" if "rms_3d_wls_ok_m" in r else "") + (f"  {r['error']}" if "error" in r else ""))
 
 
+def summary_table(results: dict[str, object], seeds: list[int]) -> dict[str, object]:
+    """The results page's fields (``title``, ``command``, ``table``): one row per data set and run,
+    the simulated flights as their mean over the seeds."""
+    sets: dict[str, dict[str, dict]] = results["sets"]  # type: ignore[assignment]
+    shown = {**{k: v for k, v in sets.items() if not k.startswith("flight")},
+             **{k.removeprefix("mean "): v for k, v in results.items() if k.startswith("mean ")}}  # type: ignore[misc]
+    rows = [[name, method, *(round(r[k], 3) for k in ("rms_3d_m", "rms_h_m", "p95_3d_m", "max_3d_m")), r["epochs"]]
+            for name, table in shown.items() for method, r in table.items() if "error" not in r]
+    return {"title": "The smoother's motions by measurement set",
+            "command": f"python benchmarks/bench_smoother.py --seeds {','.join(map(str, seeds))}",
+            "notes": "3D RMS, horizontal RMS, 95th percentile and largest 3D error (m) over each run's ok epochs; "
+                     "simulated flights: mean over the seeds (each seed draws its path, start time and errors).",
+            "table": {"columns": ["data", "run", "3D RMS", "H RMS", "p95", "max", "epochs"], "rows": rows}}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", default="11,12,13")
@@ -167,6 +182,7 @@ def main() -> None:
         if any(k.startswith(prefix) for k in table):
             results[f"mean {prefix}"] = rows = mean_rows(table, prefix)
             print_table(f"{prefix}, mean over seeds {seeds}", rows)
+    results.update(summary_table(results, seeds))
     path = HERE / "results" / "bench_smoother.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=1) + "\n")

@@ -22,19 +22,20 @@ WLS fix with the status ``fallback_wls``. Epochs with 1-3 satellites are include
 pseudorange and the position comes from the motion and its neighbours). Without Doppler the
 velocities come from the motion model alone (and the phase pairs, where given).
 
-Measured (``benchmarks/bench_smoother.py``, 3D RMS, m; simulated 1 Hz flights with white noise,
-mean of three seeds / the Yamatogawa walk / tst2 on its 157 truth epochs):
+Measured (``benchmarks/bench_smoother.py``, 3D RMS, m, default processing; simulated 1 Hz flights
+with white noise, mean of three seeds / the Yamatogawa walk / tst2 on its 157 truth epochs):
 
-- pseudoranges alone: quadrature 1.92 / 3.01 / 6.31 (on the 152 epochs WLS solves; WLS 3.19 /
-  3.14 / 6.81), cv and ca within 2 % of it; static 1.67 on tst2 (and useless on the moving sets:
-  nothing tests the motion). Without Doppler the urban pseudoranges that defeat the snapshot FDE
-  (five epochs of tst2 without a WLS fix) pull the track by up to 83 m;
-- with Doppler: quadrature 0.36 / 2.72 / 2.52, ca 0.45 / 2.72 / 2.66, cv 1.24 / 2.92 / 3.43. The
-  quadrature rule ties each step to the velocities exactly; cv with the kf's acceleration PSD of
-  10 m^2/s^3 lets a 1 s step deviate by ~0.9 m from the mean of its two velocities, which the
-  variance factors (pseudorange weights x13 on the flights) make loose: with a PSD of 0.1 the
-  flight gives 0.51, ca with a jerk PSD of 1 or less 0.45 = the quadrature;
-- with phase every motion but static gives 2.49 / 1.37 (the phase pairs fix the shape).
+- pseudoranges alone: quadrature 1.90 / 2.98 / 4.38 (4.37 on the 142 epochs WLS solves; WLS 3.15 /
+  3.07 / 5.14), cv and ca within 2 % of it; static 2.70 on tst2 (and useless on the moving sets:
+  nothing tests the motion);
+- with Doppler: quadrature 0.36 / 2.72 / 2.83, ca 0.45 / 2.70 / 3.10, cv 1.23 / 2.89 / 3.51. The
+  quadrature rule ties each step to the velocities exactly; cv with the kf's default acceleration
+  PSD of 10 m^2/s^3 lets a 1 s step deviate by ~0.9 m from the mean of its two velocities, which
+  the variance factors (pseudorange weights x13 on the flights) make loose (on the flights of an
+  earlier run a PSD of 0.1 gave 0.51, ca with a jerk PSD of 1 or less 0.45 = the quadrature; the
+  equal-information benchmark, ``benchmarks/multi_epoch_fair.py``, chooses these PSDs on training
+  seeds);
+- with phase every motion but static gives 2.48-2.49 / 1.67 (the phase pairs fix the shape).
 
 Weights: the configured pseudorange, Doppler (and phase) sigmas give their shape; each kind is scaled by
 a variance factor estimated from the data -- the misfit per degree of freedom of the epochs
