@@ -151,14 +151,10 @@ def simulate(out: Path, kind: str, seed: int, duration_s: float, errors: str) ->
     return out
 
 
-def solve_variants(obs: Path, navs: list[Path], reference: Any, variants: dict[str, dict[str, Any]],
-                   common: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """Errors (E, N, U, ``(T, 3)``, m) and reported settings of each variant, with ``wls``.
-
-    Variants of different methods share a run (they do not see each other: each starts from the
-    same WLS fixes and observations) unless they set a key to different values (the smoother's cv
-    and the kf's cv share ``kalman.accel_psd_m2_s3``); a method's variants take one run each.
-    """
+def plan_rounds(variants: dict[str, dict[str, Any]]) -> list[dict[str, dict[str, Any]]]:
+    """The runs that solve ``variants`` (name: settings; the method is the name's first word): a
+    variant joins the first run with no variant of its method and no setting of another value
+    (the smoother's cv and the kf's cv share ``kalman.accel_psd_m2_s3``), else starts a run."""
     rounds: list[dict[str, dict[str, Any]]] = []
     for name, settings in variants.items():
         method = name.split()[0]
@@ -167,8 +163,19 @@ def solve_variants(obs: Path, navs: list[Path], reference: Any, variants: dict[s
         if slot is None:
             rounds.append(slot := {})
         slot[name] = settings
+    return rounds
+
+
+def solve_variants(obs: Path, navs: list[Path], reference: Any, variants: dict[str, dict[str, Any]],
+                   common: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Errors (E, N, U, ``(T, 3)``, m) and reported settings of each variant, with ``wls``.
+
+    Variants of different methods share a run (they do not see each other: each starts from the
+    same WLS fixes and observations) unless they set a key to different values (the smoother's cv
+    and the kf's cv share ``kalman.accel_psd_m2_s3``); a method's variants take one run each.
+    """
     out: dict[str, dict[str, Any]] = {}
-    for r in rounds:
+    for r in plan_rounds(variants):
         overrides = {**common, "methods": "wls," + ",".join(dict.fromkeys(n.split()[0] for n in r))}
         for settings in r.values():
             overrides.update(settings)
