@@ -5,7 +5,8 @@ where the file has it) every multi-epoch method runs through the same public pat
 ``gnss_cli.solve`` (:func:`gnss_cli.pipeline.process` on a configuration from
 :func:`gnss_cli.config.load_config`, rows by :func:`gnss_cli.api.to_dataset`) with
 ``measurements`` set explicitly, so all of them get the same observations, weights, variance
-factors and gates:
+factors and gate threshold (the kf tests innovations before its update, the smoother and stls
+residuals after their fit):
 
 * ``kf`` with ``kalman.model`` ``cv`` and ``ca``; each also with ``free clocks`` (its receiver clock
   model, random walks of the clocks and drift, removed: every epoch's clock free, as the smoother
