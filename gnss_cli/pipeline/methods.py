@@ -26,7 +26,7 @@ import numpy as np
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, as_wls_used
 
-__all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "snapshot_config",
+__all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "motion_words", "snapshot_config",
            "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
 
 SINGLE_EPOCH_ESTIMATORS = {
@@ -120,18 +120,32 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
         elif m == "smoother":
             motion = config.smoother.motion
             lag = str(config.smoother.lag) if motion == "quadrature" else ""
-            out[m] = MethodSettings(m, "fixed-model batch smoother", f"motion {motion}", lag, "whole segments", kinds,
+            out[m] = MethodSettings(m, "fixed-model batch smoother", motion_words(motion, config), lag, "whole segments", kinds,
                                     "off" if config.integrity == "off" else "residual gate, check" + segment_tests)
         elif m == "kf":
             k = config.kalman
             estimator = "extended Kalman filter" + (" + RTS smoother" if k.output == "smoothed" else "")
-            out[m] = MethodSettings(m, estimator, f"motion {k.model}", "", "whole segments", kinds,
+            out[m] = MethodSettings(m, estimator, motion_words(k.model, config), "", "whole segments", kinds,
                                     "off" if config.integrity == "off" else "innovation gate, check" + segment_tests)
         else:
             integrity = snapshot_integrity if m in ("ls", "wls") else tested
             out[m] = MethodSettings(m, SINGLE_EPOCH_ESTIMATORS[m] + " (single epoch)", "", "", "1 epoch",
                                     "pseudorange", integrity)
     return out
+
+
+def motion_words(motion: str, config: ProcessingConfig) -> str:
+    """A fixed motion model as the ``model`` setting says it, with the process noise it ran with
+    (``cv`` / ``ca``: the ``[kalman]`` PSD of the white acceleration / jerk, which ``smoother`` and
+    ``kf`` share).
+
+    >>> from gnss_cli.config import load_config
+    >>> motion_words("ca", load_config(None, {"kalman.jerk_psd_m2_s5": 0.01})), motion_words("quadrature", load_config(None))
+    ('motion ca (jerk PSD 0.01 m^2/s^5)', 'motion quadrature')
+    """
+    k = config.kalman
+    psd = {"cv": f" (acceleration PSD {k.accel_psd_m2_s3:g} m^2/s^3)", "ca": f" (jerk PSD {k.jerk_psd_m2_s5:g} m^2/s^5)"}
+    return f"motion {motion}{psd.get(motion, '')}"
 
 
 def with_settings(result: RunResult, config: ProcessingConfig) -> RunResult:
