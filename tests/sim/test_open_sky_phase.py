@@ -39,8 +39,10 @@ def test_the_noise_is_the_pll_jitter_and_nothing_else_changes() -> None:
     plain = run_scenario(_config("noise,clock", False)).observations
     with_phase = run_scenario(_config("noise,clock", True)).observations
     assert plain.phase_cycles is None and with_phase.phase_cycles is not None
-    for name in ("pseudorange_m", "doppler_hz", "snr_dbhz"):
-        assert np.array_equal(getattr(plain, name), getattr(with_phase, name)), name
+    for name in ("pseudorange_m", "doppler_hz", "snr_dbhz"):  # the same draws (another draw moves them by O(1));
+        # to the last bits only: numpy's vectorized math may round an element differently by its place in memory
+        np.testing.assert_allclose(getattr(with_phase, name), getattr(plain, name), rtol=1e-13, atol=0, equal_nan=True,
+                                   err_msg=name)
     quiet = run_scenario(_config("clock", True)).observations
     lam = _wavelengths(with_phase.sv)[None]
     noise_m = (with_phase.phase_cycles - quiet.phase_cycles) * lam  # the jitter, plus constant ambiguities
