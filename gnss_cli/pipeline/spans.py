@@ -30,7 +30,9 @@ With range rates or phase, the spans that passed are then solved together, each 
 behavior and tied at the switches (:mod:`gnss_cli.pipeline.tied`).
 
 Every tested window stays in the model records, with its statistic, degrees of freedom and
-limit; a rejected one says so (status ``rejected``) and which windows took its epochs. Windows
+limit; a rejected one says so (status ``rejected``) and which windows took its epochs. A shorter
+window that two rejected neighbours both take is solved once (:func:`distinct_windows`); each
+copy has its record, for the epochs it supplies. Windows
 left in the position domain have no measurement-domain misfit and no statistic; with
 ``integrity = "off"`` nothing is tested (and nothing split).
 """
@@ -49,7 +51,7 @@ from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, fit_all
 from gnss_cli.pipeline.identified import alternate_windows
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
-__all__ = ["tested_windows", "split_window", "behavior_limit"]
+__all__ = ["tested_windows", "split_window", "distinct_windows", "behavior_limit"]
 
 
 def behavior_limit(dof: int, pfa: float) -> float:
@@ -75,6 +77,26 @@ def split_window(job: WindowJob, length: int, n_segment: int) -> list[WindowJob]
         if own.size:
             out.append(WindowJob(job.segment, job.window, a0 + a, a0 + b, int(own[0]), int(own[-1]) + 1))
     return out
+
+
+def distinct_windows(jobs: list[WindowJob]) -> tuple[list[int], NDArray[np.intp]]:
+    """The distinct windows among ``jobs`` and which of them each job is.
+
+    Two rejected neighbours split into windows of half their length can both take the same window
+    (same segment, start and end), each copy supplying different epochs; it is one window, solved
+    once. Returns the index of each distinct window's first job, in order, and for each job the
+    number of its window in that list.
+    """
+    number: dict[tuple[int, int, int], int] = {}
+    firsts: list[int] = []
+    which = np.empty(len(jobs), dtype=np.intp)
+    for k, job in enumerate(jobs):
+        key = (job.segment, job.a, job.b)
+        if key not in number:
+            number[key] = len(firsts)
+            firsts.append(k)
+        which[k] = number[key]
+    return firsts, which
 
 
 def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
@@ -104,13 +126,15 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     alone = frozenset({"pseudorange"})
     gated = np.zeros(data.usable.shape, dtype=bool)
     done: list[tuple[WindowJob, Fit, float | None]] = []
-    stage: dict[frozenset[str], tuple[list[WindowJob], list[Fit]]] = {kinds: (jobs, fits)}
+    firsts, which = distinct_windows(jobs)
+    stage = {kinds: (jobs, which, [jobs[k] for k in firsts], [fits[k] for k in firsts])}
     while stage:
         following: dict[frozenset[str], list[WindowJob]] = {}
-        for used, (stage_jobs, stage_fits) in stage.items():
-            solved, runs, factors = alternate_windows(data, wls, config, segs, stage_jobs, stage_fits, used, factors)
+        for used, (stage_jobs, which, distinct, distinct_fits) in stage.items():
+            solved, runs, factors = alternate_windows(data, wls, config, segs, distinct, distinct_fits, used, factors)
             run_of = {int(k): (run, b) for run in runs for b, k in enumerate(run.jobs)}
-            for k, (job, fit) in enumerate(zip(stage_jobs, solved)):
+            for job, k in zip(stage_jobs, which.tolist()):
+                fit = solved[k]
                 limit = behavior_limit(fit.test_dof, opts.behavior_pfa) if testing and fit.test_dof else None
                 length, n_seg = job.b - job.a, segs[job.segment].epochs.size
                 untested = testing and fit.domain != "measurement" and length > trusted
@@ -136,7 +160,11 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                     fit, w_hat=None, basis=None, rejected=True,
                     message=f"{why}; its epochs solved again {what.format(n=shorter)}; {fit.message}"), limit))
                 following.setdefault(retry, []).extend(split_window(job, shorter, n_seg))
-        stage = {used: (more, fit_all(segs, more, opts)) for used, more in following.items()}
+        stage = {}
+        for used, more in following.items():
+            firsts, which = distinct_windows(more)
+            distinct = [more[k] for k in firsts]
+            stage[used] = (more, which, distinct, fit_all(segs, distinct, opts))
     done.sort(key=lambda d: (d[0].segment, d[0].a, d[0].b))
     out_jobs, out_fits, limits = [], [], {}
     counter: dict[int, int] = {}

@@ -1,9 +1,11 @@
 """Spans chosen from the data for ``stls --lag L`` (:mod:`gnss_cli.pipeline.spans`): the behavior
 test's statistic against an independent computation, its calibration on a track the model class
-holds, the noise-free manoeuvring flight to 1 cm, and the windows that take a rejected one's epochs."""
+holds, the noise-free manoeuvring flight to 1 cm, the windows that take a rejected one's epochs, and
+a window two of them share solved once."""
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,6 +20,7 @@ from gnss_cli.pipeline.identified import alternate_windows
 from gnss_cli.pipeline.kalman import nominal_trajectory
 from gnss_cli.pipeline.measurements import measurement_rows
 from gnss_cli.pipeline.methods import solve_multi_epoch
+from gnss_cli.pipeline import spans
 from gnss_cli.pipeline.spans import behavior_limit, split_window
 from gnss_cli.sim.error_sources import parse_error_list
 from gnss_cli.sim.scenario import ScenarioConfig, run_scenario, write_scenario
@@ -167,3 +170,30 @@ def test_an_untested_window_covers_no_more_than_the_window_length(tmp_path: Path
 def _rms3(x: np.ndarray, ref: np.ndarray) -> float:
     e = np.linalg.norm(x - ref, axis=1)
     return float(np.sqrt(np.nanmean(e**2)))
+
+
+def test_a_window_two_rejected_neighbours_share_is_solved_once(exact_flight: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two rejected neighbours split into the same shorter window (each copy supplying other epochs):
+    the window is solved once, and the result is the one of solving every copy on its own."""
+    cfg, data, wls, _ = _load(exact_flight, "pseudorange")
+    solved_windows: list[list[tuple[int, int, int]]] = []
+    real = spans.alternate_windows
+
+    def recording(data, wls, config, segs, jobs, *rest):  # type: ignore[no-untyped-def]
+        solved_windows.append([(j.segment, j.a, j.b) for j in jobs])
+        return real(data, wls, config, segs, jobs, *rest)
+
+    monkeypatch.setattr(spans, "alternate_windows", recording)
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    assert all(len(set(w)) == len(w) for w in solved_windows)
+    supplied = Counter((m.start_time_gps_s, m.end_time_gps_s) for m in models if m.n_supplied)
+    assert max(supplied.values()) == 2  # the flight has such windows
+
+    solved_windows.clear()
+    monkeypatch.setattr(spans, "distinct_windows", lambda jobs: (list(range(len(jobs))), np.arange(len(jobs))))
+    each, each_models = solve_multi_epoch("stls", data, wls, cfg)
+    assert any(len(set(w)) < len(w) for w in solved_windows)
+    np.testing.assert_array_equal(sol.x_ecef_m, each.x_ecef_m)
+    np.testing.assert_array_equal(sol.status, each.status)
+    assert [repr(m) for m in models] == [repr(m) for m in each_models]
