@@ -108,14 +108,15 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             if s.kernel == "shared":
                 from gnss_cli.behavior.piecewise import velocity_rule  # scipy: imported when stls runs
 
-                tied = "" if kinds == "pseudorange" else \
+                tied = ", overlapping windows cross-faded" if kinds == "pseudorange" else \
                     f", spans tied ({velocity_rule(s.lag, 'doppler' in kinds.split('+'))})"  # gnss_cli.pipeline.tied
                 if tied and s.latency_m > 0:
                     tied += f", latency {s.latency_m:g} m"
                 out[m] = MethodSettings(m, "identified Hankel STLS (measurement domain, alternation)",
                                         f"{kernel} identified per window{tied}", str(s.lag), window, kinds, tested)
             else:  # the alternation is for shared kernels: the full kernel stays with the fixes
-                out[m] = MethodSettings(m, "identified Hankel STLS (position domain)", f"{kernel} identified per window",
+                out[m] = MethodSettings(m, "identified Hankel STLS (position domain)",
+                                        f"{kernel} identified per window, overlapping windows cross-faded",
                                         str(s.lag), window, "pseudorange (WLS fixes)", tested)
         elif m == "smoother":
             motion = config.smoother.motion
