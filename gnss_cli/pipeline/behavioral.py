@@ -377,8 +377,9 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         if fit.w_hat is None:
             continue
         smoothed[mine] = True
-        weights = window_weights(job, cross_fade and (job.segment, job.a, job.b) not in seen)
-        seen.add((job.segment, job.a, job.b))
+        key = (job.segment, job.a, job.b)
+        weights = window_weights(job, cross_fade) * (not (cross_fade and key in seen))  # a window counts once
+        seen.add(key)
         estimates.append((seg.epochs[job.a : job.b], seg.origin + np.einsum("tj,ji->ti", fit.w_hat, seg.rot), weights))
         has_basis = fit.basis is not None and fit.basis.shape[2] > 0
         dop_windows.append(DopWindow(seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis)

@@ -19,8 +19,9 @@ from test_spans import _load, _simulate
 
 @pytest.fixture(scope="module")
 def noisy_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A manoeuvring flight with 1 m code noise, 200 s: the default 15-epoch windows overlap by half."""
-    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "noise", 7, 200.0)
+    """A manoeuvring flight with 1 m code noise, 300 s: in whole segments the behavior test splits
+    it into overlapping windows, one of them taken by two rejected neighbours."""
+    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "noise", 1, 300.0)
 
 
 def test_weights_are_triangular_or_the_supplied_epochs() -> None:
@@ -97,7 +98,7 @@ def test_flight_positions_are_the_cross_fade_of_the_windows(noisy_flight: Path,
     windows over it, each distinct window counted once (computed here from the windows' own
     estimates), and the reported model says so. Without the cross-fade each epoch is the estimate
     of the window that supplies it, as where spans are tied."""
-    cfg, data, wls, _ = _load(noisy_flight, "pseudorange")
+    cfg, data, wls, _ = _load(noisy_flight, "pseudorange", **{"stls.window": 0})
     seen: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
     real = behavioral.blended
 
@@ -110,10 +111,14 @@ def test_flight_positions_are_the_cross_fade_of_the_windows(noisy_flight: Path,
     T = data.time_gps_s.size
     total, weight, covering = np.zeros((T, 3)), np.zeros(T), np.zeros(T, dtype=int)
     windows: dict[tuple[int, int], np.ndarray] = {}
+    copies = 0
     for span, x, w in seen[0]:
-        if w.any():  # a copy of a window already counted has no weight
-            assert (int(span[0]), int(span[-1])) not in windows
-            windows[(int(span[0]), int(span[-1]))] = x
+        key = (int(span[0]), int(span[-1]))
+        if key in windows:  # a copy of a window already counted has no weight
+            assert not w.any()
+            copies += 1
+        windows[key] = x
+    assert copies >= 1
     for (first, last), x in windows.items():
         for i, t in enumerate(range(first, last + 1)):
             tri = min(i + 1, last - first + 1 - i)
@@ -123,7 +128,7 @@ def test_flight_positions_are_the_cross_fade_of_the_windows(noisy_flight: Path,
     ok = sol.status == "ok"
     assert ok.mean() > 0.9 and (weight[ok] > 0).all()
     np.testing.assert_allclose(sol.x_ecef_m[ok], total[ok] / weight[ok, None], rtol=0, atol=1e-6)
-    assert (covering[ok] >= 2).mean() > 0.5  # most epochs are shared by two windows
+    assert (covering[ok] >= 2).mean() > 0.3  # epochs shared by two windows or more
     assert "overlapping windows cross-faded" in method_settings(cfg, True, True)["stls"].model
 
     monkeypatch.setattr(behavioral, "window_weights", lambda job, cross_fade: window_weights(job, False))
@@ -138,7 +143,7 @@ def test_flight_positions_are_the_cross_fade_of_the_windows(noisy_flight: Path,
 def test_tied_spans_are_not_cross_faded(noisy_flight: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """With range rates the spans are tied into one trajectory: each epoch is its span's estimate
     alone, exactly as before cross-fading existed (the weights are the supplied epochs)."""
-    cfg, data, wls, _ = _load(noisy_flight, "pseudorange,doppler")
+    cfg, data, wls, _ = _load(noisy_flight, "pseudorange,doppler", **{"stls.window": 0})
     calls: list[bool] = []
 
     def spy(job, cross_fade):  # type: ignore[no-untyped-def]
