@@ -62,7 +62,7 @@ in the JSON and in a second table.
 Usage: ``python benchmarks/multi_epoch_fair.py [--quick] [--rinex DIR]``; writes
 ``benchmarks/results/multi_epoch_fair.json`` (``--quick``: ``multi_epoch_fair_quick.json`` under
 the system's temporary folder; one training seed, two evaluation seeds, 120 s, real sets
-skipped). The full run took 34 min in one process on the shared 2-core machine (``--quick``: 3 min).
+skipped). The full run took 41 min in one process on the shared 2-core machine (``--quick``: 3 min).
 """
 
 from __future__ import annotations
