@@ -128,13 +128,17 @@ NUMPY_2 = int(np.__version__.split(".")[0]) >= 2
 
 def _same(a, b) -> None:  # noqa: ANN001 - two RunResults
     """The same rows: positions and levels to the bit with numpy 2; with numpy 1.x, whose vectorized
-    sums change their last bits with the arrays' memory alignment from run to run, to 1e-9 relative."""
+    sums change their last bits with the arrays' memory alignment from run to run, positions to 1e-9
+    relative and levels to 1e-6: a canyon fix's levels of ten kilometres come from near-singular
+    geometry, which magnifies those last bits (measured once: 7e-9 relative, 3e-7 m)."""
     close = np.testing.assert_array_equal if NUMPY_2 else (
         lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9))
+    close_levels = np.testing.assert_array_equal if NUMPY_2 else (
+        lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-6, atol=1e-9))
     for m in a.solutions:
         close(a.solutions[m].x_ecef_m, b.solutions[m].x_ecef_m)
         np.testing.assert_array_equal(a.solutions[m].status, b.solutions[m].status)
-        close(a.solutions[m].hpl_m, b.solutions[m].hpl_m)
+        close_levels(a.solutions[m].hpl_m, b.solutions[m].hpl_m)
 
 
 def test_a_judged_run_is_the_run_given_its_environment(canyon: Path, open_sky: Path) -> None:
