@@ -75,7 +75,7 @@ from gnss_cli.pipeline.results import (
 )
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "BATCH_MAX_EPOCHS",
+__all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "distinct_windows", "BATCH_MAX_EPOCHS",
            "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
 
 F64 = NDArray[np.float64]
@@ -107,6 +107,26 @@ class WindowJob:
     b: int
     lo: int
     hi: int
+
+
+def distinct_windows(jobs: list[WindowJob]) -> tuple[list[int], NDArray[np.intp]]:
+    """The distinct windows among ``jobs`` and which of them each job is.
+
+    Two rejected neighbours split into windows of half their length can both take the same window
+    (same segment, start and end), each copy supplying different epochs; it is one window, solved
+    once (:mod:`gnss_cli.pipeline.spans`) and counted once in the cross-fade. Returns the index of each distinct window's first job, in order, and for each job the
+    number of its window in that list.
+    """
+    number: dict[tuple[int, int, int], int] = {}
+    firsts: list[int] = []
+    which = np.empty(len(jobs), dtype=np.intp)
+    for k, job in enumerate(jobs):
+        key = (job.segment, job.a, job.b)
+        if key not in number:
+            number[key] = len(firsts)
+            firsts.append(k)
+        which[k] = number[key]
+    return firsts, which
 
 
 @dataclass(slots=True)
@@ -357,7 +377,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     models: list[WindowModel] = []
     dop_windows: list[DopWindow] = []
     estimates: list[tuple[NDArray[np.intp], F64, F64]] = []  # (window epochs, ECEF positions, weights)
-    seen: set[tuple[int, int, int]] = set()
+    counted = set(distinct_windows(jobs)[0])  # a window's first copy: a window counts once in the cross-fade
     limits = limits or {}
     for k, (job, fit) in enumerate(zip(jobs, fits)):
         seg = segs[job.segment]
@@ -377,9 +397,7 @@ def smooth_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
         if fit.w_hat is None:
             continue
         smoothed[mine] = True
-        key = (job.segment, job.a, job.b)
-        weights = window_weights(job, cross_fade) * (not (cross_fade and key in seen))  # a window counts once
-        seen.add(key)
+        weights = window_weights(job, cross_fade) if k in counted or not cross_fade else np.zeros(job.b - job.a)
         estimates.append((seg.epochs[job.a : job.b], seg.origin + np.einsum("tj,ji->ti", fit.w_hat, seg.rot), weights))
         has_basis = fit.basis is not None and fit.basis.shape[2] > 0
         dop_windows.append(DopWindow(seg.epochs[job.a : job.b], np.einsum("ji,tjk->tik", seg.rot, fit.basis)

@@ -31,7 +31,8 @@ behavior and tied at the switches (:mod:`gnss_cli.pipeline.tied`).
 
 Every tested window stays in the model records, with its statistic, degrees of freedom and
 limit; a rejected one says so (status ``rejected``) and which windows took its epochs. A shorter
-window that two rejected neighbours both take is solved once (:func:`distinct_windows`); each
+window that two rejected neighbours both take is solved once
+(:func:`~gnss_cli.pipeline.behavioral.distinct_windows`); each
 copy has its record, for the epochs it supplies. Windows
 left in the position domain have no measurement-domain misfit and no statistic; with
 ``integrity = "off"`` nothing is tested (and nothing split).
@@ -47,11 +48,11 @@ from scipy.stats import chi2
 
 from gnss_cli.behavior.windows import windows
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, fit_all
+from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, distinct_windows, fit_all
 from gnss_cli.pipeline.identified import alternate_windows
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
-__all__ = ["tested_windows", "split_window", "distinct_windows", "behavior_limit"]
+__all__ = ["tested_windows", "split_window", "behavior_limit"]
 
 
 def behavior_limit(dof: int, pfa: float) -> float:
@@ -77,26 +78,6 @@ def split_window(job: WindowJob, length: int, n_segment: int) -> list[WindowJob]
         if own.size:
             out.append(WindowJob(job.segment, job.window, a0 + a, a0 + b, int(own[0]), int(own[-1]) + 1))
     return out
-
-
-def distinct_windows(jobs: list[WindowJob]) -> tuple[list[int], NDArray[np.intp]]:
-    """The distinct windows among ``jobs`` and which of them each job is.
-
-    Two rejected neighbours split into windows of half their length can both take the same window
-    (same segment, start and end), each copy supplying different epochs; it is one window, solved
-    once. Returns the index of each distinct window's first job, in order, and for each job the
-    number of its window in that list.
-    """
-    number: dict[tuple[int, int, int], int] = {}
-    firsts: list[int] = []
-    which = np.empty(len(jobs), dtype=np.intp)
-    for k, job in enumerate(jobs):
-        key = (job.segment, job.a, job.b)
-        if key not in number:
-            number[key] = len(firsts)
-            firsts.append(k)
-        which[k] = number[key]
-    return firsts, which
 
 
 def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfig, segs: list[Segment],
