@@ -175,8 +175,9 @@ def _rms3(x: np.ndarray, ref: np.ndarray) -> float:
 def test_a_window_two_rejected_neighbours_share_is_solved_once(exact_flight: Path,
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """Two rejected neighbours split into the same shorter window (each copy supplying other epochs):
-    the window is solved once, and the result is the one of solving every copy on its own."""
-    cfg, data, wls, _ = _load(exact_flight, "pseudorange")
+    the window is solved once, and the result is the one of solving every copy on its own. (In
+    whole segments: their halves and quarters split on the flight into such windows.)"""
+    cfg, data, wls, _ = _load(exact_flight, "pseudorange", **{"stls.window": 0})
     solved_windows: list[list[tuple[int, int, int]]] = []
     real = spans.alternate_windows
 
