@@ -11,8 +11,9 @@ file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm prob
 ``[stls] behavior_pfa``:
 
 * passed: the window supplies its epochs;
-* rejected: its epochs are solved again in windows of half its length, sliding by a quarter of
-  that (:func:`split_window`; not below the shortest window the kernel can be identified on,
+* rejected: its epochs are solved again in windows of half its length, sliding by half of that
+  or, where they are cross-faded (pseudoranges alone), by a quarter (:func:`split_window`; not
+  below the shortest window the kernel can be identified on,
   :meth:`~gnss_cli.config.StlsConfig.min_window`), each identified and alternated afresh, and
   tested again;
 * rejected at the shortest length with range rates or phase: its epochs are solved again with
@@ -61,21 +62,23 @@ def behavior_limit(dof: int, pfa: float) -> float:
     return float(chi2.isf(pfa, dof))
 
 
-def split_window(job: WindowJob, length: int, n_segment: int) -> list[WindowJob]:
+def split_window(job: WindowJob, length: int, n_segment: int, cross_faded: bool = False) -> list[WindowJob]:
     """Windows of ``length`` epochs that take over the epochs ``job`` supplied (``lo:hi``).
 
-    The windows slide by a quarter of ``length`` over the supplied epochs and half a window
-    either side (within the segment of ``n_segment`` epochs), so an epoch at the edge is still
-    near a window's centre; each window supplies the supplied epochs nearest its centre, and
-    together they supply exactly ``lo:hi``. Where the windows are cross-faded
-    (:func:`~gnss_cli.pipeline.behavioral.window_weights`) every epoch is estimated by about
-    four of them: sliding by a quarter rather than by half took the training flights and drives
-    with the pseudoranges, in whole segments, from 1.133 to 1.097 m 3D RMS at twice the windows
-    solved; with range rates or phase (one window per epoch, tied) it changed nothing there.
+    The windows slide over the supplied epochs and half a window either side (within the
+    segment of ``n_segment`` epochs), so an epoch at the edge is still near a window's centre;
+    each window supplies the supplied epochs nearest its centre, and together they supply
+    exactly ``lo:hi``. They slide by half their length, or by a quarter where they are
+    ``cross_faded`` (:func:`~gnss_cli.pipeline.behavioral.window_weights`: the pseudoranges
+    alone), so that every epoch is estimated by about four of them: on the training flights and
+    drives of ``benchmarks/multi_epoch_fair.py`` with the pseudoranges, in whole segments, that
+    took the 3D RMS from 1.133 to 1.097 m at twice the windows solved. Where spans are tied (range
+    rates or phase) each epoch takes one window's estimate, and a quarter step would only cut
+    the spans shorter than their kernel.
     """
     a0 = max(0, min(job.lo - length // 2, n_segment - length))
     b0 = min(n_segment, max(job.hi + length // 2, a0 + length))
-    bounds, owner = windows(b0 - a0, length, step=max(1, length // 4))
+    bounds, owner = windows(b0 - a0, length, step=max(1, length // (4 if cross_faded else 2)))
     out = []
     for wi, (a, b) in enumerate(bounds):
         own = np.flatnonzero(owner == wi) + a0
@@ -145,7 +148,7 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                 done.append((replace(job, hi=job.lo), replace(
                     fit, w_hat=None, basis=None, rejected=True,
                     message=f"{why}; its epochs solved again {what.format(n=shorter)}; {fit.message}"), limit))
-                following.setdefault(retry, []).extend(split_window(job, shorter, n_seg))
+                following.setdefault(retry, []).extend(split_window(job, shorter, n_seg, kinds == alone))
         stage = {}
         for used, more in following.items():
             firsts, which = distinct_windows(more)

@@ -21,7 +21,7 @@ from test_spans import _load, _simulate
 def noisy_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A manoeuvring flight with 1 m code noise, 300 s: in whole segments the behavior test splits
     it into overlapping windows, one of them taken by two rejected neighbours."""
-    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "noise", 1, 300.0)
+    return _simulate(tmp_path_factory.mktemp("flight"), "flight", "noise", 4, 300.0)
 
 
 def test_weights_are_triangular_or_the_supplied_epochs() -> None:

@@ -132,17 +132,24 @@ def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path,
     assert np.nanmax(np.linalg.norm(untested.x_ecef_m - ref, axis=1)) > 0.1
 
 
+@pytest.mark.parametrize("cross_faded", [False, True])
 @pytest.mark.parametrize("lo, hi, length, n_seg", [(0, 8, 8, 100), (30, 38, 8, 100), (92, 100, 8, 100),
                                                    (10, 25, 10, 40), (0, 40, 20, 40), (5, 6, 8, 12)])
-def test_shorter_windows_take_exactly_the_rejected_windows_epochs(lo: int, hi: int, length: int, n_seg: int) -> None:
-    """The windows of :func:`split_window` lie in the segment, have the new length and together
-    supply each epoch the rejected window supplied, once."""
+def test_shorter_windows_take_exactly_the_rejected_windows_epochs(lo: int, hi: int, length: int, n_seg: int,
+                                                                  cross_faded: bool) -> None:
+    """The windows of :func:`split_window` lie in the segment, have the new length, start half a
+    window apart (a quarter where they are cross-faded; the last one may be closer, aligned with
+    the end) and together supply each epoch the rejected window
+    supplied, once."""
     job = WindowJob(segment=2, window=7, a=max(0, lo - 4), b=min(n_seg, hi + 4), lo=lo, hi=hi)
-    out = split_window(job, length, n_seg)
+    out = split_window(job, length, n_seg, cross_faded)
     supplied = np.concatenate([np.arange(j.lo, j.hi) for j in out])
     np.testing.assert_array_equal(supplied, np.arange(lo, hi))
     for j in out:
         assert j.segment == 2 and 0 <= j.a <= j.lo < j.hi <= j.b <= n_seg and j.b - j.a == min(length, n_seg)
+    steps = np.diff([j.a for j in out])
+    step = max(1, length // (4 if cross_faded else 2))
+    assert (steps[:-1] == step).all() and (0 < steps[-1:]).all() and (steps[-1:] <= step).all()
 
 
 def test_limit_is_the_chi_square_quantile() -> None:
