@@ -75,8 +75,8 @@ from gnss_cli.pipeline.results import (
 )
 from gnss_cli.solvers.dop import dop_from_cov
 
-__all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "distinct_windows", "BATCH_MAX_EPOCHS",
-           "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
+__all__ = ["smooth", "smooth_windows", "segment_frame", "finish_smoothing", "Segment", "WindowJob", "distinct_windows",
+           "spans_tied", "BATCH_MAX_EPOCHS", "Fit", "fit_all", "framed_segments", "window_jobs", "FALLBACK"]
 
 F64 = NDArray[np.float64]
 
@@ -114,8 +114,9 @@ def distinct_windows(jobs: list[WindowJob]) -> tuple[list[int], NDArray[np.intp]
 
     Two rejected neighbours split into windows of half their length can both take the same window
     (same segment, start and end), each copy supplying different epochs; it is one window, solved
-    once (:mod:`gnss_cli.pipeline.spans`) and counted once in the cross-fade. Returns the index of each distinct window's first job, in order, and for each job the
-    number of its window in that list.
+    once (:mod:`gnss_cli.pipeline.spans`) and counted once in the cross-fade. Returns the index of
+    each distinct window's first job, in order, and for each job the number of its window in that
+    list.
     """
     number: dict[tuple[int, int, int], int] = {}
     firsts: list[int] = []
@@ -127,6 +128,15 @@ def distinct_windows(jobs: list[WindowJob]) -> tuple[list[int], NDArray[np.intp]
             firsts.append(k)
         which[k] = number[key]
     return firsts, which
+
+
+def spans_tied(kinds: frozenset[str]) -> bool:
+    """Whether the measurement-domain spans of a run with the measurement ``kinds`` are tied into
+    one trajectory (range rates or phase pairs link the epochs across spans,
+    :mod:`gnss_cli.pipeline.tied`; each epoch takes one window's estimate). With the pseudoranges
+    alone they are not: overlapping windows are cross-faded (:func:`window_weights`), and a
+    rejected window's epochs are split into denser windows (:func:`~gnss_cli.pipeline.spans.split_window`)."""
+    return kinds != {"pseudorange"}
 
 
 @dataclass(slots=True)
@@ -339,13 +349,13 @@ def smooth(
             factors = factors_from_totals(free_misfit_totals(data, wls, config, kinds))
         jobs, fits, gated, limits = tested_windows(data, wls, config, segs, jobs, fits, kinds, factors)
         bridged = None
-        if kinds != {"pseudorange"}:  # the range rates and phase pairs tie the spans (gnss_cli.pipeline.tied)
+        if spans_tied(kinds):
             short = np.flatnonzero(solved & (status == FALLBACK))  # segments too short for a window
             fits, gated_tied, tied, bridged = tie_spans(data, wls, config, segs, jobs, fits, kinds, factors, short)
             gated = np.where(tied[:, None], gated_tied, gated)
         kept = replace(data, usable=data.usable & ~gated)  # clocks and residuals from the rows used
         sol, models = smooth_windows(kept, wls, config, segs, jobs, status, method, fits=fits, limits=limits,
-                                     bridged=bridged, cross_fade=kinds == {"pseudorange"})
+                                     bridged=bridged, cross_fade=not spans_tied(kinds))
         return replace(sol, excluded=gated if wls.excluded is None else (wls.excluded | gated)), models
     return smooth_windows(data, wls, config, segs, jobs, status, method, fits=fits)
 

@@ -107,8 +107,9 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
             window = f"{s.window} epochs" if s.window else "whole segments"
             if s.kernel == "shared":
                 from gnss_cli.behavior.piecewise import velocity_rule  # scipy: imported when stls runs
+                from gnss_cli.pipeline.behavioral import spans_tied
 
-                tied = ", overlapping windows cross-faded" if kinds == "pseudorange" else \
+                tied = ", overlapping windows cross-faded" if not spans_tied(frozenset(kinds.split("+"))) else \
                     f", spans tied ({velocity_rule(s.lag, 'doppler' in kinds.split('+'))})"  # gnss_cli.pipeline.tied
                 if tied and s.latency_m > 0:
                     tied += f", latency {s.latency_m:g} m"

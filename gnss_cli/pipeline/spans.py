@@ -50,7 +50,7 @@ from scipy.stats import chi2
 
 from gnss_cli.behavior.windows import windows
 from gnss_cli.config import ProcessingConfig
-from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, distinct_windows, fit_all
+from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, distinct_windows, fit_all, spans_tied
 from gnss_cli.pipeline.identified import alternate_windows
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
@@ -148,7 +148,7 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                 done.append((replace(job, hi=job.lo), replace(
                     fit, w_hat=None, basis=None, rejected=True,
                     message=f"{why}; its epochs solved again {what.format(n=shorter)}; {fit.message}"), limit))
-                following.setdefault(retry, []).extend(split_window(job, shorter, n_seg, kinds == alone))
+                following.setdefault(retry, []).extend(split_window(job, shorter, n_seg, not spans_tied(kinds)))
         stage = {}
         for used, more in following.items():
             firsts, which = distinct_windows(more)
