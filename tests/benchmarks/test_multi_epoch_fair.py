@@ -1,10 +1,14 @@
-"""How ``benchmarks/multi_epoch_fair.py`` groups its variants into runs: variants of different
-methods share a run only when they agree on every setting they both give."""
+"""How ``benchmarks/multi_epoch_fair.py`` groups its variants into runs (variants of different
+methods share a run only when they agree on every setting they both give), chooses a setting on
+its training runs and deals the runs among processes."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import multi_epoch_fair as fair  # noqa: E402
@@ -38,3 +42,28 @@ def test_a_conflicting_key_splits_a_run_and_agreement_shares_one() -> None:
                                "smoother cv": {"smoother.motion": "cv", "kalman.accel_psd_m2_s3": 1.0},
                                "stls": {"stls.lag": 3}})
     assert [list(r) for r in shared] == [["kf cv", "smoother cv", "stls"]]
+
+
+def test_choose_keeps_the_most_constrained_candidate_the_training_cannot_tell_from_the_best() -> None:
+    """The one-standard-error rule: a first candidate whose paired differences to the best scatter
+    around zero is kept; one that is worse on every run by more than the differences' spread is not."""
+    rng = np.random.default_rng(7)
+    base = rng.uniform(1.0, 2.0, 12)
+    tied = base + rng.normal(0.0, 0.05, 12)
+    tied += 0.5 * float(np.std(tied - base, ddof=1) / np.sqrt(12)) - float(np.mean(tied - base))  # half an SE worse
+    assert np.mean(tied) > np.mean(base)  # the best by its mean is the second candidate
+    assert fair.choose((0.01, 0.1), {"0.01": list(tied), "0.1": list(base)}) == 0.01
+    worse = base + 0.05 + rng.normal(0.0, 0.005, 12)  # about 30 standard errors worse
+    assert fair.choose((0.01, 0.1), {"0.01": list(worse), "0.1": list(base)}) == 0.1
+    # a third, best candidate after a tie: the rule walks the list in order, the tie with it decides
+    assert fair.choose((0.01, 0.1, 1.0), {"0.01": list(worse), "0.1": list(tied), "1.0": list(base)}) == 0.1
+    # pairs are labelled as in the scores, and one run has no spread: the best
+    assert fair.choose(((0, 1e-12), (10, 1e-3)), {"0/1e-12": [1.1], "10/0.001": [1.0]}) == (10, 1e-3)
+
+
+def test_in_parallel_returns_what_the_runs_return_in_their_order() -> None:
+    items = list(range(7))
+    got = fair.in_parallel(lambda x: (x * x, os.getpid()), items)
+    assert [v for v, _ in got] == [x * x for x in items]
+    if fair.can_fork() and fair.cores() > 1:
+        assert os.getpid() not in {pid for _, pid in got}  # solved in the children
