@@ -88,7 +88,7 @@ sys.path.insert(0, str(REPO))
 from gnss_cli.api import to_dataset  # noqa: E402
 from gnss_cli.config import load_config  # noqa: E402
 from gnss_cli.io.reference import Reference  # noqa: E402
-from gnss_cli.parallel import can_fork, cores, fork_all  # noqa: E402
+from gnss_cli.parallel import WorkerError, can_fork, cores, fork_all  # noqa: E402
 from gnss_cli.pipeline import process  # noqa: E402
 from gnss_cli.report import utc_offset_s  # noqa: E402
 from gnss_cli.sim.error_sources import parse_error_list  # noqa: E402
@@ -169,8 +169,12 @@ def in_parallel(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     if children is None or isinstance(children, OSError):
         return [fn(x) for x in items]
     out: list[Any] = [None] * len(items)
-    for k, child in enumerate(children):
-        out[k::n] = child.result()
+    try:
+        for k, child in enumerate(children):
+            out[k::n] = child.result()
+    finally:  # one failed or the run was interrupted: no child goes on alone
+        for child in children:
+            child.cancel()
     return out
 
 
@@ -508,4 +512,11 @@ def print_tables(data: dict[str, Any]) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:
+        print("multi_epoch_fair: interrupted; nothing written", file=sys.stderr)
+        sys.exit(130)
+    except WorkerError as exc:  # a run's process was killed (Ctrl-C reaches it first, or memory ran out)
+        print(f"multi_epoch_fair: {exc}; nothing written", file=sys.stderr)
+        sys.exit(1)

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import multi_epoch_fair as fair  # noqa: E402
@@ -67,3 +68,13 @@ def test_in_parallel_returns_what_the_runs_return_in_their_order() -> None:
     assert [v for v, _ in got] == [x * x for x in items]
     if fair.can_fork() and fair.cores() > 1:
         assert os.getpid() not in {pid for _, pid in got}  # solved in the children
+
+
+def test_in_parallel_raises_what_a_run_raised() -> None:
+    def run(x: int) -> int:
+        if x == 0:
+            raise ValueError("run 0 failed")
+        return x
+
+    with pytest.raises(ValueError, match="run 0 failed"):
+        fair.in_parallel(run, [0, 1, 2, 3])
