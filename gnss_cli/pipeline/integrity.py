@@ -306,14 +306,16 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
 
     Notes
     -----
-    Most hypotheses leave out one satellite row and fix nothing: for those the subset solution
-    follows from the full set's in closed form (:func:`_separate_one_row`, a rank-one downdate),
-    without forming or inverting a normal matrix per hypothesis. The others (constellations,
-    several satellites, a satellite alone in its system) are solved as a batch
-    (:func:`_separate_batched`). The two give the same numbers (tests compare both with explicit
-    least squares); with it and blocks of at most ``_SUBSET_BUDGET`` epoch-hypotheses the levels
-    of the ESBC day (2880 epochs, all systems) take a third of the time of forming every subset,
-    and the run's peak memory fell from 505 to 320 MB (whole run: ``benchmarks/bench_full_run.py``).
+    Most hypotheses leave out ``k`` satellite rows (one satellite, or a pair or triple of them) and
+    fix nothing: for those the subset solution follows from the full set's in closed form
+    (:func:`_separate_rows`, a rank-``k`` downdate), without forming or inverting a normal matrix
+    per hypothesis. The others (constellations, a satellite alone in its system) are solved as a
+    batch (:func:`_separate_batched`). The two give the same numbers (tests compare both with
+    explicit least squares). With the single rows in closed form and blocks of at most
+    ``_SUBSET_BUDGET`` epoch-hypotheses the levels of the ESBC day (2880 epochs, all systems) took a
+    third of the time of forming every subset, and the run's peak memory fell from 505 to 320 MB
+    (whole run: ``benchmarks/bench_full_run.py``); with the pairs in closed form too the default run
+    of the tst2 canyon file (986 epochs, all systems, pairs monitored) takes a quarter of its time.
     """
     t, N, m = A.shape
     h = removed.shape[1]
@@ -326,16 +328,19 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
     cov_subset = np.broadcast_to(P0[:, None], (t, h, m, m)).copy()
     solvable = np.ones((t, h), dtype=bool)
     n_removed = removed.sum(axis=2)
-    one_row = (n_removed == 1) & ~fixed.any(axis=2)
-    one = several = None
-    ti, hi = np.nonzero(one_row)
-    if ti.size:
-        row = np.argmax(removed[ti, hi], axis=1)
-        d, cd, ck, ok, u, c = _separate_one_row(A[ti, row], q[ti, row], we[ti, row], var[ti, row], G0[ti], x0[ti],
-                                                V0[ti], P0[ti])
+    rows_only = ~fixed.any(axis=2)
+    closed: list[tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], F64, F64]] = []
+    for k in np.unique(n_removed[rows_only & (n_removed > 0)]):
+        ti, hi = np.nonzero(rows_only & (n_removed == k))
+        rows = np.sort(np.argsort(~removed[ti, hi], axis=1, kind="stable")[:, :k], axis=1)  # (p, k)
+        d, cd, ck, ok, U, C = _separate_rows(np.take_along_axis(A[ti], rows[..., None], axis=1),
+                                             np.take_along_axis(q[ti], rows, axis=1),
+                                             np.take_along_axis(we[ti], rows, axis=1),
+                                             np.take_along_axis(var[ti], rows, axis=1), G0[ti], x0[ti], V0[ti], P0[ti])
         delta[ti, hi], cov_delta[ti, hi], cov_subset[ti, hi], solvable[ti, hi] = d, cd, ck, ok
-        one = (ti, hi, row, u, c)
-    ti, hi = np.nonzero(~one_row & ((n_removed > 0) | fixed.any(axis=2)))
+        closed.append((ti, hi, rows, U, C))
+    several = None
+    ti, hi = np.nonzero(~rows_only)
     if ti.size:
         sub, Gk = _separate_batched(A[ti], q[ti], we[ti], var[ti], removed[ti, hi][:, None], fixed[ti, hi][:, None],
                                     fixed_weight)
@@ -346,23 +351,23 @@ def separate_subsets(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool
     delta[bad], cov_delta[bad], cov_subset[bad] = np.nan, np.nan, np.nan
     bias_full = bias_subset = None
     if bias is not None:
-        bias_full, bias_subset = _bias_terms(A, we, removed, G0, Aw, *bias, one, several)
+        bias_full, bias_subset = _bias_terms(A, we, removed, G0, Aw, *bias, closed, several)
         bias_subset[bad] = np.nan
     return Separation(delta=delta, cov_delta=cov_delta, cov_subset=cov_subset, cov_full=P0, solvable=solvable,
                       full=x0, bias_full=bias_full, bias_subset=bias_subset)
 
 
 def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], G0: F64, Aw: F64, b: F64, rot: F64,
-                one: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], F64, F64] | None,
+                closed: list[tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], F64, F64]],
                 several: tuple[NDArray[np.intp], NDArray[np.intp], F64] | None) -> tuple[F64, F64]:
     """The nominal-bias terms of the levels: ``sum_i |S_q,i| b_i`` with ``S = R K[:3]`` the ENU
     position rows of the full-set estimator ``K_0 = G0 A^T W_e`` (``(t, 3)``) and of each subset's
     ``K_k`` (``(t, h, 3)``) of :func:`separate_subsets`, from what it already computed.
 
-    ``one``: the one-row subsets ``(epochs, hypotheses, left-out rows, u, c)`` of
-    :func:`_separate_one_row`, whose estimator is ``K_k = K_0 - c u (e_i - K_0^T a)^T``
-    (Sherman-Morrison), so ``S_k = S_0 - c (R u) l^T``; ``several``: the other subsets
-    ``(epochs, hypotheses, N_k^-1)`` of :func:`_separate_batched`, ``K_k = N_k^-1 A^T W_e,k``.
+    ``closed``: per number of left-out rows, the subsets ``(epochs, hypotheses, left-out rows, U, C)``
+    of :func:`_separate_rows`, whose estimator is ``K_k = K_0 - U C L^T`` with
+    ``L^T = E_r - A_r K_0`` (Woodbury), so ``S_k = S_0 - (R U) C L^T``; ``several``: the other
+    subsets ``(epochs, hypotheses, N_k^-1)`` of :func:`_separate_batched`, ``K_k = N_k^-1 A^T W_e,k``.
     Only each epoch's rows with a bias and the position rows are formed (one named function for
     speed: with every estimator formed whole the terms cost the 24 h ESBC WLS run 45 % of its CPU
     time, and the whole run missed ``benchmarks/bench_full_run.py``'s target)."""
@@ -374,11 +379,11 @@ def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], G0: F64, Aw: F64, b
     S0 = np.einsum("tij,tjn->tin", rot, K0[:, :3])  # (t, 3, c)
     full = np.einsum("tqn,tn->tq", np.abs(S0), bc)
     subset = np.broadcast_to(full[:, None], (t, h, 3)).copy()
-    if one is not None:
-        ti, hi, row, u, c = one
-        ell = (row[:, None] == cols[ti]) - np.einsum("pan,pa->pn", K0[ti], A[ti, row])  # (p, c)
-        ru = np.einsum("pij,pj->pi", rot[ti], u[:, :3]) * c[:, None]  # (p, 3)
-        subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(S0[ti] - ru[:, :, None] * ell[:, None, :]), bc[ti])
+    for ti, hi, rows, U, C in closed:
+        a = np.take_along_axis(A[ti], rows[..., None], axis=1)  # (p, k, m)
+        ell = (rows[:, :, None] == cols[ti][:, None, :]) - np.einsum("pan,pja->pjn", K0[ti], a)  # (p, k, c): L^T
+        ruc = np.einsum("pij,pjk,pkl->pil", rot[ti], U[:, :3], C)  # (p, 3, k)
+        subset[ti, hi] = np.einsum("pqn,pn->pq", np.abs(S0[ti] - ruc @ ell), bc[ti])
     if several is not None:
         ti, hi, Gk = several
         AWk = np.take_along_axis(Aw[ti] * ~removed[ti, hi][:, None, :], cols[ti][:, None, :], axis=2)
@@ -387,38 +392,46 @@ def _bias_terms(A: F64, we: F64, removed: NDArray[np.bool_], G0: F64, Aw: F64, b
     return full, subset
 
 
-def _separate_one_row(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
-                      ) -> tuple[F64, F64, F64, NDArray[np.bool_], F64, F64]:
-    """Subsets that leave out one row each, in closed form: ``p`` cases of the row ``a``
-    (``(p, m)``), its right-hand side ``q``, estimator weight ``w`` and variance ``var``
-    (``(p,)``), and the full set's ``G0 = N0^-1``, solution ``x0``, ``V0 = A^T W_e Sigma W_e A``
+def _separate_rows(a: F64, q: F64, w: F64, var: F64, G0: F64, x0: F64, V0: F64, P0: F64
+                   ) -> tuple[F64, F64, F64, NDArray[np.bool_], F64, F64]:
+    """Subsets that leave out ``k`` rows each, in closed form: ``p`` cases of the rows ``a``
+    (``(p, k, m)``), their right-hand sides ``q``, estimator weights ``w`` and variances ``var``
+    (``(p, k)``), and the full set's ``G0 = N0^-1``, solution ``x0``, ``V0 = A^T W_e Sigma W_e A``
     and covariance ``P0``.
 
-    With ``u = G0 a``, ``s = a^T u`` and ``c = w / (1 - w s)`` (Sherman-Morrison:
-    ``N_k^-1 = G0 + c u u^T``), the subset minus the full solution is ``Delta = -c r u`` with the
-    row's residual ``r = q - a^T x0``; ``Delta = -c u l^T q`` for ``l = e_i - W_e A G0 a``, so
-    ``cov(Delta) = c^2 (l^T Sigma l) u u^T`` with ``l^T Sigma l = var (1 - 2 w s) + u^T V0 u``, and
-    the subset's covariance ``P_k = P0 + cov(Delta) - c (g u^T + u g^T)`` with
-    ``g = w var u - G0 V0 u`` (``cov(x0, Delta) = -c g u^T``). For ``W_e = Sigma^-1``, ``g = 0``
-    and ``cov(Delta) = c u u^T = P_k - P0``. A row the others cannot do without (``1 - w s``
-    below 1e-9) leaves a singular subset: not solvable. Also returns ``u`` and ``c`` (for the
-    subsets' estimators in :func:`_bias_terms`).
+    With ``U = G0 a^T`` (``(m, k)``), ``S = a U`` and ``C = (W^-1 - S)^-1 = W^1/2 (I - W^1/2 S
+    W^1/2)^-1 W^1/2`` (``W = diag(w)``; Woodbury: ``N_k^-1 = G0 + U C U^T``), the subset minus
+    the full solution is ``Delta = -U C r`` with the rows' residuals ``r = q - a x0``;
+    ``Delta = -U C L^T q`` for ``L^T = E_r - a K_0``, so ``cov(Delta) = U C (L^T Sigma L) C U^T``
+    with ``L^T Sigma L = diag(var) - D S - S D + U^T V0 U`` (``D = diag(w var)``), and the subset's
+    covariance ``P_k = P0 + cov(Delta) - (G C U^T + U C G^T)`` with ``G = U D - G0 V0 U``
+    (``cov(x0, Delta) = -G C U^T``). For ``W_e = Sigma^-1``, ``G = 0`` and ``cov(Delta) = U C U^T
+    = P_k - P0``. For ``k = 1`` this is Sherman-Morrison: ``c = w / (1 - w s)``. Rows the others
+    cannot do without (smallest eigenvalue of ``I - W^1/2 S W^1/2`` below 1e-9) leave a singular
+    subset: not solvable. Also returns ``U`` and ``C`` (for the subsets' estimators in
+    :func:`_bias_terms`).
     """
-    u = np.einsum("pab,pb->pa", G0, a)
-    s = np.einsum("pa,pa->p", a, u)
-    rest = 1.0 - w * s
-    solvable = rest > 1e-9
-    c = np.where(solvable, w / np.where(solvable, rest, 1.0), np.nan)
-    r = q - np.einsum("pa,pa->p", a, x0)
-    delta = -(c * r)[:, None] * u
-    V0u = np.einsum("pab,pb->pa", V0, u)
-    spread = var * (1.0 - 2.0 * w * s) + np.einsum("pa,pa->p", u, V0u)
-    uu = u[:, :, None] * u[:, None, :]
-    cov_delta = (c * c * spread)[:, None, None] * uu
-    g = (w * var)[:, None] * u - np.einsum("pab,pb->pa", G0, V0u)
-    gu = g[:, :, None] * u[:, None, :]
-    cov_subset = P0 + cov_delta - c[:, None, None] * (gu + np.swapaxes(gu, 1, 2))
-    return delta, cov_delta, cov_subset, solvable, u, c
+    k = a.shape[1]
+    U = G0 @ np.swapaxes(a, 1, 2)  # (p, m, k)
+    S = a @ U
+    S = 0.5 * (S + np.swapaxes(S, 1, 2))
+    sw = np.sqrt(w)
+    B = np.eye(k) - sw[:, :, None] * S * sw[:, None, :]
+    solvable = np.linalg.eigvalsh(B)[:, 0] > 1e-9
+    Binv = np.linalg.inv(np.where(solvable[:, None, None], B, np.eye(k)))
+    C = np.where(solvable[:, None, None], sw[:, :, None] * Binv * sw[:, None, :], np.nan)
+    r = q - np.einsum("pka,pa->pk", a, x0)
+    UC = U @ C
+    delta = -np.einsum("pak,pk->pa", UC, r)
+    wv = w * var
+    V0U = V0 @ U
+    spread = (np.einsum("pk,kl->pkl", var, np.eye(k)) - wv[:, :, None] * S - S * wv[:, None, :]
+              + np.swapaxes(U, 1, 2) @ V0U)
+    cov_delta = UC @ spread @ np.swapaxes(UC, 1, 2)
+    g = U * wv[:, None, :] - G0 @ V0U
+    cross = g @ np.swapaxes(UC, 1, 2)  # G C U^T (C symmetric)
+    cov_subset = P0 + cov_delta - (cross + np.swapaxes(cross, 1, 2))
+    return delta, cov_delta, cov_subset, solvable, U, C
 
 
 def _separate_batched(A: F64, q: F64, we: F64, var: F64, removed: NDArray[np.bool_], fixed: F64,

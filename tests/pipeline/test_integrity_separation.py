@@ -43,10 +43,13 @@ def test_subset_solutions_equal_explicit_least_squares(weighted):
     q = rng.normal(size=(t, N)) * 3.0
     var = rng.uniform(0.5, 4.0, size=(t, N))
     we = 1.0 / var if weighted else np.ones((t, N))
-    removed = np.zeros((t, N + 1, N), dtype=bool)
+    groups = [(0, 1), (2, 7), (0, 3, 8), (1, 4, 6, 9)]  # pairs, a triple, a quadruple: rank-k downdates
+    removed = np.zeros((t, N + 1 + len(groups), N), dtype=bool)
     removed[:, np.arange(N), np.arange(N)] = True
     removed[:, N, 6:] = True  # the second system
-    fixed = np.zeros((t, N + 1, m))
+    for g, rows in enumerate(groups):
+        removed[:, N + 1 + g, list(rows)] = True
+    fixed = np.zeros((t, N + 1 + len(groups), m))
     fixed[:, N, 4] = 1.0
     R = np.linalg.qr(rng.normal(size=(t, 3, 3)))[0]  # any rotations
     b = np.where(rng.random((t, N)) < 0.5, rng.uniform(0.5, 5.0, size=(t, N)), 0.0)  # biases on some rows
@@ -56,7 +59,7 @@ def test_subset_solutions_equal_explicit_least_squares(weighted):
         x0, K0 = _explicit(A[e], q[e], we[e], var[e], np.ones(N), np.zeros(m))
         np.testing.assert_allclose(sep.bias_full[e], np.abs(R[e] @ K0[:3]) @ b[e], rtol=1e-8, atol=1e-10)
         np.testing.assert_allclose(sep.cov_full[e], K0 @ np.diag(var[e]) @ K0.T, rtol=1e-9, atol=1e-12)
-        for h in range(N + 1):
+        for h in range(removed.shape[1]):
             xk, Kk = _explicit(A[e], q[e], we[e], var[e], ~removed[e, h], fixed[e, h])
             np.testing.assert_allclose(sep.bias_subset[e, h], np.abs(R[e] @ Kk[:3]) @ b[e], rtol=1e-8, atol=1e-10)
             S = Kk - K0
