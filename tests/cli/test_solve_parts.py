@@ -244,7 +244,7 @@ def test_smoother_with_carrier_phase_in_parts(rinex_dir: Path, tmp_path: Path, c
 def test_segments_and_short_segments_across_parts(gapped: Path, tmp_path: Path, capsys) -> None:
     args = [gapped / "obs.rnx", gapped / "nav.rnx", "--method", "stls", "--lag", "3"]
     _close_to_whole(args, tmp_path, capsys, 1.0)
-    out = _solve(args, tmp_path / "again", CHUNK, capsys)
+    out = {f.name: f.read_bytes() for f in (tmp_path / "parts").iterdir()}  # the run in parts it just made
     assert "fallback_wls" in out["positions.csv"].decode()  # the three epochs between the second and third gap
     assert b"across 1 gap of missed epochs" in out["models.json"]  # epoch 150
     assert b'"segment": 2' in out["models.json"] and b'"method": "stls"' in out["models.json"]
