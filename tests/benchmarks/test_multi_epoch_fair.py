@@ -151,3 +151,21 @@ def test_blocks_widen_the_interval_of_a_correlated_series() -> None:
     lo1, hi1 = fair.ratio_interval(a, b, block=1)
     lo20, hi20 = fair.ratio_interval(a, b, block=20)
     assert hi20 - lo20 > 2 * (hi1 - lo1)
+
+
+def test_the_json_keeps_units_that_give_back_the_interval() -> None:
+    """``compact_units`` rounds the squared errors to six digits (the interval from them moves by far
+    less than its printed two decimals) and drops them where no interval is computed."""
+    rng = np.random.default_rng(4)
+    a, b = list(rng.uniform(0.5, 3.0, 60) / 3), list(rng.uniform(0.5, 3.0, 60) / 7)
+    cases = {"yamatogawa": {"pr": {"stls": {"sq_units_m2": {"h": a}}, "kf ca": {"sq_units_m2": {"h": b}},
+                                   "vertical_bias_removed_m": 0.1}},
+             "flight exact": {"pr": {"stls": {"sq_units_m2": {"3d": a}}}}}
+    before = fair.ratio_interval(a, b, block=fair.BLOCK_EPOCHS)
+    fair.compact_units(cases)
+    kept = cases["yamatogawa"]["pr"]
+    assert all(v == float(f"{v:.6g}") for v in kept["stls"]["sq_units_m2"]["h"])
+    assert kept["stls"]["sq_units_m2"]["h"] != a  # rounded: the drawn values have more digits
+    after = fair.ratio_interval(kept["stls"]["sq_units_m2"]["h"], kept["kf ca"]["sq_units_m2"]["h"], block=fair.BLOCK_EPOCHS)
+    assert np.allclose(before, after, rtol=1e-5)
+    assert "sq_units_m2" not in cases["flight exact"]["pr"]["stls"]
