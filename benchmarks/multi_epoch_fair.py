@@ -348,18 +348,23 @@ def squared_units(runs: list[dict[str, dict[str, Any]]], name: str, common: list
     return {k: vs[0].tolist() for k, vs in sq.items()}
 
 
-def compact_units(cases: dict[str, Any]) -> None:
+RUN_CASES = ("flight", "drive")
+"""Cases of several independent runs (the simulated evaluation seeds): their units are runs."""
+
+
+def drop_epoch_units(cases: dict[str, Any]) -> None:
     """The squared errors by unit as the JSON keeps them (in place, after the intervals are computed):
-    six significant digits, and none for ``flight exact``, whose largest error has no interval.
-    Every unit of every epoch at full precision made the file 1.2 MB."""
+    the per-run sums of :data:`RUN_CASES`, to six significant digits, from which the intervals there
+    can be recomputed; none for the single trajectories, whose units are their epochs (every epoch
+    of every method made the file 1.2 MB of generated numbers)."""
     for case, sets in cases.items():
         for rows in sets.values():
             for m in rows.values():
                 if isinstance(m, dict) and "sq_units_m2" in m:
-                    if case == "flight exact":
-                        del m["sq_units_m2"]
-                    else:
+                    if case in RUN_CASES:
                         m["sq_units_m2"] = {k: [float(f"{v:.6g}") for v in vs] for k, vs in m["sq_units_m2"].items()}
+                    else:
+                        del m["sq_units_m2"]
 
 
 BLOCK_EPOCHS = 20
@@ -450,7 +455,7 @@ def summarise(case: str, label: str, rows: dict[str, Any], key: str) -> dict[str
     if key in ("rms_3d_m", "rms_h_m"):
         unit = "3d" if key == "rms_3d_m" else "h"
         a, b = rows["stls"]["sq_units_m2"][unit], rows[best]["sq_units_m2"][unit]
-        interval = ratio_interval(a, b, block=1 if case in ("flight", "drive") else BLOCK_EPOCHS)
+        interval = ratio_interval(a, b, block=1 if case in RUN_CASES else BLOCK_EPOCHS)
     return {"case": case, "measurements": label, "metric": key, "best_smoother": best_s, "best_smoother_m": peers[best_s],
             "best_kf": best_k, "best_kf_m": peers[best_k], "stls_m": rows["stls"][key],
             "ratio_stls_best_peer": rows["stls"][key] / peers[best], "ratio_interval_95": list(interval),
@@ -508,7 +513,7 @@ def main() -> None:
         key = {"flight exact": "max_3d_m", "yamatogawa": "rms_h_m", "tst2": "rms_h_m"}.get(case, "rms_3d_m")
         for label, rows in sets.items():
             summary.append(summarise(case, label, rows, key))
-    compact_units(cases)
+    drop_epoch_units(cases)
     data = table(cases, summary, chosen, args.quick, seconds, time.perf_counter() - t_trained, train_seeds, eval_seeds, duration_s)
     print_tables(data)
     out = Path(tempfile.gettempdir()) / "multi_epoch_fair_quick.json" if args.quick else OUT

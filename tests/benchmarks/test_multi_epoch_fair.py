@@ -153,19 +153,18 @@ def test_blocks_widen_the_interval_of_a_correlated_series() -> None:
     assert hi20 - lo20 > 2 * (hi1 - lo1)
 
 
-def test_the_json_keeps_units_that_give_back_the_interval() -> None:
-    """``compact_units`` rounds the squared errors to six digits (the interval from them moves by far
-    less than its printed two decimals) and drops them where no interval is computed."""
+def test_the_json_keeps_the_run_units_that_give_back_the_interval() -> None:
+    """``drop_epoch_units`` rounds the per-run squared errors to six digits (the interval from them
+    moves by far less than its printed two decimals) and drops the per-epoch ones of a single trajectory."""
     rng = np.random.default_rng(4)
-    a, b = list(rng.uniform(0.5, 3.0, 60) / 3), list(rng.uniform(0.5, 3.0, 60) / 7)
-    cases = {"yamatogawa": {"pr": {"stls": {"sq_units_m2": {"h": a}}, "kf ca": {"sq_units_m2": {"h": b}},
-                                   "vertical_bias_removed_m": 0.1}},
-             "flight exact": {"pr": {"stls": {"sq_units_m2": {"3d": a}}}}}
-    before = fair.ratio_interval(a, b, block=fair.BLOCK_EPOCHS)
-    fair.compact_units(cases)
-    kept = cases["yamatogawa"]["pr"]
-    assert all(v == float(f"{v:.6g}") for v in kept["stls"]["sq_units_m2"]["h"])
-    assert kept["stls"]["sq_units_m2"]["h"] != a  # rounded: the drawn values have more digits
-    after = fair.ratio_interval(kept["stls"]["sq_units_m2"]["h"], kept["kf ca"]["sq_units_m2"]["h"], block=fair.BLOCK_EPOCHS)
-    assert np.allclose(before, after, rtol=1e-5)
-    assert "sq_units_m2" not in cases["flight exact"]["pr"]["stls"]
+    a, b = list(rng.uniform(0.5, 3.0, 10) / 3), list(rng.uniform(0.5, 3.0, 10) / 7)
+    cases = {"flight": {"pr": {"stls": {"sq_units_m2": {"3d": a}}, "kf ca": {"sq_units_m2": {"3d": b}}}},
+             "yamatogawa": {"pr": {"stls": {"sq_units_m2": {"h": a}}, "vertical_bias_removed_m": 0.1}}}
+    before = fair.ratio_interval(a, b)
+    fair.drop_epoch_units(cases)
+    kept = cases["flight"]["pr"]
+    assert all(v == float(f"{v:.6g}") for v in kept["stls"]["sq_units_m2"]["3d"])
+    assert kept["stls"]["sq_units_m2"]["3d"] != a  # rounded: the drawn values have more digits
+    assert np.allclose(before, fair.ratio_interval(kept["stls"]["sq_units_m2"]["3d"], kept["kf ca"]["sq_units_m2"]["3d"]),
+                       rtol=1e-5)
+    assert "sq_units_m2" not in cases["yamatogawa"]["pr"]["stls"]
