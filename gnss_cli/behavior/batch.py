@@ -14,9 +14,11 @@ array carries a leading window axis ``B`` and one pass of the algorithm serves a
   same damped Newton steps with the exact Hessian (Gauss--Newton where it is indefinite) and
   the same acceptance and stopping rules, evaluated window by window in lockstep.
 
-The windows are short, so ``Gamma = G Sigma G^T`` is built dense, ``(B, n q, n q)`` with
-``n = N - l``, and factored by batched Cholesky and triangular solves. Windows are processed
-in chunks of :data:`CHUNK` to bound the memory. The batched projection is in
+The band of ``Gamma = G Sigma G^T`` (``n = N - l`` block rows) is built for every window at
+once and factored window by window by LAPACK's banded Cholesky (the factor of
+:mod:`gnss_cli.behavior.banded`), whose cost grows with ``n`` only linearly: the same code serves
+15-epoch windows and whole segments of hundreds of epochs. Windows are processed in chunks of
+:data:`CHUNK` to bound the memory. The batched projection is in
 :mod:`gnss_cli.behavior.batch_projection`, the lockstep descent in
 :mod:`gnss_cli.behavior.batch_descent`.
 """
@@ -38,7 +40,7 @@ from gnss_cli.errors import UsageError
 
 __all__ = ["WindowFits", "identify_windows", "project_windows", "CHUNK"]
 
-#: Windows per batch (bounds the memory: a few ``(CHUNK, n q, n q)`` arrays).
+#: Windows per batch (bounds the memory: a few ``(CHUNK, n q, q (l + 1))`` arrays).
 CHUNK = 1024
 
 
@@ -185,7 +187,7 @@ def identify_windows(
     -----
     Window ``k`` of the result equals ``stls(w[k], lag, cov=cov[k], structure="shared",
     fixed_roots=fixed_roots, tol=tol, max_iter=max_iter, max_starts=1, restarts=False)`` up
-    to rounding (dense instead of banded factors), which the tests check.
+    to rounding (the lockstep descent sums in another order), which the tests check.
     """
     arr, sig = _validate(w, cov, lag)
     if not (isinstance(tol, (float, int)) and 0.0 < tol < 1.0):

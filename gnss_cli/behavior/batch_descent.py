@@ -83,7 +83,7 @@ def derivatives_batch(win: Windows, r: F64, conv_free: F64, proj: Proj) -> tuple
     """Half gradient, exact half Hessian and Gauss--Newton matrix (see ``descent.derivatives_batch``)."""
     n_b, n_p = conv_free.shape[0], conv_free.shape[2]
     d_mat = einsum_windows("bip,bjia->bjap", conv_free, proj.w_hat[:, win.idx]).reshape(n_b, win.m, n_p)
-    jac = solve_lower_batch(proj.chol, d_mat, win.kd)
+    jac = solve_lower_batch(proj.chol, d_mat)
     grad = einsum_windows("bmp,bm->bp", jac, proj.f)
     gn = np.matmul(np.swapaxes(jac, 1, 2), jac)
     u = np.zeros((n_b, win.n + win.lag, win.q, n_p))
@@ -91,7 +91,7 @@ def derivatives_batch(win: Windows, r: F64, conv_free: F64, proj: Proj) -> tuple
         u[:, i : i + win.n] += proj.lam[..., None] * conv_free[:, i, None, None, :]
     s = np.matmul(win.sig, u)  # Sigma_t u_t
     gs = einsum_windows("bk,bjkap->bjap", r, s[:, win.idx]).reshape(n_b, win.m, n_p)
-    a = solve_lower_batch(proj.chol, d_mat - gs, win.kd)
+    a = solve_lower_batch(proj.chol, d_mat - gs)
     hess = np.matmul(np.swapaxes(a, 1, 2), a) - einsum_windows("btap,btaq->bpq", u, s)
     return grad, 0.5 * (hess + np.swapaxes(hess, 1, 2)), gn
 

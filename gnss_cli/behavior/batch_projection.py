@@ -1,9 +1,11 @@
 """The inner problem of :mod:`gnss_cli.behavior.batch` for many short windows at once.
 
-``B`` windows ``(N, q)`` share one shape; for a shared kernel ``r(z) I_q`` per window the dense
-``Gamma = G Sigma G^T`` ``(B, n q, n q)`` is built, factored by a batched banded Cholesky and used
-for the misfit and the corrected trajectory (:func:`project_batch`), as the banded per-series
-projection of :mod:`gnss_cli.behavior.banded` does for one long series.
+``B`` windows ``(N, q)`` share one shape; for a shared kernel ``r(z) I_q`` per window the band of
+``Gamma = G Sigma G^T`` is built for all windows at once (LAPACK's lower band storage, one array
+``(B, n q, q (l+1))``), each window's band is factored by :func:`gnss_cli.behavior.banded.factor_gram`
+and the factors are used for the misfit and the corrected trajectory (:func:`project_batch`), as the
+banded per-series projection of :mod:`gnss_cli.behavior.banded` does for one long series. A window's
+factor and solves are LAPACK calls on that window alone, so it gets the same last bits in any batch.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from gnss_cli.behavior.banded import SINGULAR_RTOL
+from gnss_cli.behavior.banded import SingularGramError, factor_gram, solve_lower
 
 __all__ = ["F64", "Windows", "Proj", "project_batch", "solve_lower_batch", "take", "put", "merge", "einsum_windows"]
 
@@ -33,7 +35,7 @@ F64 = NDArray[np.float64]
 
 
 class Windows:
-    """``B`` windows ``(N, q)`` with covariances, and the index arrays of the dense ``Gamma``."""
+    """``B`` windows ``(N, q)`` with covariances, and the index arrays of the band of ``Gamma``."""
 
     def __init__(self, w: F64, sig: F64, lag: int) -> None:
         n_b, n_t, q = w.shape
@@ -44,11 +46,13 @@ class Windows:
         self.idx = np.arange(self.n)[:, None] + np.arange(n_blk)[None, :]  # (n, l+1): j + i
         self.w_rows = w[:, self.idx]  # (B, n, l+1, q)
         self.sig_rows = sig[:, self.idx]  # (B, n, l+1, q, q)
-        jj, dd, aa, cc = np.meshgrid(np.arange(self.n), np.arange(n_blk), np.arange(q), np.arange(q), indexing="ij")
-        keep = jj + dd < self.n
-        self.dst = (((jj + dd) * q + aa) * self.m + jj * q + cc)[keep]  # Gamma_{j+d, j}[a, c], lower part
-        self.src = (((jj * n_blk + dd) * q + aa) * q + cc)[keep]
         self.kd = q * n_blk - 1  # half bandwidth of Gamma
+        jj, dd, aa, cc = np.meshgrid(np.arange(self.n), np.arange(n_blk), np.arange(q), np.arange(q), indexing="ij")
+        keep = (jj + dd < self.n) & (dd * q + aa >= cc)  # on or below the diagonal of Gamma
+        # Gamma_{j+d, j}[a, c] = Gamma[row, col], row = (j+d) q + a, col = j q + c, kept at
+        # ab_t[col, row - col] (the transpose of LAPACK's lower band storage, C order)
+        self.dst = ((jj * q + cc) * (self.kd + 1) + dd * q + aa - cc)[keep]
+        self.src = (((jj * n_blk + dd) * q + aa) * q + cc)[keep]
 
     def take(self, sel: NDArray[np.intp]) -> Windows:
         """The windows ``sel`` (index arrays shared)."""
@@ -62,7 +66,7 @@ class Windows:
 
 @dataclass(slots=True)
 class Proj:
-    """Projections of a set of windows onto their kernels (dense factors)."""
+    """Projections of a set of windows onto their kernels (banded factors, as :func:`_cholesky` gives them)."""
 
     ok: NDArray[np.bool_]
     misfit: F64
@@ -72,45 +76,37 @@ class Proj:
     w_hat: F64
 
 
-def _cholesky(gam: F64, kd: int) -> tuple[F64, NDArray[np.bool_]]:
-    """Lower Cholesky factors of banded SPD matrices ``(B, m, m)`` (half bandwidth ``kd``).
+def _cholesky(ab_t: F64) -> tuple[F64, NDArray[np.bool_]]:
+    """Lower Cholesky factors of banded SPD matrices, one LAPACK factorization per window.
 
-    Column by column for all matrices at once (``m`` small, ``B`` large); only the lower
-    triangle of ``gam`` is read. ``ok`` is False where a pivot is not positive or falls below
-    ``SINGULAR_RTOL`` times the largest diagonal entry (the test of the banded per-series
-    factorization), or where an entry overflowed; such factors are replaced by the identity.
+    ``ab_t`` ``(B, m, kd + 1)`` holds each matrix's lower band, ``ab_t[b, j, i - j] = Gamma_b[i, j]``
+    (the layout :func:`gnss_cli.behavior.banded.factor_gram` takes). The factors come back in the
+    same layout, ``chol[b].T`` being LAPACK's lower band storage of ``L_b``. ``ok`` is False where
+    :func:`~gnss_cli.behavior.banded.factor_gram` finds the matrix singular (a pivot not positive or
+    below ``SINGULAR_RTOL`` times the largest diagonal entry, or an entry that overflowed); such
+    factors are replaced by the identity.
     """
-    n_b, m, _ = gam.shape
-    chol = np.zeros_like(gam)
-    diag_max = einsum_windows("bii->bi", gam).max(axis=1)
-    ok = (diag_max > 0.0) & (diag_max < np.inf)
-    floor = SINGULAR_RTOL * np.where(ok, diag_max, 1.0)
-    with np.errstate(over="ignore", invalid="ignore"):  # a window whose entries overflow fails its pivot test below
-        for j in range(m):
-            lo, hi = max(0, j - kd), min(m, j + kd + 1)
-            v = gam[:, j:hi, j] - np.matmul(chol[:, j:hi, lo:j], chol[:, j, lo:j, None])[..., 0]
-            piv = v[:, 0]
-            good = piv > floor
-            ok &= good
-            chol[:, j:hi, j] = v / np.sqrt(np.where(good, piv, 1.0))[:, None]
-    ok &= np.isfinite(chol).all(axis=(1, 2))
-    chol[~ok] = np.eye(m)
+    n_b, m, width = ab_t.shape
+    chol = np.zeros_like(ab_t)
+    ok = np.zeros(n_b, dtype=bool)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflowed window fails factor_gram's tests
+        for b in range(n_b):
+            try:
+                cb = factor_gram(ab_t[b].copy())
+            except SingularGramError:
+                continue
+            if np.isfinite(cb).all():
+                chol[b], ok[b] = cb.T, True
+    chol[~ok, :, 0] = 1.0
     return chol, ok
 
 
-def solve_lower_batch(chol: F64, rhs: F64, kd: int, transpose: bool = False) -> F64:
-    """``L x = rhs`` (or ``L^T x = rhs``) for banded lower factors ``(B, m, m)``; ``rhs`` ``(B, m, r)``."""
-    m = chol.shape[1]
+def solve_lower_batch(chol: F64, rhs: F64, transpose: bool = False) -> F64:
+    """``L x = rhs`` (or ``L^T x = rhs``) for every window's banded factor from :func:`_cholesky`
+    ``(B, m, kd + 1)``; ``rhs`` ``(B, m, r)``."""
     x = np.empty_like(rhs)
-    diag = einsum_windows("bii->bi", chol)
-    if not transpose:
-        for j in range(m):
-            lo = max(0, j - kd)
-            x[:, j] = (rhs[:, j] - np.matmul(chol[:, j, None, lo:j], x[:, lo:j])[:, 0]) / diag[:, j, None]
-    else:
-        for j in range(m - 1, -1, -1):
-            hi = min(m, j + kd + 1)
-            x[:, j] = (rhs[:, j] - np.matmul(chol[:, None, j + 1 : hi, j], x[:, j + 1 : hi])[:, 0]) / diag[:, j, None]
+    for b in range(chol.shape[0]):
+        x[b] = solve_lower(chol[b].T, rhs[b], transpose=transpose)
     return x
 
 
@@ -122,13 +118,12 @@ def project_batch(win: Windows, r: F64) -> Proj:
     for d in range(n_blk):
         coef[:, d:, d] = r[:, : n_blk - d] * r[:, d:]
     bands = einsum_windows("bid,bjiac->bjdac", coef, win.sig_rows)  # (B, n, l+1, q, q): Gamma_{j+d, j}
-    gam = np.zeros((n_b, win.m * win.m))
-    gam[:, win.dst] = bands.reshape(n_b, -1)[:, win.src]
-    gam = gam.reshape(n_b, win.m, win.m)
-    chol, ok = _cholesky(gam, win.kd)
+    ab_t = np.zeros((n_b, win.m * (win.kd + 1)))
+    ab_t[:, win.dst] = bands.reshape(n_b, -1)[:, win.src]
+    chol, ok = _cholesky(ab_t.reshape(n_b, win.m, win.kd + 1))
     e = einsum_windows("bk,bjka->bja", r, win.w_rows).reshape(n_b, win.m)
-    f = solve_lower_batch(chol, e[..., None], win.kd)[..., 0]
-    lam = solve_lower_batch(chol, f[..., None], win.kd, transpose=True).reshape(n_b, win.n, win.q)
+    f = solve_lower_batch(chol, e[..., None])[..., 0]
+    lam = solve_lower_batch(chol, f[..., None], transpose=True).reshape(n_b, win.n, win.q)
     u = np.zeros(win.w.shape)
     for k in range(n_blk):
         u[:, k : k + win.n] += r[:, k, None, None] * lam
