@@ -86,7 +86,7 @@ def _cholesky(ab_t: F64) -> tuple[F64, NDArray[np.bool_]]:
     below ``SINGULAR_RTOL`` times the largest diagonal entry, or an entry that overflowed); such
     factors are replaced by the identity.
     """
-    n_b, m, width = ab_t.shape
+    n_b = ab_t.shape[0]
     chol = np.zeros_like(ab_t)
     ok = np.zeros(n_b, dtype=bool)
     with np.errstate(over="ignore", invalid="ignore"):  # an overflowed window fails factor_gram's tests
