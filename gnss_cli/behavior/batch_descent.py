@@ -76,7 +76,8 @@ def wtls_tilde(win: Windows, fixed: F64, deg: int) -> F64:
         v = einsum_windows("btja,j->bta", v[:, idx], fixed)
     idx = np.arange(v.shape[1] - deg)[:, None] + np.arange(deg + 1)[None, :]
     stacked = np.swapaxes(v[:, idx], 2, 3).reshape(v.shape[0], -1, deg + 1)  # rows (t, a), columns shift
-    return np.linalg.svd(stacked)[2][:, -1, :]
+    # right singular vectors only: the full U of a whole segment's (3 N, l + 1) rows is (3 N)^2 numbers
+    return np.linalg.svd(stacked, full_matrices=False)[2][:, -1, :]
 
 
 def derivatives_batch(win: Windows, r: F64, conv_free: F64, proj: Proj) -> tuple[F64, F64, F64]:
