@@ -19,6 +19,11 @@ residuals after their fit):
   alternation, with the measurements of the set; with range rates or phase its spans solved
   together, :mod:`gnss_cli.pipeline.tied`). The JSON and the table record what each
   method reported it ran (``estimator, model, lag, window, measurements`` of the run's settings).
+* ``stls defaults``: ``stls --lag 3`` with the package's ``[stls]`` defaults, the same in every
+  set. Their window and false-alarm probability are chosen on the training runs too
+  (:func:`default_candidate`: one setting for every set, nearest the best in its worst set); the
+  run says so when the package's defaults differ from that choice. Its rows say what a user who
+  gives only ``--lag 3`` gets.
 
 **Settings are chosen before anything is reported.** On the training seeds (1-6; drives 1001-1006,
 :data:`SEED_OFFSET`) of simulated
@@ -162,6 +167,30 @@ def choose(candidates: Sequence[Any], mse_m2: dict[str, list[float]]) -> Any:
     return best
 
 
+def default_candidate(chosen: dict[str, dict[str, Any]]) -> tuple[Any, dict[str, float]]:
+    """The stls candidate of :data:`GRID` for the package's defaults (``[stls] window`` and
+    ``behavior_pfa``), from the training runs alone: one setting serves every measurement set a
+    file may have (``--measurements all``), so each candidate is scored by its training 3D RMS over
+    the best candidate's of the same set, in its worst set, and the lowest score is taken (the
+    first listed, the most constrained, on a tie). Returns the candidate and every candidate's
+    score by label.
+
+    >>> rms = {"pr": {"0/1e-06": 1.0, "15/1e-12": 1.3}, "pr+doppler": {"0/1e-06": 0.41, "15/1e-12": 0.40}}
+    >>> default_candidate({k: {"rms_3d_m": {"stls": v}} for k, v in rms.items()})
+    ((0, 1e-06), {'0/1e-06': 1.025, '15/1e-12': 1.3})
+    """
+    sets = [c["rms_3d_m"]["stls"] for c in chosen.values()]
+    cands = [c for c in GRID["stls"][1] if all(label_of(c) in rms for rms in sets)]
+    scores = {label_of(c): max(rms[label_of(c)] / min(rms.values()) for rms in sets) for c in cands}
+    return min(cands, key=lambda c: scores[label_of(c)]), scores
+
+
+def packaged_default() -> tuple[int, float]:
+    """The package's ``[stls] window`` and ``behavior_pfa`` (what ``stls defaults`` runs)."""
+    stls = load_config(None, {"stls.lag": 3}).stls
+    return stls.window, stls.behavior_pfa
+
+
 def in_parallel(fn: Callable[[Any], Any], items: Sequence[Any]) -> list[Any]:
     """``[fn(x) for x in items]``, the items dealt among the machine's cores (forked children,
     :mod:`gnss_cli.parallel`; one after the other where no process can be forked). Each run is
@@ -188,14 +217,15 @@ BASE: dict[str, dict[str, Any]] = {
     "kf cv": {"kalman.model": "cv"}, "kf ca": {"kalman.model": "ca"},
     "smoother quadrature": {"smoother.motion": "quadrature"}, "smoother cv": {"smoother.motion": "cv"},
     "smoother ca": {"smoother.motion": "ca"}, "smoother static": {"smoother.motion": "static"},
-    "stls": {"stls.lag": 3},
+    "stls": {"stls.lag": 3}, "stls defaults": {"stls.lag": 3},
 }
 FREE_CLOCKS = {"kalman.clock_psd_m2_s": 1e6, "kalman.drift_psd_m2_s3": 1e6}
 """The kf's receiver clock without its oscillator model: random walks of 1 km per square-root second,
 so every epoch's clock and drift are free, as in ``smoother`` and ``stls``."""
 BASE.update({f"{name} free clocks": {**BASE[name], **FREE_CLOCKS} for name in ("kf cv", "kf ca")})
 """Each variant's fixed settings (its method key is the first word; a ``free clocks`` variant takes
-the chosen setting of the variant it extends)."""
+the chosen setting of the variant it extends; ``stls defaults`` is stls at lag 3 with every other
+setting the package's default, chosen on the training runs by :func:`default_candidate`)."""
 PEERS = ("kf cv", "kf ca", "smoother quadrature", "smoother cv", "smoother ca")
 """The peers of stls; the ``free clocks`` rows are reported beside them (how much of the kf's result
 comes from its clock model, which the other methods do not have), ``smoother static`` on tst2 too."""
@@ -445,7 +475,7 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
 
 def summarise(case: str, label: str, rows: dict[str, Any], key: str) -> dict[str, Any]:
     """The best smoother and kf of a case and set by ``key``, stls, the ratio stls / best peer and
-    its 95 % bootstrap interval (:func:`ratio_interval`: over the evaluation runs of the simulated
+    its 95 % bootstrap interval, stls with the package's defaults and its ratio (:func:`ratio_interval`: over the evaluation runs of the simulated
     tracks, over blocks of :data:`BLOCK_EPOCHS` epochs of a real set; NaN for the largest error)."""
     peers = {n: rows[n][key] for n in PEERS if n in rows}
     best_s = min((n for n in peers if n.startswith("smoother")), key=peers.__getitem__)
@@ -456,10 +486,14 @@ def summarise(case: str, label: str, rows: dict[str, Any], key: str) -> dict[str
         unit = "3d" if key == "rms_3d_m" else "h"
         a, b = rows["stls"]["sq_units_m2"][unit], rows[best]["sq_units_m2"][unit]
         interval = ratio_interval(a, b, block=1 if case in RUN_CASES else BLOCK_EPOCHS)
-    return {"case": case, "measurements": label, "metric": key, "best_smoother": best_s, "best_smoother_m": peers[best_s],
-            "best_kf": best_k, "best_kf_m": peers[best_k], "stls_m": rows["stls"][key],
-            "ratio_stls_best_peer": rows["stls"][key] / peers[best], "ratio_interval_95": list(interval),
-            "wls_m": rows["wls"][key]}
+    out = {"case": case, "measurements": label, "metric": key, "best_smoother": best_s, "best_smoother_m": peers[best_s],
+           "best_kf": best_k, "best_kf_m": peers[best_k], "stls_m": rows["stls"][key],
+           "ratio_stls_best_peer": rows["stls"][key] / peers[best], "ratio_interval_95": list(interval),
+           "wls_m": rows["wls"][key]}
+    if "stls defaults" in rows:
+        out["stls_defaults_m"] = rows["stls defaults"][key]
+        out["ratio_stls_defaults_best_peer"] = rows["stls defaults"][key] / peers[best]
+    return out
 
 
 def main() -> None:
@@ -470,12 +504,17 @@ def main() -> None:
     t_start = time.perf_counter()
     train_seeds, eval_seeds = (TRAIN_SEEDS[:1], EVAL_SEEDS[:2]) if args.quick else (TRAIN_SEEDS, EVAL_SEEDS)
     duration_s = 120.0 if args.quick else 300.0
-    names = ("kf cv", "kf ca", "smoother quadrature", "smoother cv", "smoother ca", "stls", "kf cv free clocks",
-             "kf ca free clocks")
+    names = ("kf cv", "kf ca", "smoother quadrature", "smoother cv", "smoother ca", "stls", "stls defaults",
+             "kf cv free clocks", "kf ca free clocks")
     cases: dict[str, dict[str, Any]] = {}
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         chosen = train(tmp, train_seeds, duration_s)
+        rule, rule_scores = default_candidate(chosen)
+        defaults = {"rule": rule, "packaged": packaged_default(), "worst_set_rms_over_best": rule_scores}
+        if tuple(defaults["packaged"]) != tuple(rule):
+            print(f"multi_epoch_fair: the package's stls defaults (window, behavior_pfa) {defaults['packaged']} are not "
+                  f"the training runs' {rule} (default_candidate): 'stls defaults' reports the package's", file=sys.stderr)
         t_trained = time.perf_counter()
         for kind in ("flight", "drive"):
             files = [simulate(tmp / f"eval-{kind}-{seed}", kind, seed + SEED_OFFSET[kind], duration_s, "noise")
@@ -514,7 +553,8 @@ def main() -> None:
         for label, rows in sets.items():
             summary.append(summarise(case, label, rows, key))
     drop_epoch_units(cases)
-    data = table(cases, summary, chosen, args.quick, seconds, time.perf_counter() - t_trained, train_seeds, eval_seeds, duration_s)
+    data = table(cases, summary, chosen, defaults, args.quick, seconds, time.perf_counter() - t_trained, train_seeds,
+                 eval_seeds, duration_s)
     print_tables(data)
     out = Path(tempfile.gettempdir()) / "multi_epoch_fair_quick.json" if args.quick else OUT
     out.parent.mkdir(exist_ok=True)
@@ -531,13 +571,14 @@ def _interval(lo_hi: Sequence[float]) -> str | None:
     return f"{lo:.2f}-{hi:.2f}" if np.isfinite(lo) and np.isfinite(hi) else None
 
 
-def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str, Any], quick: bool, seconds: float,
-          eval_seconds: float, train_seeds: tuple[int, ...], eval_seeds: tuple[int, ...], duration_s: float) -> dict[str, Any]:
+def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str, Any], defaults: dict[str, Any],
+          quick: bool, seconds: float, eval_seconds: float, train_seeds: tuple[int, ...], eval_seeds: tuple[int, ...], duration_s: float) -> dict[str, Any]:
     """The result file: the summary as the page's table, every row in a second table, the raw numbers."""
     metric_names = {"rms_3d_m": "3D RMS", "rms_h_m": "horizontal RMS", "max_3d_m": "max 3D error"}
     rows = [[s["case"], s["measurements"], metric_names[s["metric"]], _r(s["wls_m"]), s["best_kf"], _r(s["best_kf_m"]),
              s["best_smoother"], _r(s["best_smoother_m"]), _r(s["stls_m"]), _r(s["ratio_stls_best_peer"]),
-             _interval(s["ratio_interval_95"])] for s in summary]
+             _interval(s["ratio_interval_95"]), _r(s["stls_defaults_m"]), _r(s["ratio_stls_defaults_best_peer"])]
+            for s in summary]
     detail = []
     for case, sets in cases.items():
         for label, methods in sets.items():
@@ -557,7 +598,8 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
         "title": "Equal information: kf, smoother and identified stls (settings chosen on training seeds)",
         "command": "nice -n 5 python benchmarks/multi_epoch_fair.py" + (" --quick" if quick else ""),
         "table": {"columns": ["case", "measurements", "metric (m)", "wls", "best kf", "kf", "best smoother", "smoother",
-                              "stls lag 3", "stls / best peer", "95 % interval"], "rows": rows},
+                              "stls lag 3", "stls / best peer", "95 % interval", "stls defaults",
+                              "defaults / best peer"], "rows": rows},
         "more_tables": [{"title": "Every method and measurement set",
                          "columns": ["case", "measurements", "method", "what ran (model; lag; window; measurements)", "solved",
                                      "compared",
@@ -579,12 +621,17 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
                   "free, as in smoother and stls); reported, not a peer. tst2: the static "
                   "antenna solved as a moving receiver, truth window; smoother static is listed for reference and is no "
                   "peer. Each method uses the set it is given (its settings say so: see what ran). "
+                  "stls defaults: stls --lag 3 with the package's defaults (window "
+                  f"{defaults['packaged'][0]}, behavior_pfa {defaults['packaged'][1]:g}, latency 0), whatever the set; the "
+                  "training runs' candidate for them is the one nearest the best in its worst set "
+                  f"({label_of(tuple(defaults['rule']))}, within {defaults['worst_set_rms_over_best'][label_of(tuple(defaults['rule']))]:.3f}x of each set's best). "
                   "95 % interval: percentile bootstrap of the ratio stls / best peer, its best peer fixed, "
                   f"resampling the evaluation runs (simulated) or blocks of {BLOCK_EPOCHS} epochs (real sets: one "
                   "trajectory each, its errors correlated in time). "
                   f"Whole run {seconds / 60:.1f} min ({eval_seconds / 60:.1f} min after training), runs dealt among "
                   f"{cores()} processes, nice 5, on the shared 2-core machine."),
         "settings_chosen": chosen,
+        "stls_defaults": defaults,
         "cases": cases,
         "summary": summary,
         "train_seeds": list(train_seeds), "eval_seeds": list(eval_seeds), "duration_s": duration_s,
