@@ -61,10 +61,10 @@ class StlsConfig:
     """The ``stls`` method (``[stls]`` in ``gnss_cli/configs/default.toml``).
 
     ``lag = 0``: single-epoch structured TLS. ``lag >= 1``: the paper's behavioral method -- a
-    kernel identified from the data by weighted Hankel STLS in sliding windows of ``window``
-    epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a full kernel), each window's
-    behavior tested at the false-alarm probability ``behavior_pfa`` (:mod:`gnss_cli.pipeline.spans`);
-    where the spans are tied (range rates or phase), ``latency_m`` is the standard deviation of
+    kernel identified from the data by weighted Hankel STLS in whole segments (``window = 0``) or
+    sliding windows of ``window`` epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a
+    full kernel), each window's behavior tested at the false-alarm probability ``behavior_pfa``
+    (:mod:`gnss_cli.pipeline.spans`); where the spans are tied (range rates or phase), ``latency_m`` is the standard deviation of
     the latent input that may drive the trajectory out of each span's behavior (m; 0: exactly in
     it; :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
     """
@@ -72,10 +72,10 @@ class StlsConfig:
     lag: int = 0
     kernel: str = "shared"
     order: int = 0
-    window: int = 15
+    window: int = 0
     tolerance: float = 1e-6
     max_iterations: int = 200
-    behavior_pfa: float = 1e-12
+    behavior_pfa: float = 1e-6
     latency_m: float = 0.0
 
     @property

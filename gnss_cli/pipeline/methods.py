@@ -26,8 +26,8 @@ import numpy as np
 from gnss_cli.config import MEASUREMENT_KINDS, ProcessingConfig
 from gnss_cli.pipeline.results import EpochData, MethodSolution, RunResult, WindowModel, as_wls_used
 
-__all__ = ["MethodSettings", "method_settings", "resolved_measurements", "with_settings", "motion_words", "snapshot_config",
-           "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
+__all__ = ["MethodSettings", "method_settings", "resolved_measurements", "settings_warnings", "with_settings", "motion_words",
+           "snapshot_config", "solve_multi_epoch", "tested", "SINGLE_EPOCH_ESTIMATORS"]
 
 SINGLE_EPOCH_ESTIMATORS = {
     "ls": "least squares", "wls": "weighted least squares", "tls": "total least squares",
@@ -148,6 +148,31 @@ def motion_words(motion: str, config: ProcessingConfig) -> str:
     k = config.kalman
     psd = {"cv": f" (acceleration PSD {k.accel_psd_m2_s3:g} m^2/s^3)", "ca": f" (jerk PSD {k.jerk_psd_m2_s5:g} m^2/s^5)"}
     return f"motion {motion}{psd.get(motion, '')}"
+
+
+def settings_warnings(config: ProcessingConfig) -> list[str]:
+    """Warnings a run's settings call for before any file is read.
+
+    ``stls --lag L`` (L >= 2) in whole segments (``[stls] window = 0``, the default) relies on the
+    behavior test to split a segment where one kernel does not hold
+    (:mod:`gnss_cli.pipeline.spans`). Where nothing is tested (``integrity = "off"``, or the full
+    kernel, which smooths the fixes in the position domain) a whole segment is one kernel: right
+    for a static antenna (L = 1), metres off on a moving receiver.
+
+    >>> from gnss_cli.config import load_config
+    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "integrity": "off"}))[0][:52]
+    'stls --lag 3 --window 0 with --integrity off: no beh'
+    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "stls.window": 15, "integrity": "off"}))
+    []
+    """
+    s = config.stls
+    if "stls" not in config.methods or s.lag < 2 or s.window != 0:
+        return []
+    why = [w for w, on in (("--integrity off", config.integrity == "off"), ("--kernel full", s.kernel == "full")) if on]
+    if not why:
+        return []
+    return [f"stls --lag {s.lag} --window 0 with {' and '.join(why)}: no behavior test splits a segment, so each "
+            f"whole segment is one lag-{s.lag} kernel; on a moving receiver give --window N (epochs)"]
 
 
 def with_settings(result: RunResult, config: ProcessingConfig) -> RunResult:

@@ -60,7 +60,7 @@ from gnss_cli.pipeline.epochs import (
 )
 from gnss_cli.pipeline.environment import HEAD_EPOCHS, describe, judged
 from gnss_cli.pipeline.memory import map_large_blocks
-from gnss_cli.pipeline.methods import snapshot_config, solve_multi_epoch, with_settings
+from gnss_cli.pipeline.methods import settings_warnings, snapshot_config, solve_multi_epoch, with_settings
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.results import (
     PASSED_FIX, EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
@@ -237,7 +237,7 @@ class Run:
         self.progress = progress
         self.processes = int(config.processes)
         self.warnings: tuple[str, ...] = ()
-        self._notes: list[str] = []  # warnings of the run itself (a process refused)
+        self._notes: list[str] = settings_warnings(config)  # warnings of the run itself (settings, a process refused)
 
     def parts(self, finish: Callable[[RunResult], Any] | None = None) -> Iterator[Any]:
         """The parts in order (each ``finish(part)`` when ``finish`` is given), or :data:`RESTART`.

@@ -77,7 +77,7 @@ def test_what_ran_is_written_down(tmp_path: Path, capsys) -> None:  # type: igno
     assert list(summary.columns[:8]) == ["command", "settings", "estimator", "model", "lag", "window", "measurements",
                                          "integrity"]
     assert summary.loc["stls", "estimator"] == "identified Hankel STLS (measurement domain, alternation)"
-    assert summary.loc["stls", "window"] == "15 epochs" and summary.loc["stls", "measurements"] == "pseudorange"
+    assert summary.loc["stls", "window"] == "whole segments" and summary.loc["stls", "measurements"] == "pseudorange"
     assert summary.loc["smoother", "estimator"] == "fixed-model batch smoother"
     assert summary.loc["kf", "measurements"] == "pseudorange" and summary.loc["smoother", "measurements"] == "pseudorange"
     assert summary.loc["wls", "estimator"].startswith("weighted least squares")
@@ -105,3 +105,14 @@ def test_the_report_settings_name_what_each_method_ran() -> None:
     line = str(settings["method smoother"])
     assert line.startswith("fixed-model batch smoother") and "motion quadrature" in line and "pseudorange;" in line
     assert str(settings["method wls"]).startswith("weighted least squares")
+
+
+def test_untested_whole_segments_are_warned_about(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """With ``--integrity off`` nothing splits a whole segment where one lag-3 kernel does not hold
+    (the default ``--window 0``): the run says so on stderr, as a warning, and still solves."""
+    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "stls", "--lag", "3", "--integrity", "off",
+                         "-o", tmp_path / "p.csv"], capsys)
+    assert code == 0, err
+    warned = [line for line in err.splitlines() if line.startswith("gnss-solve: warning: stls --lag 3 --window 0")]
+    assert len(warned) == 1 and "--integrity off" in warned[0] and "--window N" in warned[0]
+    assert (tmp_path / "p.csv").stat().st_size > 0

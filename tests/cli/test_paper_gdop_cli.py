@@ -13,7 +13,7 @@ from gnss_cli.behavior.windows import windows
 from gnss_cli.cli import simulate, solve
 from gnss_cli.cli.exits import run_app
 
-WINDOW = 15  # [stls] window of the packaged defaults
+WINDOW = 15  # fixed sliding windows of 15 epochs, given on the command line
 
 
 def _run(app: object, prog: str, args: list[object]) -> None:
@@ -44,7 +44,8 @@ def test_stls_lag3_rows_have_the_papers_stls_gdop(tmp_path: Path, capsys: pytest
     # integrity off: no behavior test, so the windows are the fixed sliding ones computed below
     # (the spans the test chooses are checked in tests/pipeline/test_spans.py)
     _run(solve.app, "gnss-solve", [sim / "obs.rnx", sim / "nav.rnx", "--method", "wls,stls", "--lag", "3",
-                                   "--iono", "none", "--tropo", "none", "--integrity", "off", "--out-dir", out, "-q"])
+                                   "--window", str(WINDOW), "--iono", "none", "--tropo", "none", "--integrity", "off",
+                                   "--out-dir", out, "-q"])
     capsys.readouterr()
     pos = pd.read_csv(out / "positions.csv")
     assert "gdop_paper" in pd.read_csv(out / "dop.csv").columns

@@ -58,7 +58,7 @@ def test_statistic_is_the_misfit_given_up_against_free_epochs(noisy_arc: Path) -
     """Pseudoranges alone: each window's statistic equals its behavior misfit minus the sum of the
     epochs' own weighted least-squares misfits (position and clocks free, an independent ``lstsq``
     of the same rows linearized at the result), and its degrees of freedom are ``3 N - 3 l - (l - 1)``."""
-    cfg, data, wls, _ = _load(noisy_arc, "pseudorange")
+    cfg, data, wls, _ = _load(noisy_arc, "pseudorange", **{"stls.window": 15})  # many windows to check
     solved = (wls.status == "ok") & np.isfinite(wls.x_ecef_m).all(axis=1)
     segs, jobs = _schedule(data, wls, solved, wls.status.astype("<U24").copy(), cfg.stls, None, 1.5)
     fits, runs, factors = alternate_windows(data, wls, cfg, segs, jobs, fit_all(segs, jobs, cfg.stls),
@@ -95,7 +95,7 @@ def test_statistic_is_chi_square_where_the_behavior_holds(noisy_arc: Path) -> No
     """On a track the model class holds, with 1 m noise, the statistic per degree of freedom
     averages 1 (the variance factors put it in units of the file's own noise) and the test rejects
     no window at the default false-alarm probability: every epoch comes from a full-length window."""
-    cfg, data, wls, ref = _load(noisy_arc, "pseudorange")
+    cfg, data, wls, ref = _load(noisy_arc, "pseudorange", **{"stls.window": 15})  # many windows' statistics
     sol, models = solve_multi_epoch("stls", data, wls, cfg)
     tested = [m for m in models if m.test_stat is not None]
     assert len(tested) >= 20
@@ -216,3 +216,19 @@ def test_a_window_two_rejected_neighbours_share_is_solved_once(exact_flight: Pat
             assert m.misfit == pytest.approx(e.misfit, rel=1e-4, abs=1e-9)
         if m.test_stat is not None:
             assert m.test_stat == pytest.approx(e.test_stat, rel=1e-4, abs=1e-6)
+
+
+def test_whole_segments_keep_one_span_where_the_behavior_holds(noisy_arc: Path) -> None:
+    """The default whole segments (``--window 0``) on a track the model class holds: the segment
+    passes its test as one span, every epoch is solved in it, and averaging the whole segment
+    beats the 15-epoch windows' estimate of the same track."""
+    cfg, data, wls, ref = _load(noisy_arc, "pseudorange")
+    assert cfg.stls.window == 0
+    sol, models = solve_multi_epoch("stls", data, wls, cfg)
+    assert len(models) == 1 and models[0].n_epochs == data.time_gps_s.size
+    assert models[0].status != "rejected" and models[0].test_stat <= models[0].test_limit
+    assert (sol.status == "ok").all()
+    cfg15, *_ = _load(noisy_arc, "pseudorange", **{"stls.window": 15})
+    windows15, _ = solve_multi_epoch("stls", data, wls, cfg15)
+    rms = [float(np.sqrt(np.mean(np.sum((s.x_ecef_m - ref) ** 2, axis=1)))) for s in (sol, windows15)]
+    assert rms[0] < rms[1], rms

@@ -35,8 +35,8 @@ def _rms(x: np.ndarray, ref: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2)))
 
 
-def _load(d: Path, measurements: str):  # type: ignore[no-untyped-def]
-    cfg = load_config(None, {**BASE, "measurements": measurements})
+def _load(d: Path, measurements: str, **more: object):  # type: ignore[no-untyped-def]
+    cfg = load_config(None, {**BASE, "measurements": measurements, **more})
     data = load_epochs(d / "obs.rnx", [d / "nav.rnx"], cfg)
     return cfg, data, solve_method(data, "wls", cfg), np.asarray(reference_from_csv(d / "truth.csv", data.time_gps_s))
 
@@ -70,7 +70,8 @@ def test_noise_free_track_in_the_model_class_is_reproduced(arc: Path, measuremen
 
 
 def _alternated(d: Path, measurements: str):  # type: ignore[no-untyped-def]
-    cfg, data, wls, ref = _load(d, measurements)
+    """The first windows' alternation, in 15-epoch windows: many windows to check one by one."""
+    cfg, data, wls, ref = _load(d, measurements, **{"stls.window": 15})
     T = data.time_gps_s.size
     solved = (wls.status == "ok") & np.isfinite(wls.x_ecef_m).all(axis=1)
     status = wls.status.astype("<U24").copy()
