@@ -7,7 +7,8 @@ times, each row labelled with what ran and the measurements it used (from ``summ
 1. ``--method ls,wls,tls,dls,mtls,stls``: the single-epoch estimators (``stls`` here is the
    single-epoch structured TLS, ``--lag 0``); pseudoranges;
 2. ``--method stls --lag 3 --measurements pseudorange``: the paper's method, a shared lag-3
-   kernel *identified* from the data in the default 15-epoch windows, the trajectory solved in its
+   kernel *identified* from the data in the default whole segments (split where the behavior test
+   rejects them), the trajectory solved in its
    behavior from the pseudoranges;
 3. ``--method smoother --measurements pseudorange``: a batch smoother with a *fixed* motion model
    (the lag-3 velocity quadrature), nothing identified -- the standard alternative on the same
