@@ -475,8 +475,9 @@ def train(tmp: Path, seeds: tuple[int, ...], duration_s: float) -> dict[str, dic
 
 def summarise(case: str, label: str, rows: dict[str, Any], key: str) -> dict[str, Any]:
     """The best smoother and kf of a case and set by ``key``, stls, the ratio stls / best peer and
-    its 95 % bootstrap interval, stls with the package's defaults and its ratio (:func:`ratio_interval`: over the evaluation runs of the simulated
-    tracks, over blocks of :data:`BLOCK_EPOCHS` epochs of a real set; NaN for the largest error)."""
+    its 95 % bootstrap interval (:func:`ratio_interval`: over the evaluation runs of the simulated
+    tracks, over blocks of :data:`BLOCK_EPOCHS` epochs of a real set; NaN for the largest error);
+    stls with the package's defaults and its ratio."""
     peers = {n: rows[n][key] for n in PEERS if n in rows}
     best_s = min((n for n in peers if n.startswith("smoother")), key=peers.__getitem__)
     best_k = min((n for n in peers if n.startswith("kf")), key=peers.__getitem__)
@@ -572,7 +573,8 @@ def _interval(lo_hi: Sequence[float]) -> str | None:
 
 
 def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str, Any], defaults: dict[str, Any],
-          quick: bool, seconds: float, eval_seconds: float, train_seeds: tuple[int, ...], eval_seeds: tuple[int, ...], duration_s: float) -> dict[str, Any]:
+          quick: bool, seconds: float, eval_seconds: float, train_seeds: tuple[int, ...], eval_seeds: tuple[int, ...],
+          duration_s: float) -> dict[str, Any]:
     """The result file: the summary as the page's table, every row in a second table, the raw numbers."""
     metric_names = {"rms_3d_m": "3D RMS", "rms_h_m": "horizontal RMS", "max_3d_m": "max 3D error"}
     rows = [[s["case"], s["measurements"], metric_names[s["metric"]], _r(s["wls_m"]), s["best_kf"], _r(s["best_kf_m"]),
@@ -594,6 +596,7 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
                                _r(m["rms_v_debiased_m"]) if case == "yamatogawa" else None,
                                _r(m["rms_h_debiased_m"]) if case == "yamatogawa" else None, _r(m["p95_3d_m"]), _r(m["max_3d_m"])])
     choices = {label: c["choice"] for label, c in chosen.items()}
+    rule = label_of(tuple(defaults["rule"]))
     return {
         "title": "Equal information: kf, smoother and identified stls (settings chosen on training seeds)",
         "command": "nice -n 5 python benchmarks/multi_epoch_fair.py" + (" --quick" if quick else ""),
@@ -624,7 +627,7 @@ def table(cases: dict[str, Any], summary: list[dict[str, Any]], chosen: dict[str
                   "stls defaults: stls --lag 3 with the package's defaults (window "
                   f"{defaults['packaged'][0]}, behavior_pfa {defaults['packaged'][1]:g}, latency 0), whatever the set; the "
                   "training runs' candidate for them is the one nearest the best in its worst set "
-                  f"({label_of(tuple(defaults['rule']))}, within {defaults['worst_set_rms_over_best'][label_of(tuple(defaults['rule']))]:.3f}x of each set's best). "
+                  f"({rule}, within {defaults['worst_set_rms_over_best'][rule]:.3f}x of each set's best). "
                   "95 % interval: percentile bootstrap of the ratio stls / best peer, its best peer fixed, "
                   f"resampling the evaluation runs (simulated) or blocks of {BLOCK_EPOCHS} epochs (real sets: one "
                   "trajectory each, its errors correlated in time). "

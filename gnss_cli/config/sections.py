@@ -64,9 +64,9 @@ class StlsConfig:
     kernel identified from the data by weighted Hankel STLS in whole segments (``window = 0``) or
     sliding windows of ``window`` epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a
     full kernel), each window's behavior tested at the false-alarm probability ``behavior_pfa``
-    (:mod:`gnss_cli.pipeline.spans`); where the spans are tied (range rates or phase), ``latency_m`` is the standard deviation of
-    the latent input that may drive the trajectory out of each span's behavior (m; 0: exactly in
-    it; :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
+    (:mod:`gnss_cli.pipeline.spans`); where the spans are tied (range rates or phase),
+    ``latency_m`` is the standard deviation of the latent input that may drive the trajectory out
+    of each span's behavior (m; 0: exactly in it; :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
     """
 
     lag: int = 0
