@@ -26,7 +26,8 @@ file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm prob
   singular normals): kept when no longer than ``[stls] window`` (the span the user gives a
   kernel; whole segments: the shortest window), else as rejected -- with whole segments such an
   untested 150-epoch window of a simulated drive was kept 62 m off. (Splitting the untested
-  windows of the default 15 epochs too cost the training flights and drives 0-8 % of their RMS.)
+  windows of 15 epochs, the former default, too cost the training flights and drives 0-8 % of
+  their RMS.)
 
 With range rates or phase, the spans that passed are then solved together, each in its own
 behavior and tied at the switches (:mod:`gnss_cli.pipeline.tied`).

@@ -110,7 +110,7 @@ def test_statistic_is_chi_square_where_the_behavior_holds(noisy_arc: Path) -> No
 def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path, measurements: str) -> None:
     """Noise-free, the windows whose behavior the manoeuvres break are rejected and their epochs
     solved in shorter spans (or kept at the exact WLS fix): stls --lag 3 is the truth to 1 cm, where
-    the fixed 15-epoch windows without the test are off by decimetres to metres."""
+    the same run without the test (one untested whole segment) is off by decimetres to metres."""
     cfg, data, wls, ref = _load(exact_flight, measurements)
     sol, models = solve_multi_epoch("stls", data, wls, cfg)
     err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
