@@ -48,24 +48,68 @@ def behavior_basis(kernel: KernelRepresentation, n_t: int) -> F64:
     if kernel.is_shared() and kernel.blocks[-1, 0, 0] != 0.0:
         # r(z) I_q: the scalar free responses times I_q span the same space
         basis = shared_behavior_bases(kernel.blocks[:, 0, 0][None, :], n_t, q)[0]
-        assert basis is not None  # r_lag != 0
+        assert basis is not None  # r_lag != 0, and the sweep spans every mode
         return basis
     a = kernel.transition()  # (q, q*lag): w(t+lag) = a [w(t); ...; w(t+lag-1)]
     k = q * lag
     traj = np.zeros((max(n_t, lag), q, k))
     traj[:lag] = np.eye(k).reshape(lag, q, k)
-    for t in range(lag, n_t):
-        traj[t] = a @ traj[t - lag : t].reshape(k, k)
+    with np.errstate(over="ignore", invalid="ignore"):
+        for t in range(lag, n_t):
+            traj[t] = a @ traj[t - lag : t].reshape(k, k)
     flat = traj[:n_t].reshape(n_t * q, k)
-    u, s, _ = np.linalg.svd(flat, full_matrices=False)
-    rank = int(np.sum(s > s[0] * 1e-10)) if s.size and s[0] > 0 else 0
-    return u[:, :rank].reshape(n_t, q, rank)
+    if np.all(np.isfinite(flat)):
+        u, s, _ = np.linalg.svd(flat, full_matrices=False)
+        rank = int(np.sum(s > s[0] * 1e-10)) if s.size and s[0] > 0 else 0
+        if rank == min(k, n_t * q):
+            return u[:, :rank].reshape(n_t, q, rank)
+    return _swept_free_responses(a, n_t)
+
+
+def _swept_free_responses(a: F64, n_t: int) -> F64:
+    """Orthonormal basis of the free responses of ``w(t+l) = a [w(t); ...; w(t+l-1)]`` over ``n_t`` epochs.
+
+    The recursion run once from unit initial conditions loses modes over a long window: a root
+    outside the unit circle (or, run backwards, one near 0) grows until it swamps the others
+    below the rank threshold, or overflows. Here the responses are extended one epoch at a time
+    and kept orthonormal at every step (continuous orthonormalization, as in shooting methods for
+    stiff boundary-value problems): the columns of ``[B; V]``, ``B`` orthonormal, times
+    ``(I + V^T V)^(-1/2)`` are orthonormal again and span the same responses, so no mode is lost
+    and nothing overflows. ``O(n_t^2 k^2)`` flops: used where the one-pass recursion fails.
+
+    Parameters
+    ----------
+    a : ndarray, shape (q, q*l)
+        The transition (``KernelRepresentation.transition``; for a shared kernel ``q = 1`` and
+        ``a = -r_{0..l-1} / r_l``).
+    n_t : int
+        Epochs, ``>= l``.
+
+    Returns
+    -------
+    O : ndarray, shape (n_t, q, q*l)
+        Orthonormal columns that span every free response (the behavior has dimension ``q l``).
+    """
+    q, k = a.shape
+    lag = k // q
+    basis = np.zeros((max(n_t, lag) * q, k))
+    basis[:k] = np.eye(k)
+    for t in range(lag, n_t):
+        v = a @ basis[(t - lag) * q : t * q]  # (q, k): the next epoch of every response
+        w, vec = np.linalg.eigh(np.eye(k) + v.T @ v)
+        basis[t * q : (t + 1) * q] = v
+        basis[: (t + 1) * q] = basis[: (t + 1) * q] @ ((vec / np.sqrt(w)) @ vec.T)
+    u, _ = np.linalg.qr(basis[: n_t * q])  # rounding of the n_t updates: orthonormal to the last bit
+    return u.reshape(n_t, q, k)
 
 
 def shared_behavior_bases(r: F64, n_t: int, q: int) -> list[F64 | None]:
     """Orthonormal behavior bases ``(n_t, q, k)`` of shared kernels ``(B, l+1)`` (:func:`behavior_basis` batched).
 
     None where ``r_l`` is negligible (no recursion for ``w(t+l)``, as ``transition`` refuses).
+    The responses are run forwards and backwards at once for the whole batch; a kernel whose modes
+    that leaves incomplete or overflowed (roots far on both sides of the unit circle over a long
+    window) is swept instead (:func:`_swept_free_responses`), so every basis has ``q l`` columns.
     """
     n_b, n_blk = r.shape
     lag = n_blk - 1
@@ -74,8 +118,9 @@ def shared_behavior_bases(r: F64, n_t: int, q: int) -> list[F64 | None]:
     monic = r / np.where(regular, lead, 1.0)[:, None]
     scalar = np.zeros((n_b, max(n_t, lag), lag))
     scalar[:, :lag] = np.eye(lag)
-    for t in range(lag, n_t):
-        scalar[:, t] = -np.einsum("bk,bkj->bj", monic[:, :lag], scalar[:, t - lag : t])
+    with np.errstate(over="ignore", invalid="ignore"):
+        for t in range(lag, n_t):
+            scalar[:, t] = -np.einsum("bk,bkj->bj", monic[:, :lag], scalar[:, t - lag : t])
     # The responses from the window's end as well, run backwards where r_0 allows: a root far
     # outside the unit circle (|z| = 14 in a 15-epoch window grows 1e16-fold) swamps every forward
     # response, and the slow modes would fall below the rank threshold; backwards it decays. Each
@@ -84,22 +129,28 @@ def shared_behavior_bases(r: F64, n_t: int, q: int) -> list[F64 | None]:
     first = monic[:, 0]
     reversible = np.abs(first) > 1e-10
     back[:, max(n_t, lag) - lag:] = np.eye(lag)
-    for t in range(n_t - lag - 1, -1, -1):
-        back[:, t] = -np.einsum("bk,bkj->bj", monic[:, 1:], back[:, t + 1 : t + 1 + lag]) / np.where(
-            reversible, first, 1.0)[:, None]
-    back = np.where(reversible[:, None, None], back, 0.0)
-    both = np.concatenate([scalar[:, :n_t], back[:, :n_t]], axis=2)
-    size = np.max(np.abs(both), axis=1, keepdims=True)
-    both = np.where(size > 0, both / np.where(size > 0, size, 1.0), 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: found below, swept instead
+        for t in range(n_t - lag - 1, -1, -1):
+            back[:, t] = -np.einsum("bk,bkj->bj", monic[:, 1:], back[:, t + 1 : t + 1 + lag]) / np.where(
+                reversible, first, 1.0)[:, None]
+        back = np.where(reversible[:, None, None], back, 0.0)
+        both = np.concatenate([scalar[:, :n_t], back[:, :n_t]], axis=2)
+        size = np.max(np.abs(both), axis=1, keepdims=True)
+        both = np.where(size > 0, both / np.where(size > 0, size, 1.0), 0.0)
     out: list[F64 | None] = [None] * n_b
-    good = np.flatnonzero(regular & np.all(np.isfinite(both), axis=(1, 2)))
-    if good.size == 0:
-        return out
-    u, sv, _ = np.linalg.svd(both[good], full_matrices=False)
-    rank = np.minimum(np.sum(sv > sv[:, :1] * 1e-10, axis=1), lag)  # the two sets span one space
+    finite = np.all(np.isfinite(both), axis=(1, 2))
+    good = np.flatnonzero(regular & finite)
     eye = np.eye(q)
-    for i, k in enumerate(good):
-        out[k] = np.einsum("tj,ac->tajc", u[i, :, : rank[i]], eye).reshape(n_t, q, rank[i] * q)
+    if good.size:
+        u, sv, _ = np.linalg.svd(both[good], full_matrices=False)
+        rank = np.minimum(np.sum(sv > sv[:, :1] * 1e-10, axis=1), lag)  # the two sets span one space
+        for i, k in enumerate(good):
+            if rank[i] == min(lag, n_t):
+                out[k] = np.einsum("tj,ac->tajc", u[i, :, : rank[i]], eye).reshape(n_t, q, rank[i] * q)
+    for k in np.flatnonzero(regular):  # modes swamped or overflowed, at both ends: the sweep
+        if out[k] is None and n_t >= lag:
+            scalar_basis = _swept_free_responses(-monic[k, :lag][None, :], n_t)[:, 0, :]
+            out[k] = np.einsum("tj,ac->tajc", scalar_basis, eye).reshape(n_t, q, lag * q)
     return out
 
 

@@ -119,3 +119,57 @@ def test_rank_deficient_window_determines_only_epochs_off_its_null_space() -> No
     jac[:3, :d] = basis[2]
     jac[3, d + 2] = 1.0
     np.testing.assert_allclose(res.cov[2], jac @ q @ jac.T, rtol=1e-8, atol=1e-10)
+
+
+def _toeplitz(r: np.ndarray, n_t: int) -> np.ndarray:
+    """The recursion ``sum_k r_k w(t+k) = 0`` as an ``(n_t - l) x n_t`` matrix: its null space is the behavior."""
+    lag = r.size - 1
+    m = np.zeros((n_t - lag, n_t))
+    for j, c in enumerate(r):
+        m[np.arange(n_t - lag), np.arange(n_t - lag) + j] = c
+    return m
+
+
+def test_behavior_bases_keep_every_mode_over_long_windows() -> None:
+    """Identified kernels can have a root far from the unit circle; over a whole segment (up to
+    1,800 epochs) its free response grows past float range, or swamps the other modes below the
+    rank threshold, forwards and backwards alike. The basis must still have all ``q l`` columns,
+    orthonormal and annihilated by the kernel, and span the null space of the recursion's matrix
+    (scipy's SVD, independent) -- a 24 h simulated flight stopped here once."""
+    from scipy.linalg import null_space
+
+    for roots in ([3.0, 1e-3, 1.0], [-2.5, 0.3, 1.0], [0.5, 1.6, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]):
+        r = np.real(np.poly(roots))[::-1]
+        ker = KernelRepresentation.shared(r, 3)
+        for n_t in (15, 300, 1800):
+            basis = behavior_basis(ker, n_t)
+            assert basis.shape == (n_t, 3, 9), (roots, n_t, basis.shape)
+            flat = basis.reshape(n_t * 3, 9)
+            np.testing.assert_allclose(flat.T @ flat, np.eye(9), atol=1e-12)
+            for col in range(9):
+                w = basis[:, :, col]
+                assert np.linalg.norm(ker.residual(w)) <= 1e-9 * np.linalg.norm(r), (roots, n_t, col)
+            if n_t == 300:
+                scalar = basis[:, 0, 0::3]  # r(z) I_3: the x responses are the scalar behavior
+                ref = null_space(_toeplitz(r, n_t))
+                np.testing.assert_allclose(scalar @ scalar.T, ref @ ref.T, atol=1e-10)
+
+
+def test_general_kernel_basis_keeps_every_mode_over_long_windows() -> None:
+    """The same for a kernel that is not shared (each axis its own roots): the one-pass recursion
+    overflows on the axis with a root at 2.5; the swept responses span all ``q l`` modes."""
+    rx = np.real(np.poly([2.5, 1.0, 1.0]))[::-1]
+    ry = np.real(np.poly([0.2, 1.0, 1.0]))[::-1]
+    rz = np.real(np.poly([1.0, 1.0, 1.0]))[::-1]
+    blocks = np.zeros((4, 3, 3))
+    for axis, r in enumerate((rx, ry, rz)):
+        blocks[:, axis, axis] = r
+    ker = KernelRepresentation(np.concatenate(list(blocks), axis=1))
+    assert not ker.is_shared()
+    for n_t in (20, 1200):
+        basis = behavior_basis(ker, n_t)
+        assert basis.shape == (n_t, 3, 9)
+        flat = basis.reshape(n_t * 3, 9)
+        np.testing.assert_allclose(flat.T @ flat, np.eye(9), atol=1e-12)
+        for col in range(9):
+            assert np.linalg.norm(ker.residual(basis[:, :, col])) <= 1e-9 * np.linalg.norm(ker.R)
