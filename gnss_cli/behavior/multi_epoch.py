@@ -107,9 +107,10 @@ def shared_behavior_bases(r: F64, n_t: int, q: int) -> list[F64 | None]:
     """Orthonormal behavior bases ``(n_t, q, k)`` of shared kernels ``(B, l+1)`` (:func:`behavior_basis` batched).
 
     None where ``r_l`` is negligible (no recursion for ``w(t+l)``, as ``transition`` refuses).
-    The responses are run forwards and backwards at once for the whole batch; a kernel whose modes
-    that leaves incomplete or overflowed (roots far on both sides of the unit circle over a long
-    window) is swept instead (:func:`_swept_free_responses`), so every basis has ``q l`` columns.
+    The responses are run forwards and backwards at once for the whole batch. Where that leaves a
+    kernel's modes incomplete or overflowed (roots far on both sides of the unit circle over a long
+    window), its responses are swept instead (:func:`_swept_free_responses`), so every basis has
+    ``q l`` columns.
     """
     n_b, n_blk = r.shape
     lag = n_blk - 1

@@ -66,7 +66,8 @@ class StlsConfig:
     full kernel), each window's behavior tested at the false-alarm probability ``behavior_pfa``
     (:mod:`gnss_cli.pipeline.spans`); where the spans are tied (range rates or phase),
     ``latency_m`` is the standard deviation of the latent input that may drive the trajectory out
-    of each span's behavior (m; 0: exactly in it; :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
+    of each span's behavior (m; 0: exactly in it; :mod:`gnss_cli.behavior.piecewise`). The
+    defaults equal the packaged TOML.
     """
 
     lag: int = 0
