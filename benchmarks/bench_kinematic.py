@@ -11,7 +11,8 @@
    in windows of :data:`DAY_WINDOW` epochs, timed in process.
 
 Usage: ``python benchmarks/bench_kinematic.py [--hours 24] [--trajectory static]``
-(prints tables, writes ``benchmarks/results/bench_kinematic.json``).
+(prints tables, writes ``benchmarks/results/bench_kinematic.json``: the trade-off, and the day's
+timing under ``day_timing.<trajectory>``, keeping the other trajectory's timing of an earlier run).
 """
 
 from __future__ import annotations
@@ -117,6 +118,20 @@ def day_timing(d: Path) -> dict[str, float]:
             "windows": len(models), "window": DAY_WINDOW, "smoothed_epochs": int((sol.status == "ok").sum())}
 
 
+RESULTS = REPO / "benchmarks" / "results" / "bench_kinematic.json"
+
+
+def earlier_timings() -> dict[str, dict[str, float]]:
+    """The day timings of :data:`RESULTS` by trajectory (an older file's single timing under its
+    ``trajectory``); empty without the file."""
+    if not RESULTS.is_file():
+        return {}
+    timings = json.loads(RESULTS.read_text()).get("day_timing", {})
+    if "trajectory" in timings:
+        return {timings.pop("trajectory"): timings}
+    return dict(timings)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=24.0, help="length of the timed simulated day, h")
@@ -133,15 +148,13 @@ def main() -> None:
                   f"  {r['mean_gdop']:9.2f}  {r.get('time_s', float('nan')):8.2f}")
         day = simulate(Path(tmp) / "day", args.trajectory, int(round(args.hours * 3600)))
         timing = day_timing(day)
-        timing["trajectory"] = args.trajectory  # type: ignore[assignment]
-        out["day_timing"] = timing
+        out["day_timing"] = {**earlier_timings(), args.trajectory: timing}
         print(f"{timing['epochs']} epochs ({args.trajectory}): gnss-solve --method ls {timing['ls_s']:.1f} s "
               f"(peak {timing['ls_peak_mb']:.0f} MB), --method stls --lag 3 {timing['stls_lag3_s']:.1f} s "
               f"(peak {timing['stls_lag3_peak_mb']:.0f} MB; smoothing {timing['smoothing_s']:.1f} s for "
               f"{timing['windows']} windows), ratio {timing['ratio']:.2f}")
-    res = REPO / "benchmarks" / "results" / "bench_kinematic.json"
-    res.parent.mkdir(parents=True, exist_ok=True)
-    res.write_text(json.dumps(out, indent=1) + "\n")
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":
