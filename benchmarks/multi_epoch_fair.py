@@ -257,6 +257,34 @@ def plan_rounds(variants: dict[str, dict[str, Any]]) -> list[dict[str, dict[str,
     return rounds
 
 
+REAL_CASES: dict[str, dict[str, Any]] = {
+    "yamatogawa": {"folder": "yamatogawa-2010006-kinematic", "obs": "yamatogawa_rover.obs", "navs": "brdc0060.10n",
+                   "reference": "rtk_ref_rover.pos", "settings": {}, "evaluate": {"common_bias": True}, "more": ()},
+    "tst2": {"folder": "tst2-2020155-urban-static", "obs": "2020_06_03_TST_03.obs.gz", "navs": "hksc155d.20?",
+             "reference": TST2_TRUTH, "settings": {"environment": "open"},
+             "evaluate": {"window": (270149.0, 270305.0)}, "more": ("smoother static",)},
+}
+"""The real sets (module docstring): the folder under the real-data folder, the observation file,
+the navigation files (a glob), the reference, the settings every method of the case is given, the
+arguments of :func:`evaluate`, and the rows reported beside the peers (``more``)."""
+
+
+def solve_real(rinex: Path, case: str, variants: dict[str, dict[str, Any]], common: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """:func:`solve_variants` on the real set ``case`` of :data:`REAL_CASES` (its ``more`` rows added),
+    with its own settings over ``common``."""
+    c = REAL_CASES[case]
+    d = rinex / c["folder"]
+    reference = c["reference"] if isinstance(c["reference"], list) else d / c["reference"]
+    more = {name: dict(BASE[name]) for name in c["more"]}
+    return solve_variants(d / c["obs"], sorted(d.glob(c["navs"])), reference, {**variants, **more},
+                          {**common, **c["settings"]})
+
+
+def evaluate_real(case: str, run: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """:func:`evaluate` of one run of the real set ``case`` with its arguments."""
+    return evaluate([run], **REAL_CASES[case]["evaluate"])
+
+
 def solve_variants(obs: Path, navs: list[Path], reference: Any, variants: dict[str, dict[str, Any]],
                    common: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """Errors (E, N, U, ``(T, 3)``, m) and reported settings of each variant, with ``wls``.
@@ -531,22 +559,14 @@ def main() -> None:
             common = {"measurements": SETS[label], "iono": "none", "tropo": "none"}
             run = solve_variants(d / "obs.rnx", [d / "nav.rnx"], d / "truth.csv", variants_for(chosen[label]["choice"], names), common)
             cases["flight exact"][label] = evaluate([run])
-        y, s = args.rinex / "yamatogawa-2010006-kinematic", args.rinex / "tst2-2020155-urban-static"
-        for folder in (y, s):
-            if not args.quick and not folder.is_dir():
-                print(f"multi_epoch_fair: no {folder}: its case is left out (--rinex DIR names the real-data folder)",
-                      file=sys.stderr)
-        if not args.quick and y.is_dir():
-            runs = in_parallel(lambda label: solve_variants(
-                y / "yamatogawa_rover.obs", [y / "brdc0060.10n"], y / "rtk_ref_rover.pos",
-                variants_for(chosen[label]["choice"], names), {"measurements": SETS[label]}), list(SETS))
-            cases["yamatogawa"] = {label: evaluate([r], common_bias=True) for label, r in zip(SETS, runs)}
-        if not args.quick and s.is_dir():
-            runs = in_parallel(lambda label: solve_variants(
-                s / "2020_06_03_TST_03.obs.gz", sorted(s.glob("hksc155d.20?")), TST2_TRUTH,
-                variants_for(chosen[label]["choice"], (*names, "smoother static")),
-                {"measurements": SETS[label], "environment": "open"}), list(SETS))
-            cases["tst2"] = {label: evaluate([r], window=(270149.0, 270305.0)) for label, r in zip(SETS, runs)}
+        for case in () if args.quick else REAL_CASES:
+            if not (args.rinex / REAL_CASES[case]["folder"]).is_dir():
+                print(f"multi_epoch_fair: no {args.rinex / REAL_CASES[case]['folder']}: its case is left out "
+                      "(--rinex DIR names the real-data folder)", file=sys.stderr)
+                continue
+            runs = in_parallel(lambda label: solve_real(args.rinex, case, variants_for(chosen[label]["choice"], names),
+                                                        {"measurements": SETS[label]}), list(SETS))
+            cases[case] = {label: evaluate_real(case, r) for label, r in zip(SETS, runs)}
     seconds = time.perf_counter() - t_start
     summary = []
     for case, sets in cases.items():
