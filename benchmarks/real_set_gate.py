@@ -15,6 +15,13 @@ reports at it. The table says how much of a ratio near 1 on a single real trajec
 measurement-handling setting decides: where the ratio crosses 1 as the shared threshold moves,
 that real set cannot say whether stls is ahead of its best peer or behind it.
 
+Beside it, at the default threshold, how many rows the residual gate of ``smoother`` (each
+motion) and of ``stls`` left out in its final pass (:func:`gated_rows`: pseudoranges, range rates,
+phase-pair rows; each method solved alone, the gate's calls recorded). The gate standardizes a
+residual by its measurement's standard deviation, not by the residual's own, so a stiffer fit (one
+whose residuals keep more of the noise) has more rows above one threshold; the kf's innovation
+gate, standardized by the innovation's predicted variance, is not counted there.
+
 Usage: ``python benchmarks/real_set_gate.py [--rinex DIR]``; prints the table and writes
 ``benchmarks/results/real_set_gate.json``. About 15 minutes on two cores.
 """
@@ -25,6 +32,8 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -32,11 +41,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from multi_epoch_fair import (OUT as FAIR, PEERS, RINEX, REAL_CASES, SETS, evaluate_real, in_parallel,  # noqa: E402
                               solve_real, summarise, variants_for)
 
+import gnss_cli.pipeline.smoother as smoother  # noqa: E402
+from gnss_cli.pipeline.measurements import gate_rows  # noqa: E402
+
 OUT = Path(__file__).resolve().parent / "results" / "real_set_gate.json"
 PFAS = (1e-2, 1e-3, 1e-4, 1e-5)
 """The shared false-alarm probabilities (1e-3 the package's default): two-sided gates of 2.58,
 3.29, 3.89 and 4.42 standard deviations."""
 NAMES = (*PEERS, "stls", "stls defaults")
+GATED = ("smoother quadrature", "smoother cv", "smoother ca", "stls", "stls defaults")
+"""The methods whose residual gate :func:`gated_rows` counts (those that test residuals after their fit)."""
+KINDS = ("pseudorange", "range rate", "phase pair")
 
 
 def solve_case(rinex: Path, case: str, label: str, pfa: float, chosen: dict[str, Any]) -> dict[str, Any]:
@@ -48,6 +63,45 @@ def solve_case(rinex: Path, case: str, label: str, pfa: float, chosen: dict[str,
     best = out["best_smoother"] if out["best_smoother_m"] <= out["best_kf_m"] else out["best_kf"]
     return {**out, "integrity_pfa": pfa, "best_peer": best, "best_peer_m": rows[best]["rms_h_m"],
             "rms_h_m": {n: rows[n]["rms_h_m"] for n in NAMES}}
+
+
+@contextmanager
+def recorded_gate() -> Iterator[list[tuple[list[int], list[int]]]]:
+    """The residual gate of :mod:`gnss_cli.pipeline.smoother` (which stls's joint solve calls too)
+    with each call's excluded and tested rows per kind recorded, in call order."""
+    calls: list[tuple[list[int], list[int]]] = []
+
+    def recorded(u: Any, used: Any, gate: float, config: Any) -> Any:
+        mult, gated = gate_rows(u, used, gate, config)
+        calls.append(([int(g.sum()) for g in gated], [int(x.sum()) for x in used]))
+        return mult, gated
+
+    smoother.gate_rows = recorded  # type: ignore[attr-defined]
+    try:
+        yield calls
+    finally:
+        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+
+
+def gated_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
+    """Rows of each kind (:data:`KINDS`) that the residual gate of each :data:`GATED` method left out
+    in its last pass at the default threshold, and how many it tested; each method solved alone."""
+    out: dict[str, Any] = {"case": case, "measurements": label}
+    for name in GATED:
+        with recorded_gate() as calls:
+            solve_real(rinex, case, variants_for(chosen[label]["choice"], (name,)), {"measurements": SETS[label]})
+        excluded, tested = calls[-1] if calls else ([0] * len(KINDS), [0] * len(KINDS))
+        out[name] = {"excluded": excluded, "tested": tested}
+    return out
+
+
+def gated_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The table of :func:`gated_rows`' rows: excluded / tested per kind the set has."""
+    return {"title": "Rows the residual gate left out at the default threshold (last pass)",
+            "columns": ["case", "measurements", *GATED],
+            "rows": [[r["case"], r["measurements"],
+                      *[", ".join(f"{e}/{n}" for e, n in zip(r[name]["excluded"], r[name]["tested"]) if n)
+                        for name in GATED]] for r in rows]}
 
 
 def table(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -72,6 +126,7 @@ def main() -> None:
         sys.exit(f"real_set_gate: no real set under {args.rinex} (--rinex DIR names the real-data folder)")
     jobs = [(case, label, pfa) for case in cases for label in SETS for pfa in PFAS]
     rows = in_parallel(lambda job: solve_case(args.rinex, *job, chosen), jobs)
+    gated = in_parallel(lambda job: gated_rows(args.rinex, *job, chosen), [(c, label) for c in cases for label in SETS])
     data = {"title": "Real sets: the ratios stls / best peer at each shared gate threshold",
             "command": "python benchmarks/real_set_gate.py",
             "notes": "Every method of a row gets the same integrity_pfa (the snapshot FDE, the kf's innovation gate and "
@@ -79,13 +134,19 @@ def main() -> None:
                      "multi_epoch_fair.py chose it on its training seeds. Horizontal RMS (m) on the compared epochs "
                      "(yamatogawa: against its RTK trajectory; tst2: the truth window, environment open). Best peer: of "
                      + ", ".join(PEERS) + ", at that row's threshold. 95 % interval: moving-block bootstrap (20 epochs) "
-                     "of stls / best peer. Nothing is chosen here; the package's default is 1e-3. "
+                     "of stls / best peer. Nothing is chosen here; the package's default is 1e-3. Second table: "
+                     "excluded / tested rows of each kind the set has (pseudoranges, range rates, phase-pair rows) "
+                     "in the last pass of each method's residual gate, each method solved alone. "
                      f"Whole run {(time.perf_counter() - t0) / 60:.1f} min.",
-            "pfas": list(PFAS), "table": table(rows), "rows": rows, "seconds": time.perf_counter() - t0}
+            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated)], "rows": rows,
+            "gated": gated, "seconds": time.perf_counter() - t0}
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     print(" | ".join(data["table"]["columns"]))
     for r in data["table"]["rows"]:
+        print(" | ".join(str(x) for x in r))
+    print(" | ".join(data["more_tables"][0]["columns"]))
+    for r in data["more_tables"][0]["rows"]:
         print(" | ".join(str(x) for x in r))
     print(f"wrote {OUT} ({data['seconds'] / 60:.1f} min)", file=sys.stderr)
 
