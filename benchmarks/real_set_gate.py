@@ -20,7 +20,13 @@ motion) and of ``stls`` left out in its final pass (:func:`gated_rows`: pseudora
 phase-pair rows; each method solved alone, the gate's calls recorded). The gate standardizes a
 residual by its measurement's standard deviation, not by the residual's own, so a stiffer fit (one
 whose residuals keep more of the noise) has more rows above one threshold; the kf's innovation
-gate, standardized by the innovation's predicted variance, is not counted there.
+gate, standardized by the innovation's predicted variance, is not counted there. And what that
+costs stls (:func:`with_smoothers_exclusions`): stls solved again with the rows its gate leaves
+out replaced by those the quadrature smoother's gate leaves out (``smoother --motion quadrature``
+at stls's velocity rule, :data:`~gnss_cli.behavior.piecewise.VELOCITY_RULE_LAG`), its own gate
+off: the same measurements as that peer, the behavior deciding none of them. A diagnostic (the
+residual gate is not changed by it), run with range rates or phase, where stls's spans are solved
+together through that gate.
 
 Usage: ``python benchmarks/real_set_gate.py [--rinex DIR]``; prints the table and writes
 ``benchmarks/results/real_set_gate.json``. About 15 minutes on two cores.
@@ -41,7 +47,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from multi_epoch_fair import (OUT as FAIR, PEERS, RINEX, REAL_CASES, SETS, evaluate_real, in_parallel,  # noqa: E402
                               solve_real, summarise, variants_for)
 
+import numpy as np  # noqa: E402
+
 import gnss_cli.pipeline.smoother as smoother  # noqa: E402
+from gnss_cli.behavior.piecewise import VELOCITY_RULE_LAG  # noqa: E402
 from gnss_cli.pipeline.measurements import gate_rows  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "real_set_gate.json"
@@ -95,6 +104,61 @@ def gated_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> di
     return out
 
 
+@contextmanager
+def fixed_gate(excluded: np.ndarray) -> Iterator[None]:
+    """The residual gate replaced by the exclusions ``excluded`` ((kinds, T, n) bool) of another
+    solve of the same file: robust weights as configured, no threshold of its own."""
+    def fixed(u: Any, used: Any, gate: float, config: Any) -> Any:
+        mult, _ = gate_rows(u, used, np.inf, config)
+        out = excluded & np.stack(used)
+        return np.where(out, 0.0, mult), out
+
+    smoother.gate_rows = fixed  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+
+
+def with_smoothers_exclusions(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
+    """Horizontal RMS (m) of stls and stls defaults as they ship and with the quadrature smoother's
+    exclusions (module docstring), beside the best peer at the default threshold."""
+    captured: list[np.ndarray] = []
+
+    def capture(u: Any, used: Any, gate: float, config: Any) -> Any:
+        mult, gated = gate_rows(u, used, gate, config)
+        captured.append(gated.copy())
+        return mult, gated
+
+    smoother.gate_rows = capture  # type: ignore[attr-defined]
+    try:
+        solve_real(rinex, case, {"smoother": {"smoother.motion": "quadrature", "smoother.lag": VELOCITY_RULE_LAG}},
+                   {"measurements": SETS[label]})
+    finally:
+        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+    out: dict[str, Any] = {"case": case, "measurements": label}
+    for name in ("stls", "stls defaults"):
+        variants = variants_for(chosen[label]["choice"], (name,))
+        out[name] = evaluate_real(case, solve_real(rinex, case, variants, {"measurements": SETS[label]}))[name]["rms_h_m"]
+        with fixed_gate(captured[-1]):
+            run = solve_real(rinex, case, variants, {"measurements": SETS[label]})
+        out[f"{name} with the smoother's exclusions"] = evaluate_real(case, run)[name]["rms_h_m"]
+    return out
+
+
+def exclusions_table(rows: list[dict[str, Any]], best: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:
+    """The table of :func:`with_smoothers_exclusions`' rows, with the best peer of ``best`` (the
+    default-threshold summary rows by case and set) and the ratios to it."""
+    names = ("stls", "stls with the smoother's exclusions", "stls defaults", "stls defaults with the smoother's exclusions")
+    table_rows = []
+    for r in rows:
+        b = best[(r["case"], r["measurements"])]
+        table_rows.append([r["case"], r["measurements"], b["best_peer"], round(b["best_peer_m"], 3),
+                           *[f"{r[n]:.3f} ({r[n] / b['best_peer_m']:.3f}x)" for n in names]])
+    return {"title": "stls with the quadrature smoother's exclusions (default threshold; H RMS, m, and x best peer)",
+            "columns": ["case", "measurements", "best peer", "best peer H RMS (m)", *names], "rows": table_rows}
+
+
 def gated_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The table of :func:`gated_rows`' rows: excluded / tested per kind the set has."""
     return {"title": "Rows the residual gate left out at the default threshold (last pass)",
@@ -127,6 +191,10 @@ def main() -> None:
     jobs = [(case, label, pfa) for case in cases for label in SETS for pfa in PFAS]
     rows = in_parallel(lambda job: solve_case(args.rinex, *job, chosen), jobs)
     gated = in_parallel(lambda job: gated_rows(args.rinex, *job, chosen), [(c, label) for c in cases for label in SETS])
+    tied_sets = [label for label in SETS if label != "pr"]
+    exclusions = in_parallel(lambda job: with_smoothers_exclusions(args.rinex, *job, chosen),
+                             [(c, label) for c in cases for label in tied_sets])
+    best = {(r["case"], r["measurements"]): r for r in rows if r["integrity_pfa"] == 1e-3}
     data = {"title": "Real sets: the ratios stls / best peer at each shared gate threshold",
             "command": "python benchmarks/real_set_gate.py",
             "notes": "Every method of a row gets the same integrity_pfa (the snapshot FDE, the kf's innovation gate and "
@@ -136,18 +204,21 @@ def main() -> None:
                      + ", ".join(PEERS) + ", at that row's threshold. 95 % interval: moving-block bootstrap (20 epochs) "
                      "of stls / best peer. Nothing is chosen here; the package's default is 1e-3. Second table: "
                      "excluded / tested rows of each kind the set has (pseudoranges, range rates, phase-pair rows) "
-                     "in the last pass of each method's residual gate, each method solved alone. "
+                     "in the last pass of each method's residual gate, each method solved alone. Third table: stls as it "
+                     "ships and with the quadrature smoother's exclusions in place of its own gate (a diagnostic). "
                      f"Whole run {(time.perf_counter() - t0) / 60:.1f} min.",
-            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated)], "rows": rows,
-            "gated": gated, "seconds": time.perf_counter() - t0}
+            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated), exclusions_table(exclusions, best)],
+            "rows": rows, "gated": gated, "with_smoothers_exclusions": exclusions, "seconds": time.perf_counter() - t0}
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     print(" | ".join(data["table"]["columns"]))
     for r in data["table"]["rows"]:
         print(" | ".join(str(x) for x in r))
-    print(" | ".join(data["more_tables"][0]["columns"]))
-    for r in data["more_tables"][0]["rows"]:
-        print(" | ".join(str(x) for x in r))
+    for more in data["more_tables"]:
+        print(more["title"])
+        print(" | ".join(more["columns"]))
+        for r in more["rows"]:
+            print(" | ".join(str(x) for x in r))
     print(f"wrote {OUT} ({data['seconds'] / 60:.1f} min)", file=sys.stderr)
 
 

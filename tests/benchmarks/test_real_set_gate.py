@@ -29,6 +29,9 @@ def test_the_default_threshold_reproduces_the_equal_information_benchmark() -> N
         s = summary[(r["case"], r["measurements"])]
         for key in ("best_smoother", "best_smoother_m", "best_kf", "best_kf_m", "stls_m", "stls_defaults_m"):
             assert r[key] == s[key], (r["case"], r["measurements"], key)
+    for r in json.loads(gate.OUT.read_text(encoding="utf-8"))["with_smoothers_exclusions"]:  # stls solved alone
+        s = summary[(r["case"], r["measurements"])]
+        assert (r["stls"], r["stls defaults"]) == (s["stls_m"], s["stls_defaults_m"]), (r["case"], r["measurements"])
 
 
 def test_the_table_gives_each_rows_best_peer_and_ratios() -> None:
