@@ -30,7 +30,7 @@ residual gate is not changed by it), run with range rates or phase, where stls's
 together through that gate.
 
 Usage: ``python benchmarks/real_set_gate.py [--rinex DIR]``; prints the table and writes
-``benchmarks/results/real_set_gate.json``. About 15 minutes on two cores.
+``benchmarks/results/real_set_gate.json``. About 10-15 minutes on two cores.
 """
 
 from __future__ import annotations
