@@ -62,6 +62,8 @@ NAMES = (*PEERS, "stls", "stls defaults")
 GATED = ("smoother quadrature", "smoother cv", "smoother ca", "stls", "stls defaults")
 """The methods whose residual gate :func:`gated_rows` counts (those that test residuals after their fit)."""
 KINDS = ("pseudorange", "range rate", "phase pair")
+EXCLUSION_COLUMNS = ("stls", "stls with the smoother's exclusions", "stls defaults",
+                     "stls defaults with the smoother's exclusions")
 DIAGNOSED = ("yamatogawa",)
 """The real sets of the two diagnostics: those solved in one piece by one solve, whose gate's last
 pass is the file's. tst2 (986 epochs) is solved in overlapping pieces and again without its
@@ -80,21 +82,40 @@ def solve_case(rinex: Path, case: str, label: str, pfa: float, chosen: dict[str,
 
 
 @contextmanager
-def recorded_gate() -> Iterator[list[tuple[list[int], list[int]]]]:
+def gate_replaced(gate_fn: Any) -> Iterator[None]:
     """The residual gate of :mod:`gnss_cli.pipeline.smoother` (which stls's joint solve calls too)
-    with each call's excluded and tested rows per kind recorded, in call order."""
-    calls: list[tuple[list[int], list[int]]] = []
+    replaced by ``gate_fn`` (the signature of :func:`~gnss_cli.pipeline.measurements.gate_rows`)."""
+    smoother.gate_rows = gate_fn  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+
+
+@contextmanager
+def recorded_gate() -> Iterator[list[tuple[np.ndarray, np.ndarray]]]:
+    """The residual gate as it is, each call's excluded and tested rows ((kinds, T, n) bool each)
+    recorded in call order."""
+    calls: list[tuple[np.ndarray, np.ndarray]] = []
 
     def recorded(u: Any, used: Any, gate: float, config: Any) -> Any:
         mult, gated = gate_rows(u, used, gate, config)
-        calls.append(([int(g.sum()) for g in gated], [int(x.sum()) for x in used]))
+        calls.append((gated.copy(), np.stack(used)))
         return mult, gated
 
-    smoother.gate_rows = recorded  # type: ignore[attr-defined]
-    try:
+    with gate_replaced(recorded):
         yield calls
-    finally:
-        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+
+
+def fixed(excluded: np.ndarray) -> Any:
+    """A residual gate that leaves out the rows ``excluded`` ((kinds, T, n) bool) of another solve of
+    the same file: robust weights as configured, no threshold of its own."""
+    def gate(u: Any, used: Any, threshold: float, config: Any) -> Any:
+        mult, _ = gate_rows(u, used, np.inf, config)
+        out = excluded & np.stack(used)
+        return np.where(out, 0.0, mult), out
+
+    return gate
 
 
 def gated_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
@@ -104,65 +125,38 @@ def gated_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> di
     for name in GATED:
         with recorded_gate() as calls:
             solve_real(rinex, case, variants_for(chosen[label]["choice"], (name,)), {"measurements": SETS[label]})
-        excluded, tested = calls[-1] if calls else ([0] * len(KINDS), [0] * len(KINDS))
-        out[name] = {"excluded": excluded, "tested": tested}
+        excluded, tested = calls[-1] if calls else (np.zeros((len(KINDS), 0)), np.zeros((len(KINDS), 0)))
+        out[name] = {"excluded": [int(k.sum()) for k in excluded], "tested": [int(k.sum()) for k in tested]}
     return out
 
 
-@contextmanager
-def fixed_gate(excluded: np.ndarray) -> Iterator[None]:
-    """The residual gate replaced by the exclusions ``excluded`` ((kinds, T, n) bool) of another
-    solve of the same file: robust weights as configured, no threshold of its own."""
-    def fixed(u: Any, used: Any, gate: float, config: Any) -> Any:
-        mult, _ = gate_rows(u, used, np.inf, config)
-        out = excluded & np.stack(used)
-        return np.where(out, 0.0, mult), out
-
-    smoother.gate_rows = fixed  # type: ignore[attr-defined]
-    try:
-        yield
-    finally:
-        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
-
-
 def with_smoothers_exclusions(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
-    """Horizontal RMS (m) of stls and stls defaults as they ship and with the quadrature smoother's
-    exclusions (module docstring), beside the best peer at the default threshold."""
-    captured: list[np.ndarray] = []
-
-    def capture(u: Any, used: Any, gate: float, config: Any) -> Any:
-        mult, gated = gate_rows(u, used, gate, config)
-        captured.append(gated.copy())
-        return mult, gated
-
-    smoother.gate_rows = capture  # type: ignore[attr-defined]
-    try:
-        solve_real(rinex, case, {"smoother": {"smoother.motion": "quadrature", "smoother.lag": VELOCITY_RULE_LAG}},
-                   {"measurements": SETS[label]})
-    finally:
-        smoother.gate_rows = gate_rows  # type: ignore[attr-defined]
+    """Horizontal RMS (m) of stls and stls defaults with the quadrature smoother's exclusions
+    (module docstring); as they ship, they are the default-threshold rows of :func:`solve_case`."""
+    common = {"measurements": SETS[label]}
+    with recorded_gate() as calls:
+        solve_real(rinex, case, {"smoother": {"smoother.motion": "quadrature", "smoother.lag": VELOCITY_RULE_LAG}}, common)
     out: dict[str, Any] = {"case": case, "measurements": label}
     for name in ("stls", "stls defaults"):
-        variants = variants_for(chosen[label]["choice"], (name,))
-        common = {"measurements": SETS[label]}
-        out[name] = evaluate_real(case, solve_real(rinex, case, variants, common))[name]["rms_h_m"]
-        with fixed_gate(captured[-1]):
-            run = solve_real(rinex, case, variants, common)
+        with gate_replaced(fixed(calls[-1][0])):
+            run = solve_real(rinex, case, variants_for(chosen[label]["choice"], (name,)), common)
         out[f"{name} with the smoother's exclusions"] = evaluate_real(case, run)[name]["rms_h_m"]
     return out
 
 
 def exclusions_table(rows: list[dict[str, Any]], best: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:
-    """The table of :func:`with_smoothers_exclusions`' rows, with the best peer of ``best`` (the
-    default-threshold summary rows by case and set) and the ratios to it."""
-    names = ("stls", "stls with the smoother's exclusions", "stls defaults", "stls defaults with the smoother's exclusions")
+    """The table of :func:`with_smoothers_exclusions`' rows beside the default-threshold summary rows
+    ``best`` (by case and set: the best peer, stls and stls defaults as they ship), with the ratios
+    to the best peer."""
     table_rows = []
     for r in rows:
         b = best[(r["case"], r["measurements"])]
+        rms = {"stls": b["stls_m"], "stls defaults": b["stls_defaults_m"], **r}
         table_rows.append([r["case"], r["measurements"], b["best_peer"], round(b["best_peer_m"], 3),
-                           *[f"{r[n]:.3f} ({r[n] / b['best_peer_m']:.3f}x)" for n in names]])
+                           *[f"{rms[n]:.3f} ({rms[n] / b['best_peer_m']:.3f}x)" for n in EXCLUSION_COLUMNS]])
     return {"title": "stls with the quadrature smoother's exclusions (default threshold; H RMS, m, and x best peer)",
-            "columns": ["case", "measurements", "best peer", "best peer H RMS (m)", *names], "rows": table_rows}
+            "columns": ["case", "measurements", "best peer", "best peer H RMS (m)", *EXCLUSION_COLUMNS],
+            "rows": table_rows}
 
 
 def gated_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
