@@ -232,3 +232,50 @@ def test_whole_segments_keep_one_span_where_the_behavior_holds(noisy_arc: Path) 
     windows15, _ = solve_multi_epoch("stls", data, wls, cfg15)
     rms = [float(np.sqrt(np.mean(np.sum((s.x_ecef_m - ref) ** 2, axis=1)))) for s in (sol, windows15)]
     assert rms[0] < rms[1], rms
+
+
+def _pair_rows(py: np.ndarray, P3: np.ndarray, sigma_m: float) -> dict[str, np.ndarray]:
+    """One window of two epochs: the pair rows ``py`` of the second epoch (the first has no pair)."""
+    n = py.size
+    rows = {"P6": np.zeros((1, 2, n, 6)), "pw": np.zeros((1, 2, n)), "py": np.zeros((1, 2, n)),
+            "pC": np.ones((1, 2, n, 1))}
+    rows["P6"][0, 1] = np.hstack([-P3, P3])
+    rows["pw"][0, 1] = 1.0 / sigma_m**2
+    rows["py"][0, 1] = py
+    return rows
+
+
+def test_the_behavior_test_counts_pair_rows_that_only_the_behavior_could_not_fit() -> None:
+    """The gate leaves out every pair row above it. Where the rows agree on a displacement the
+    behavior missed (5 cm), they come back into the test; a one-cycle slip (0.19 m) does not, among
+    kept rows or among rows all left out; the pseudorange and range-rate multipliers are the gate's."""
+    from types import SimpleNamespace
+
+    from gnss_cli.pipeline.identified import _test_mult
+
+    rng = np.random.default_rng(3)
+    n, sigma = 8, 0.005
+    P3 = rng.normal(size=(n, 3))
+    P3 /= np.linalg.norm(P3, axis=1, keepdims=True)
+    py = P3 @ np.array([0.03, -0.04, 0.0]) + 0.7 + rng.normal(0.0, 0.3 * sigma, n)  # displacement 5 cm, clock change
+    gate = 3.29
+    mult = rng.uniform(0.5, 1.0, size=(3, 1, 2, n))
+    factors = (1.0, 1.0, 1.0)
+
+    every = np.zeros((3, 1, 2, n), dtype=bool)
+    every[2, 0, 1] = True  # the behavior at zero displacement: every pair row out
+    run = SimpleNamespace(mult=np.where(every, 0.0, mult), gated=every)
+    out = _test_mult(run, _pair_rows(py, P3, sigma), factors, gate)
+    assert (out[2, 0, 1] == 1.0).all()
+    np.testing.assert_array_equal(out[:2], run.mult[:2])
+
+    slipped = py.copy()
+    slipped[4] += 0.19
+    for gated_rows in ([4], list(range(n))):  # the slip alone out; every row out
+        g = np.zeros((3, 1, 2, n), dtype=bool)
+        g[2, 0, 1, gated_rows] = True
+        run = SimpleNamespace(mult=np.where(g, 0.0, mult), gated=g)
+        out = _test_mult(run, _pair_rows(slipped, P3, sigma), factors, gate)
+        assert out[2, 0, 1, 4] == 0.0, gated_rows
+        if len(gated_rows) == 1:
+            np.testing.assert_array_equal(out, run.mult)
