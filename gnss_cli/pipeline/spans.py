@@ -7,8 +7,9 @@ windows' spans are not taken as given. After the measurement-domain alternation
 (:mod:`gnss_cli.pipeline.identified`) every window's result is tested against its own
 measurements (:func:`~gnss_cli.pipeline.identified.behavior_tests`: the likelihood ratio of the
 behavior against free per-epoch positions, velocities and pair displacements, in units of the
-file's variance factors, ``chi2(d)`` under the behavior) at the false-alarm probability
-``[stls] behavior_pfa``:
+file's variance factors, ``chi2(d)`` under the behavior; a phase-pair row the residual gate left
+out counts where its pair's own free displacement fits it, so that the gate cannot take away the
+very misfit the test is for) at the false-alarm probability ``[stls] behavior_pfa``:
 
 * passed: the window supplies its epochs;
 * rejected: its epochs are solved again in windows of half its length, sliding by half of that
