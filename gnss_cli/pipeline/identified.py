@@ -482,7 +482,8 @@ def _threshold(config: ProcessingConfig) -> float:
 
 
 def _pseudo_inverse(M: F64) -> tuple[F64, NDArray[np.int64]]:
-    """``M^+`` and the rank of each symmetric ``M (K, p, p)`` (singular values below ``1e-10`` of the largest dropped)."""
+    """``M^+`` and the rank of each symmetric ``M (K, p, p)`` (singular values below 1e-10 of the
+    largest dropped)."""
     u, sv, _ = np.linalg.svd(M, hermitian=True)
     keep = sv > 1e-10 * np.maximum(sv[:, :1], 1e-300)
     inv = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
@@ -508,11 +509,13 @@ def _test_mult(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...],
     for cycle slips), so where a window's behavior cannot follow the antenna to the millimetres of
     the differences, it leaves out whole pairs: the rows that say the behavior is wrong. Left out
     of the test too, they hid that misfit from it (the Yamatogawa walk with phase, stls as chosen
-    on the training runs: 231 of its 1,647 pair rows gated, against 9-19 for the smoothers). A slip stays out: it is inconsistent with the other rows of its pair whatever the
-    displacement. Each pair's displacement and clock change are fitted to the rows the gate kept
-    (a pair with fewer than :data:`MIN_PAIR_ROWS` of them: to all its rows) and every used row is
-    tested there at the gate's limit. The pseudoranges and range rates need no such rule: their
-    gate keeps all of an epoch's rows when more than half exceed it.
+    on the training runs: 231 of its 1,647 pair rows gated, against 9-19 for the smoothers; with
+    them counted, the walk's windows split down to 8 epochs and 9 rows are gated). A slip stays
+    out: it is inconsistent with the other rows of its pair whatever the displacement. Each pair's
+    displacement and clock change are fitted to the rows the gate kept (a pair with fewer than
+    :data:`MIN_PAIR_ROWS` of them: to all its rows) and every used row is tested there at the
+    gate's limit. The pseudoranges and range rates need no such rule: their gate keeps all of an
+    epoch's rows when more than half exceed it.
     """
     mult = run.mult.copy()
     if "P6" not in rows:
@@ -540,12 +543,13 @@ def behavior_tests(run: WindowRun, rows: dict[str, F64], factors: tuple[float, .
     phase pair's displacement is free, with ``rows`` linearized at the result and the gate's
     multipliers (phase-pair rows that only the behavior could not fit counted again,
     :func:`_test_mult`; ``gate`` the gate's limit) and the variance factors applied (so the
-    statistic is in units of the file's own noise): ``D = J_behavior - J_free``, the sum over epochs of ``r^T M^+ r`` for the pseudoranges
-    and the pairs (whose corrections are zero at the result) and ``(v - v_free)^T M (v - v_free)``
-    for the range rates. Under the behavior ``D ~ chi2(d)`` with ``d`` the free unknowns the rows
-    determine (ranks of the epochs' normals) minus the behavior's ``3 l`` coefficients and the
-    kernel's ``l - 1`` identified ones. ``d`` is 0 where the test cannot be evaluated (a kernel
-    without velocities under range rates, or no redundancy).
+    statistic is in units of the file's own noise): ``D = J_behavior - J_free``, the sum over
+    epochs of ``r^T M^+ r`` for the pseudoranges and the pairs (whose corrections are zero at the
+    result) and ``(v - v_free)^T M (v - v_free)`` for the range rates. Under the behavior
+    ``D ~ chi2(d)`` with ``d`` the free unknowns the rows determine (ranks of the epochs' normals)
+    minus the behavior's ``3 l`` coefficients and the kernel's ``l - 1`` identified ones. ``d`` is
+    0 where the test cannot be evaluated (a kernel without velocities under range rates, or no
+    redundancy).
     """
     n_b, n_t = run.epochs.shape
     lag = run.r.shape[1] - 1
