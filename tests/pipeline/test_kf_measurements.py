@@ -65,8 +65,11 @@ def test_phase_changes_nothing_on_a_file_without_phase(flights) -> None:  # type
     cfg, data = flights["cfg"], flights["noise"]
     wls = solve_method(data, "wls", cfg)
     assert measurement_kinds(data, cfg, ALL) == PR_DOPPLER
-    np.testing.assert_array_equal(run_kalman(data, wls, cfg, measurements=ALL).x_ecef_m,
-                                  run_kalman(data, wls, cfg, measurements=PR_DOPPLER).x_ecef_m)
+    # to 1 um, not bit for bit: one run of the lowest-versions environment differed by 1e-15
+    # relative (9e-10 m) in 139 of 903 coordinates, the order of a floating-point sum; a phase row
+    # used would move the track by millimetres at least
+    np.testing.assert_allclose(run_kalman(data, wls, cfg, measurements=ALL).x_ecef_m,
+                               run_kalman(data, wls, cfg, measurements=PR_DOPPLER).x_ecef_m, rtol=0.0, atol=1e-6)
 
 
 def test_phase_rows_improve_the_kf_on_the_yamatogawa_walk(rinex_dir) -> None:  # type: ignore[no-untyped-def]
