@@ -89,7 +89,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import norm
 
 from gnss_cli.behavior import StlsStatus
 from gnss_cli.behavior.batch import identify_windows
@@ -102,6 +101,7 @@ from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
 from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.kalman import nominal_trajectory
+from gnss_cli.pipeline.kalman_rows import gate_threshold
 from gnss_cli.pipeline.measurements import (
     KINDS,
     factors_from_totals,
@@ -477,8 +477,10 @@ def _iterate(run: WindowRun, rows: dict[str, F64], factors: tuple[float, ...], c
 
 
 def _threshold(config: ProcessingConfig) -> float:
-    """The residual gate's limit on a standardized residual: two-sided at ``integrity_pfa`` (inf: no gate)."""
-    return float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
+    """The residual gate's limit on a standardized residual
+    (:func:`~gnss_cli.pipeline.kalman_rows.gate_threshold`; inf: no gate)."""
+    limit = gate_threshold(config)
+    return np.inf if limit is None else limit
 
 
 def _pseudo_inverse(M: F64) -> tuple[F64, NDArray[np.int64]]:

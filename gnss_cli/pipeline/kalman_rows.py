@@ -93,8 +93,9 @@ def variance_factors(data: EpochData, wls: MethodSolution, config: ProcessingCon
 
 
 def gate_threshold(config: ProcessingConfig) -> float | None:
-    """The smoother's residual gate: the two-sided normal quantile of ``integrity_pfa`` (3.29 for
-    1e-3); None (no gate) with ``integrity = "off"``."""
+    """The limit of the multi-epoch gates (the kf's innovations, the smoother's and stls's
+    residuals): the two-sided normal quantile of ``integrity_pfa`` (3.29 for 1e-3); None (no gate)
+    with ``integrity = "off"``."""
     if config.integrity == "off":
         return None
     from scipy.stats import norm

@@ -86,7 +86,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import norm
 
 from gnss_cli.behavior import KernelRepresentation
 from gnss_cli.behavior.kinematic_solve import (
@@ -104,6 +103,7 @@ from gnss_cli.behavior.windows import segments
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.gnss.frames import ecef2enu_rotation, ecef2geodetic
 from gnss_cli.pipeline.kalman import nominal_trajectory
+from gnss_cli.pipeline.kalman_rows import gate_threshold
 from gnss_cli.pipeline.measurements import (
     KINDS,
     checked_measurements,
@@ -280,7 +280,7 @@ def solve_segments(data: EpochData, wls: MethodSolution, config: ProcessingConfi
     mult = np.ones((3, t.size, data.sv.size))  # robust weights times the gate (0: excluded): pr, rr, phase pairs
     gated = np.zeros((3, t.size, data.sv.size), dtype=bool)
     out: dict[str, list] = {"misfit": [0.0] * len(segs), "dof": [0] * len(segs), "rcond": [0.0] * len(segs)}  # type: ignore[type-arg]
-    gate = float(norm.isf(config.integrity_pfa / 2)) if config.integrity != "off" else np.inf
+    gate = np.inf if (limit := gate_threshold(config)) is None else limit
     passes = 0
     given = factors
     factors = (1.0, 1.0, 1.0) if given is None else (*given, 1.0, 1.0)[:3]
