@@ -17,9 +17,15 @@ very misfit the test is for) at the false-alarm probability ``[stls] behavior_pf
   below the shortest window the kernel can be identified on,
   :meth:`~gnss_cli.config.StlsConfig.min_window`), each identified and alternated afresh, and
   tested again;
-* rejected at the shortest length with range rates or phase: its epochs are solved again with
-  the pseudoranges alone, from windows of ``[stls] window`` epochs down as above (the window
-  records say which measurements each used; tied, such a span takes no kernel rows);
+* rejected at the shortest length with range rates or phase: its epochs are solved again without
+  the most precise kind (:func:`fewer_measurements`: the phase first, then the range rates), from
+  windows of ``[stls] window`` epochs down as above (the window records say which measurements
+  each used; tied, such a span takes no kernel rows). A behavior that cannot follow the antenna to
+  the millimetres of the phase differences may still hold it at the range rates' centimetres per
+  second: going straight to the pseudoranges alone, as before, left a simulated urban drive's
+  shortest windows rejected there too, its runs cut by WLS fixes and a minute of it 18.7 m off
+  (stls 7.70 m 3D RMS against 1.66 m now, ``smoother`` 1.48 m; ``benchmarks/bench_urban.py``,
+  dual profile, seed 10);
 * rejected at the shortest length with the pseudoranges alone: its epochs keep their WLS fix,
   status ``fallback_wls``;
 * not tested, its result left in the position domain (the alternation could not use the
@@ -54,6 +60,7 @@ from gnss_cli.behavior.windows import windows
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, distinct_windows, fit_all, spans_tied
 from gnss_cli.pipeline.identified import alternate_windows
+from gnss_cli.pipeline.measurements import KINDS
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
 __all__ = ["tested_windows", "split_window", "behavior_limit"]
@@ -62,6 +69,12 @@ __all__ = ["tested_windows", "split_window", "behavior_limit"]
 def behavior_limit(dof: int, pfa: float) -> float:
     """The behavior test's limit: the ``1 - pfa`` quantile of ``chi2(dof)``."""
     return float(chi2.isf(pfa, dof))
+
+
+def fewer_measurements(used: frozenset[str]) -> frozenset[str]:
+    """The measurements a window rejected at the shortest length is solved again with: ``used``
+    without its most precise kind (phase, then the range rates)."""
+    return used - {next(k for k in reversed(KINDS) if k in used and k != "pseudorange")}
 
 
 def split_window(job: WindowJob, length: int, n_segment: int, cross_faded: bool = False) -> list[WindowJob]:
@@ -141,8 +154,9 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                 if length > shortest:
                     retry, shorter, what = used, max(shortest, length // 2), "in windows of {n} epochs"
                 elif used != alone:
-                    retry, shorter, what = alone, min(max(opts.window, shortest), n_seg), \
-                        "with pseudoranges alone in windows of {n} epochs"
+                    retry, shorter = fewer_measurements(used), min(max(opts.window, shortest), n_seg)
+                    what = "with " + ("the pseudoranges alone" if retry == alone else "+".join(
+                        kind for kind in KINDS if kind in retry)) + " in windows of {n} epochs"
                 else:
                     done.append((job, replace(fit, w_hat=None, basis=None, rejected=True,
                                               message=f"{why}; its epochs keep the WLS fix; {fit.message}"), limit))

@@ -25,7 +25,7 @@ derivatives. With the quadrature rows the tie gains more: on the training drive 
 tied against 1.24 m alone (``tests/pipeline/test_tied.py``).
 
 A span whose windows the run's measurements rejected down to the shortest, and which then passed
-with the pseudoranges alone (:mod:`gnss_cli.pipeline.spans`), is in its run without a behavior:
+with fewer of them (:mod:`gnss_cli.pipeline.spans`), is in its run without a behavior:
 no kernel rows and no switch row out of it, its positions held by the measurements and (with
 range rates) the quadrature rows alone. Its kernel contradicts the range rates or phase the
 run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an evaluation
@@ -90,8 +90,8 @@ SWITCH_SIGMA_FACTOR = 0.1
 
 def _free(fit: Fit, kinds: frozenset[str]) -> bool:
     """Whether a span enters its run without a behavior: its result stayed in the position domain,
-    or the run's measurements rejected its windows down to the shortest and it passed with the
-    pseudoranges alone (:mod:`gnss_cli.pipeline.spans`)."""
+    or the run's measurements rejected its windows down to the shortest and it passed with fewer
+    of them (:mod:`gnss_cli.pipeline.spans`)."""
     return fit.domain != "measurement" or (fit.measurements is not None and fit.measurements != kinds)
 
 

@@ -279,3 +279,41 @@ def test_the_behavior_test_counts_pair_rows_that_only_the_behavior_could_not_fit
         assert out[2, 0, 1, 4] == 0.0, gated_rows
         if len(gated_rows) == 1:
             np.testing.assert_array_equal(out, run.mult)
+
+
+def test_a_window_rejected_at_the_shortest_length_drops_its_most_precise_measurements_first(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rejected at the shortest length, a window with phase is solved again without the phase
+    (pseudoranges and range rates), and only one rejected with those with the pseudoranges alone:
+    where a behavior cannot follow the antenna to the millimetres of the phase differences, the
+    range rates may still hold it. (A simulated drive with phase, ``behavior_pfa`` 0.5 so that the
+    test rejects at every length.)"""
+    from gnss_cli.pipeline.spans import fewer_measurements
+
+    base = ScenarioConfig()
+    d = tmp_path / "drive"
+    write_scenario(run_scenario(replace(base, trajectory="drive", duration_s=120.0, interval_s=1.0, seed=1101,
+                                        errors=base.errors.with_sources(parse_error_list("noise")),
+                                        layout=replace(base.layout, phase=True))), d)
+    cfg, data, wls, _ = _load(d, "pseudorange,doppler,phase", **{"stls.window": 0, "stls.behavior_pfa": 0.5})
+    stages: list[frozenset[str]] = []
+    real = spans.alternate_windows
+
+    def recording(data, wls, config, segs, jobs, fits, kinds, *rest):  # type: ignore[no-untyped-def]
+        stages.append(kinds)
+        return real(data, wls, config, segs, jobs, fits, kinds, *rest)
+
+    monkeypatch.setattr(spans, "alternate_windows", recording)
+    _, models = solve_multi_epoch("stls", data, wls, cfg)
+    every, without_phase, alone = (frozenset(k.split(",")) for k in
+                                   ("pseudorange,doppler,phase", "pseudorange,doppler", "pseudorange"))
+    assert fewer_measurements(every) == without_phase and fewer_measurements(without_phase) == alone
+    first = {kinds: stages.index(kinds) for kinds in (every, without_phase, alone)}  # each kind set is solved
+    assert first[every] == 0 and max(i for i, k in enumerate(stages) if k == every) < first[without_phase]
+    assert max(i for i, k in enumerate(stages) if k == without_phase) < first[alone]
+    shortest = cfg.stls.min_window()
+    retried = {(m.message.split("measurement domain (")[1].split(")")[0], m.message.split(";")[1].split(" in windows")[0])
+               for m in models if m.status == "rejected" and m.n_epochs == shortest
+               and "measurement domain (" in m.message and "solved again with" in m.message}
+    assert retried == {("pseudorange+doppler+phase", " its epochs solved again with pseudorange+doppler"),
+                       ("pseudorange+doppler", " its epochs solved again with the pseudoranges alone")}
