@@ -118,8 +118,9 @@ class MotionTerms:
     (the state blocks of :attr:`Motion.n_kin`) and the nominal steps ``s_t = x_nom_{t+1} - x_nom_t``.
 
     Equality constraints ``hard @ u + hard_step @ s = 0``; cost
-    ``(soft @ u + soft_step @ s)^T soft_weight (soft @ u + soft_step @ s)``; ``counted``: the cost
-    and its rows are part of the model's misfit and degrees of freedom (process noise), not a prior.
+    ``(soft @ u + soft_step @ s)^T soft_weight (soft @ u + soft_step @ s)``; ``counted``: how many
+    of the soft rows, the first ones, are part of the model's misfit and degrees of freedom (process
+    noise, switch rows); the rest are a prior (the quadrature motion's on the velocities).
     """
 
     hard: sp.csr_matrix
@@ -127,7 +128,7 @@ class MotionTerms:
     soft: sp.csr_matrix
     soft_step: sp.csr_matrix
     soft_weight: sp.csr_matrix
-    counted: bool
+    counted: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,11 +240,11 @@ def motion_terms(motion: Motion, dt_s: F64) -> MotionTerms:
         psd = motion.accel_psd_m2_s3 if motion.name == "cv" else motion.jerk_psd_m2_s5
         weight = sp.block_diag(list(_process_information(dt_s, motion.n_kin, psd)), format="csr") if n > 1 \
             else sp.csr_matrix((0, 0))
-        return MotionTerms(sp.csr_matrix((0, m)), sp.csr_matrix((0, n - 1)), soft, step, weight, True)
+        return MotionTerms(sp.csr_matrix((0, m)), sp.csr_matrix((0, n - 1)), soft, step, weight, soft.shape[0])
     if motion.name == "static":
         hard = sp.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n), format="csr")
         empty = sp.csr_matrix((0, m))
-        return MotionTerms(hard, sp.eye(n - 1, format="csr"), empty, sp.csr_matrix((0, n - 1)), sp.csr_matrix((0, 0)), False)
+        return MotionTerms(hard, sp.eye(n - 1, format="csr"), empty, sp.csr_matrix((0, n - 1)), sp.csr_matrix((0, 0)), 0)
     hard = _quadrature_rows(dt_s, motion.lag)
     if n > 2 and JERK_SIGMA_M_S3 > 0:
         d2 = sp.diags([np.ones(n - 2), -2 * np.ones(n - 2), np.ones(n - 2)], [0, 1, 2], shape=(n - 2, n))
@@ -252,7 +253,7 @@ def motion_terms(motion: Motion, dt_s: F64) -> MotionTerms:
         weight = sp.diags(1.0 / (JERK_SIGMA_M_S3 * h**2) ** 2, format="csr")
     else:
         soft, weight = sp.csr_matrix((0, m)), sp.csr_matrix((0, 0))
-    return MotionTerms(hard, sp.eye(n - 1, format="csr"), soft, sp.csr_matrix((soft.shape[0], n - 1)), weight, False)
+    return MotionTerms(hard, sp.eye(n - 1, format="csr"), soft, sp.csr_matrix((soft.shape[0], n - 1)), weight, 0)
 
 
 def _pair_information(M_ph: F64) -> sp.csr_matrix:
@@ -399,8 +400,9 @@ def solve_kinematic(pr: EpochNormals, rr: EpochNormals | None, step_m: F64, dt_s
         z6 = np.hstack([z[:-1], z[1:]])
         mis += float(ph.s[1:].sum() - 2 * np.sum(z6 * ph.r[1:]) + np.einsum("ti,tij,tj->", z6, ph.M[1:], z6))
         dof += int(ph.n_rows[1:].sum() - ph.n_free[1:].sum())
-    if terms.counted and terms.soft.shape[0]:
-        e = (sp.kron(terms.soft, eye3) @ u + sp.kron(terms.soft_step, eye3) @ step)
-        mis += float(e @ (sp.kron(terms.soft_weight, eye3) @ e))
-        dof += 3 * terms.soft.shape[0]
+    if terms.counted:
+        c = terms.counted
+        e = (sp.kron(terms.soft[:c], eye3) @ u + sp.kron(terms.soft_step[:c], eye3) @ step)
+        mis += float(e @ (sp.kron(terms.soft_weight[:c, :c], eye3) @ e))
+        dof += 3 * c
     return KinematicSolution(z, v, mis, dof, _rcond(kkt, lu))
