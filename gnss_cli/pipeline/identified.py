@@ -103,10 +103,10 @@ from gnss_cli.pipeline.integrity import take_epochs
 from gnss_cli.pipeline.kalman import nominal_trajectory
 from gnss_cli.pipeline.kalman_rows import gate_threshold
 from gnss_cli.pipeline.measurements import (
-    KINDS,
     factors_from_totals,
     free_misfit_totals,
     gate_rows,
+    kinds_text,
     measurement_rows,
     standardized,
 )
@@ -659,7 +659,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
 def _finish(run: WindowRun, out: list[Fit], kinds: frozenset[str]) -> None:
     """The fits of the windows of ``run`` (in place into ``out``)."""
     n_b, n_t = run.epochs.shape
-    used = "+".join(k for k in KINDS if k in kinds)
+    used = kinds_text(kinds)
     good = np.flatnonzero(run.converged & ~run.failed)
     recs = dict(zip(good.tolist(), shared_kernel_records(run.r[good], 3) if good.size else []))
     bases = dict(zip(good.tolist(), shared_behavior_bases(run.r[good], n_t, 3) if good.size else []))

@@ -40,13 +40,23 @@ from gnss_cli.pipeline.phase_rows import phase_pair_rows
 from gnss_cli.pipeline.results import PASSED_FIX, EpochData, MethodSolution, as_wls_used
 from gnss_cli.solvers.robust import m_estimator_weights
 
-__all__ = ["KINDS", "default_measurements", "checked_measurements", "measurement_rows", "epoch_normals",
+__all__ = ["KINDS", "kinds_text", "default_measurements", "checked_measurements", "measurement_rows", "epoch_normals",
            "standardized", "misfit_totals", "factors_from_totals", "free_misfit_totals", "pairs_alone", "gate_rows"]
 
 F64 = NDArray[np.float64]
 
 #: The kinds of measurements; pseudoranges are always used.
 KINDS = ("pseudorange", "doppler", "phase")
+
+
+def kinds_text(kinds: Iterable[str]) -> str:
+    """The kinds in the words of the records, in the order of :data:`KINDS`.
+
+    >>> kinds_text({"phase", "pseudorange"})
+    'pseudorange+phase'
+    """
+    kinds = set(kinds)
+    return "+".join(kind for kind in KINDS if kind in kinds)
 
 
 def default_measurements(data: EpochData, config: ProcessingConfig) -> frozenset[str]:

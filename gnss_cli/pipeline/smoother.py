@@ -112,6 +112,7 @@ from gnss_cli.pipeline.measurements import (
     factors_from_totals,
     free_misfit_totals,
     gate_rows,
+    kinds_text,
     measurement_rows,
     misfit_totals,
     pairs_alone,
@@ -392,7 +393,7 @@ def _models(data: EpochData, run: SegmentRun, method: str = "smoother") -> list[
     """One record per segment: the motion's kernel, misfit and what was used (``failed`` when degenerate)."""
     mot = run.motion
     what = f"motion {mot.name}" + (f" (lag {min(mot.lag, 3)})" if mot.name == "quadrature" else "")
-    used = "+".join(k for k in KINDS if k in run.measurements)
+    used = kinds_text(run.measurements)
     models = []
     for k, seg in enumerate(run.segments):
         steps = np.diff(data.time_gps_s[seg])

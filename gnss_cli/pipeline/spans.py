@@ -24,8 +24,8 @@ very misfit the test is for) at the false-alarm probability ``[stls] behavior_pf
   the millimetres of the phase differences may still hold it at the range rates' centimetres per
   second: going straight to the pseudoranges alone, as before, left a simulated urban drive's
   shortest windows rejected there too, its runs cut by WLS fixes and a minute of it 18.7 m off
-  (stls 7.70 m 3D RMS against 1.66 m now, ``smoother`` 1.48 m; ``benchmarks/bench_urban.py``,
-  dual profile, seed 10);
+  (stls 7.70 m 3D RMS against 1.66 m with this rule, ``smoother`` 1.48 m;
+  ``benchmarks/bench_urban.py``, dual profile, seed 10);
 * rejected at the shortest length with the pseudoranges alone: its epochs keep their WLS fix,
   status ``fallback_wls``;
 * not tested, its result left in the position domain (the alternation could not use the
@@ -60,7 +60,7 @@ from gnss_cli.behavior.windows import windows
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob, distinct_windows, fit_all, spans_tied
 from gnss_cli.pipeline.identified import alternate_windows
-from gnss_cli.pipeline.measurements import KINDS
+from gnss_cli.pipeline.measurements import KINDS, kinds_text
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 
 __all__ = ["tested_windows", "split_window", "behavior_limit"]
@@ -155,8 +155,8 @@ def tested_windows(data: EpochData, wls: MethodSolution, config: ProcessingConfi
                     retry, shorter, what = used, max(shortest, length // 2), "in windows of {n} epochs"
                 elif used != alone:
                     retry, shorter = fewer_measurements(used), min(max(opts.window, shortest), n_seg)
-                    what = "with " + ("the pseudoranges alone" if retry == alone else "+".join(
-                        kind for kind in KINDS if kind in retry)) + " in windows of {n} epochs"
+                    what = "with " + ("the pseudoranges alone" if retry == alone else kinds_text(retry)) \
+                        + " in windows of {n} epochs"
                 else:
                     done.append((job, replace(fit, w_hat=None, basis=None, rejected=True,
                                               message=f"{why}; its epochs keep the WLS fix; {fit.message}"), limit))

@@ -68,7 +68,7 @@ from gnss_cli.behavior.piecewise import piecewise_terms, velocity_rule
 from gnss_cli.behavior.windows import segments
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
-from gnss_cli.pipeline.measurements import KINDS
+from gnss_cli.pipeline.measurements import kinds_text
 from gnss_cli.pipeline.results import EpochData, MethodSolution
 from gnss_cli.pipeline.smoother import GAP_FACTOR, SegmentRun, solve_segments
 
@@ -99,7 +99,7 @@ def _why_free(fit: Fit, kinds: frozenset[str]) -> str:
     """The record's words for a span in its run without a behavior (:func:`_free`)."""
     if fit.domain != "measurement":
         return "its result stayed in the position domain"
-    return f"its behavior was rejected with {'+'.join(kind for kind in KINDS if kind in kinds)}"
+    return f"its behavior was rejected with {kinds_text(kinds)}"
 
 
 def span_runs(segs: list[Segment], jobs: list[WindowJob], fits: list[Fit]) -> list[list[int]]:
