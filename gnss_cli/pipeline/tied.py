@@ -27,8 +27,8 @@ tied against 1.24 m alone (``tests/pipeline/test_tied.py``).
 A span whose windows the run's measurements rejected down to the shortest, and which then passed
 with fewer of them (:mod:`gnss_cli.pipeline.spans`), is in its run without a behavior:
 no kernel rows and no switch row out of it, its positions held by the measurements and (with
-range rates) the quadrature rows and their weak prior alone, as in ``smoother``. Its kernel contradicts the range rates or phase the
-run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an evaluation
+range rates) the quadrature rows and their weak prior alone, as in ``smoother``. Its kernel
+contradicts the range rates or phase the run uses; tied in with its rows (roots such as -1.24 and 1.29 at the start of an evaluation
 drive of ``benchmarks/multi_epoch_fair.py``), it put that drive's first epochs 7 m off; on the
 six training runs the rule (with the position-domain spans below) takes the pooled 3D RMS from
 0.437 to 0.433 m in whole segments, from 0.466 to 0.443 m in 20-epoch windows
