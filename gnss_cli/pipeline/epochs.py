@@ -194,8 +194,9 @@ def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: 
 @dataclass
 class Coverage:
     """Per satellite of a part of the file: observed, with a usable ephemeris, usable after the
-    selection, usable in the end (iono-free: with a second frequency); and the time span.
-    Parts of one file on one satellite axis combine with :meth:`merge`."""
+    selection, usable in the end (iono-free: with a second frequency); the time span; and whether
+    the part gave the multi-epoch methods range rates (Doppler) and carrier phase. Parts of one
+    file on one satellite axis combine with :meth:`merge`."""
 
     have_obs: NDArray[np.bool_]
     eph_usable: NDArray[np.bool_]
@@ -203,11 +204,14 @@ class Coverage:
     usable: NDArray[np.bool_]
     t_min_s: float
     t_max_s: float
+    doppler: bool = False
+    phase: bool = False
 
     def merge(self, other: Coverage) -> Coverage:
         return Coverage(self.have_obs | other.have_obs, self.eph_usable | other.eph_usable,
                         self.selected | other.selected, self.usable | other.usable,
-                        min(self.t_min_s, other.t_min_s), max(self.t_max_s, other.t_max_s))
+                        min(self.t_min_s, other.t_min_s), max(self.t_max_s, other.t_max_s),
+                        self.doppler or other.doppler, self.phase or other.phase)
 
 
 def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems: Sequence[str]) -> tuple[EpochData, Coverage]:
@@ -232,7 +236,7 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
         **_phases(obs, prs, arrays, doppler_hz, usable, t, config),
     )
     cov = Coverage(have_obs.any(axis=0), arrays.usable.any(axis=0), selected.any(axis=0), usable.any(axis=0),
-                   float(t.min()), float(t.max()))
+                   float(t.min()), float(t.max()), data.range_rate_m_s is not None, data.phase_m is not None)
     return data, cov
 
 

@@ -76,6 +76,33 @@ def resolved_measurements(config: ProcessingConfig, has_doppler: bool, has_phase
     return tuple(k for k in MEASUREMENT_KINDS if present[k] and config.uses(k))
 
 
+def measurement_warnings(config: ProcessingConfig, has_doppler: bool, has_phase: bool) -> list[str]:
+    """A warning when ``--measurements`` names kinds the observation file does not give the
+    multi-epoch methods (they then run on the others: :func:`resolved_measurements`).
+
+    >>> from gnss_cli.config import load_config
+    >>> config = load_config(None, {"methods": "kf", "measurements": "pseudorange,doppler,phase"})
+    >>> measurement_warnings(config, True, False)
+    ['--measurements pseudorange,doppler,phase: the observation file has no carrier phase; kf uses pseudorange+doppler']
+    >>> measurement_warnings(config, True, True)
+    []
+    """
+    multi = config.multi_epoch_methods
+    if not multi or not config.measurements:
+        return []
+    used = resolved_measurements(config, has_doppler, has_phase)
+    missing = [k for k in config.measurements if k not in used]
+    if not missing:
+        return []
+    words = {"doppler": "Doppler", "phase": "carrier phase"}
+    what = " or ".join(words[k] for k in missing)
+    if "phase" in missing and not has_doppler:
+        what += " (the phase is used with the Doppler: its wavelengths and slip check)"
+    verb = "uses" if len(multi) == 1 else "use"
+    return [f"--measurements {','.join(config.measurements)}: the observation file has no {what}; "
+            f"{', '.join(multi)} {verb} {'+'.join(used)}"]
+
+
 def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool) -> dict[str, MethodSettings]:
     """The :class:`MethodSettings` of every method of ``config.methods`` for a file with (or
     without) Doppler and carrier phase."""

@@ -60,7 +60,9 @@ from gnss_cli.pipeline.epochs import (
 )
 from gnss_cli.pipeline.environment import HEAD_EPOCHS, describe, judged
 from gnss_cli.pipeline.memory import map_large_blocks
-from gnss_cli.pipeline.methods import settings_warnings, snapshot_config, solve_multi_epoch, with_settings
+from gnss_cli.pipeline.methods import (
+    measurement_warnings, settings_warnings, snapshot_config, solve_multi_epoch, with_settings,
+)
 from gnss_cli.pipeline.parts import part_epochs, solve_part, split_epochs
 from gnss_cli.pipeline.results import (
     PASSED_FIX, EpochData, EpochStatus, Progress, RunResult, concat_results, take_result, take_solution,
@@ -442,6 +444,7 @@ class Run:
                 cov, counts = yield from self._pass(setup, systems, sv, used, n_epochs, finish, factors, pieces)
             warnings = system_warnings(setup, survey.obs_types, survey.unlisted, survey.obs_sv, survey.pr_sv)
             warnings += file_warnings(setup, sv, systems, cov)
+            warnings += measurement_warnings(self.config, cov.doppler, cov.phase)
             actual = used_systems(sv, systems, cov)
             if actual == used:
                 break

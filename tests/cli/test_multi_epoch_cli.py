@@ -116,3 +116,21 @@ def test_untested_whole_segments_are_warned_about(tmp_path: Path, capsys) -> Non
     warned = [line for line in err.splitlines() if line.startswith("gnss-solve: warning: stls --lag 3 --window 0")]
     assert len(warned) == 1 and "--integrity off" in warned[0] and "--window N" in warned[0]
     assert (tmp_path / "p.csv").stat().st_size > 0
+
+
+def test_measurements_the_file_lacks_are_warned_about(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--measurements`` naming the phase on a file without it (the sample: C1C D1C S1C): the run
+    warns once, on stderr, which kinds the methods use instead, and summary.csv records them; asking
+    only for what the file has gives no such warning."""
+    out = tmp_path / "out"
+    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "smoother,kf",
+                         "--measurements", "pseudorange,doppler,phase", "--out-dir", out], capsys)
+    assert code == 0, err
+    warned = [line for line in err.splitlines() if line.startswith("gnss-solve: warning: --measurements")]
+    assert warned == ["gnss-solve: warning: --measurements pseudorange,doppler,phase: the observation file has no "
+                      "carrier phase; smoother, kf use pseudorange+doppler"], err
+    summary = pd.read_csv(out / "summary.csv").set_index("method")
+    assert set(summary.loc[["smoother", "kf"], "measurements"]) == {"pseudorange+doppler"}
+    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "kf", "--measurements", "pseudorange,doppler",
+                         "-o", tmp_path / "p.csv"], capsys)
+    assert code == 0 and "--measurements" not in err, err
