@@ -6,8 +6,10 @@ Hatanaka + gzip nav, p433 RINEX 3 Hatanaka, tst2 gzip RINEX 3.02, the hand-made 
 :mod:`fuzz_mutators` (drawn with ``numpy.random.default_rng([seed, case])``, so a case is
 reproducible from its id), writes the copy into a fresh temporary folder and runs the
 ``gnss-solve`` entry point in-process (:func:`gnss_cli.cli.exits.run_app`) in a forked
-worker with ``--quiet --out-dir`` pointing into another fresh folder. A worker that runs
-longer than ``--timeout`` is killed and the case is a hang.
+worker with ``--quiet --out-dir`` pointing into another fresh folder. A worker that uses more
+than ``--timeout`` seconds of processor time, or runs :data:`WALL_FACTOR` times as long without
+(stuck waiting), is killed and the case is a hang: processor time, so that a machine busy with
+other work does not turn a slow case into a hang (where ``/proc`` is missing: wall time).
 
 Recorded per case: data set, target file, mutator and its details (for navigation values:
 the field, old and new value and whether the new value is inside its physical range), exit
@@ -453,6 +455,25 @@ def _preload() -> None:
     _preload.done = True  # type: ignore[attr-defined]
 
 
+WALL_FACTOR = 5.0
+"""A worker running this many times ``--timeout`` of wall time is a hang whatever its processor time."""
+
+
+def _processor_s(pid: int) -> float | None:
+    """Processor time of process ``pid`` and its waited-for children, s (None without ``/proc``)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return sum(int(f) for f in fields[11:15]) / os.sysconf("SC_CLK_TCK")  # utime stime cutime cstime
+
+
+def _is_hang(pid: int, elapsed_s: float, timeout_s: float) -> bool:
+    """Whether a running worker is a hang (module docstring)."""
+    cpu = _processor_s(pid)
+    return elapsed_s > WALL_FACTOR * timeout_s or (elapsed_s if cpu is None else cpu) > timeout_s
+
+
 def run_cases(plans: list[dict], root: Path, jobs: int = 2, timeout_s: float = 60.0, keep: Path | None = None,
               progress: bool = False) -> list[dict]:
     """Run the planned cases, ``jobs`` forked workers at a time; the records in plan order."""
@@ -474,7 +495,7 @@ def run_cases(plans: list[dict], root: Path, jobs: int = 2, timeout_s: float = 6
             time.sleep(0.005)
             for i, (proc, t0, res, wd, plan) in list(running.items()):
                 elapsed = time.perf_counter() - t0
-                if proc.is_alive() and elapsed < timeout_s:
+                if proc.is_alive() and not _is_hang(proc.pid, elapsed, timeout_s):
                     continue
                 if proc.is_alive():
                     _kill_group(proc)
@@ -639,7 +660,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=1000, help="number of cases")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2, help="worker processes at a time")
-    ap.add_argument("--timeout", type=float, default=60.0, help="seconds before a case is a hang")
+    ap.add_argument("--timeout", type=float, default=60.0, help="processor seconds before a case is a hang")
     ap.add_argument("--case", type=int, default=None, help="re-run this one case (with --seed) and print it")
     ap.add_argument("--keep", type=Path, default=None, help="keep the case folders here (with --case)")
     ap.add_argument("--datasets", default=None, help="comma list of data sets (default all): " + ",".join(DATASETS))

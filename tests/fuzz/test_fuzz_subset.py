@@ -89,3 +89,42 @@ def test_repeated_and_restamped_epochs_are_rejected_with_their_line(campaign) ->
     assert len(cases) >= 10
     for r in cases:
         assert r["exit"] == 4 and ": line " in r["stderr"] and "is not later than the epoch" in r["stderr"], r
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="no /proc: the fuzz limit falls back to wall time")
+def test_a_hang_is_processor_time_not_a_busy_machine() -> None:
+    """A worker waiting (as on a machine busy with other work) is no hang until it has run
+    ``WALL_FACTOR`` times the limit; a worker computing is one once its processor time passes it."""
+    import multiprocessing
+    import time
+
+    fuzz = _fuzz()
+    ctx = multiprocessing.get_context("fork")
+    waiting = ctx.Process(target=time.sleep, args=(30.0,))
+    waiting.start()
+    try:
+        time.sleep(0.5)
+        assert not fuzz._is_hang(waiting.pid, 0.5, 0.2)  # 0.5 s of wall time, no processor time
+        assert fuzz._is_hang(waiting.pid, fuzz.WALL_FACTOR * 0.2 + 0.1, 0.2)
+    finally:
+        waiting.kill()
+        waiting.join()
+    computing = ctx.Process(target=_spin, args=(30.0,))
+    computing.start()
+    try:
+        t0 = time.perf_counter()
+        while not fuzz._is_hang(computing.pid, time.perf_counter() - t0, 0.3):
+            time.sleep(0.01)
+            assert time.perf_counter() - t0 < 20.0
+        assert fuzz._processor_s(computing.pid) > 0.3
+    finally:
+        computing.kill()
+        computing.join()
+
+
+def _spin(seconds: float) -> None:
+    import time
+
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
