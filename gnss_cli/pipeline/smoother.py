@@ -221,9 +221,11 @@ def _take(nrm: EpochNormals | None, seg: NDArray[np.intp]) -> EpochNormals | Non
 
 
 def _segment_pairs(ph: EpochNormals, seg: NDArray[np.intp]) -> EpochNormals:
-    """The pair normals of a segment's epochs, the pair ending at its first epoch (from outside) left out."""
-    keep = np.ones(seg.size)
-    keep[0] = 0.0
+    """The pair normals of a segment's epochs: each epoch's pair differences it with the epoch before
+    it in the data, so only where that is the segment's previous epoch (left out: the pair ending at
+    its first epoch, from outside, and, in a tied ``stls`` run that bridges an epoch without a fix,
+    the pair ending just after it)."""
+    keep = np.r_[0.0, (np.diff(seg) == 1).astype(np.float64)]
     return EpochNormals(ph.M[seg] * keep[:, None, None], ph.r[seg] * keep[:, None], ph.s[seg] * keep,
                         ph.n_rows[seg] * keep.astype(np.int64), ph.n_free[seg] * keep.astype(np.int64))
 
