@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["segments", "windows"]
+__all__ = ["nominal_step", "segments", "windows"]
 
 F64 = NDArray[np.float64]
 
@@ -41,11 +41,7 @@ def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5
     ok = np.flatnonzero(solved)
     if ok.size == 0:
         return []
-    dt = np.diff(t)
-    if nominal_s is not None:
-        nominal = float(nominal_s)
-    else:
-        nominal = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
+    nominal = float(nominal_s) if nominal_s is not None else nominal_step(t)
     out: list[NDArray[np.intp]] = []
     start = 0
     for k in range(1, ok.size):
@@ -56,6 +52,16 @@ def segments(time_gps_s: F64, solved: NDArray[np.bool_], gap_factor: float = 1.5
             start = k
     out.append(ok[start:])
     return out
+
+
+def nominal_step(time_gps_s: NDArray[np.float64]) -> float:
+    """The nominal sampling interval of a series, s: the median of its positive steps (1 s without any).
+
+    >>> nominal_step(np.array([0.0, 1.0, 2.0, 5.0, 6.0]))
+    1.0
+    """
+    dt = np.diff(np.asarray(time_gps_s, dtype=np.float64))
+    return float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
 
 
 def windows(n: int, window: int, step: int | None = None) -> tuple[list[tuple[int, int]], NDArray[np.intp]]:

@@ -69,7 +69,7 @@ from numpy.typing import NDArray
 
 from gnss_cli.behavior.kinematic_solve import Motion, MotionTerms
 from gnss_cli.behavior.piecewise import piecewise_terms, velocity_rule
-from gnss_cli.behavior.windows import segments
+from gnss_cli.behavior.windows import nominal_step, segments
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.pipeline.behavioral import Fit, Segment, WindowJob
 from gnss_cli.pipeline.measurements import kinds_text
@@ -173,11 +173,9 @@ def bridged_runs(t: F64, segs: list[Segment], jobs: list[WindowJob], fits: list[
     fixed = member.copy()  # epochs with a fix: one outside the parts (a span that kept its WLS fixes) ends a run
     for seg in segs:
         fixed[seg.epochs] = True
-    dt = np.diff(t)
-    nominal = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1.0
     have = np.flatnonzero(fixed)  # an epoch without a fix is bridged as a missed one is
     joined = np.full(t.size, -1)  # the smoother's segments of the parts' epochs: one rule for a bridgeable step
-    for j, seg in enumerate(segments(t[have], member[have], GAP_FACTOR, nominal)):
+    for j, seg in enumerate(segments(t[have], member[have], GAP_FACTOR, nominal_step(t))):
         joined[have[seg]] = j
     out: dict[int, list[Part]] = {}
     for part in sorted(parts, key=lambda p: int(p[1][0])):
