@@ -204,14 +204,14 @@ class Coverage:
     usable: NDArray[np.bool_]
     t_min_s: float
     t_max_s: float
-    doppler: bool = False
-    phase: bool = False
+    has_doppler: bool = False
+    has_phase: bool = False
 
     def merge(self, other: Coverage) -> Coverage:
         return Coverage(self.have_obs | other.have_obs, self.eph_usable | other.eph_usable,
                         self.selected | other.selected, self.usable | other.usable,
                         min(self.t_min_s, other.t_min_s), max(self.t_max_s, other.t_max_s),
-                        self.doppler or other.doppler, self.phase or other.phase)
+                        self.has_doppler or other.has_doppler, self.has_phase or other.has_phase)
 
 
 def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems: Sequence[str]) -> tuple[EpochData, Coverage]:

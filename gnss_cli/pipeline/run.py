@@ -444,7 +444,7 @@ class Run:
                 cov, counts = yield from self._pass(setup, systems, sv, used, n_epochs, finish, factors, pieces)
             warnings = system_warnings(setup, survey.obs_types, survey.unlisted, survey.obs_sv, survey.pr_sv)
             warnings += file_warnings(setup, sv, systems, cov)
-            warnings += measurement_warnings(self.config, cov.doppler, cov.phase)
+            warnings += measurement_warnings(self.config, cov.has_doppler, cov.has_phase)
             actual = used_systems(sv, systems, cov)
             if actual == used:
                 break
