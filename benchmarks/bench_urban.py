@@ -16,7 +16,8 @@ Cases:
   availability only, and the distance to rnx2rtkp on the epochs both write.
 
 Methods: ``wls``, ``smoother``, ``kf`` and ``stls --lag 3`` in one run, each file with
-``--integrity off`` (stls there with ``--window 15``, as its warning advises), with
+``--integrity off`` (no residual gate, no per-epoch test; stls's behavior test still chooses its
+spans), with
 ``--environment open`` (``fde`` and the multi-epoch gates, no street-canyon settings), with the
 defaults (``--environment auto``: the street-canyon settings when the file's WLS variance factor
 says so; the run's judgement is recorded per case) and with
@@ -64,12 +65,12 @@ PEER_CONF = SHARED / "peer" / "rnx2rtkp-spp.conf"
 OUT = ROOT / "benchmarks" / "results" / "urban.json"
 NAVSYS = {"G": 1, "R": 4, "E": 8, "J": 16, "C": 32}
 METHODS = ("wls", "smoother", "kf", "stls")
-SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off", "stls.window": 15},
+SETTINGS: dict[str, dict[str, object]] = {"off": {"integrity": "off"},
                                            "open": {"environment": "open"}, "default": {},
                                            "urban": {"config": "configs/urban.toml"}}
-"""Integrity settings of each run (every other option at its packaged default): integrity off (with
-stls in 15-epoch windows, as that run's warning advises: without the behavior test a whole segment
-would be one untested kernel), the open-sky settings (``environment = "open"``: the packaged
+"""Integrity settings of each run (every other option at its packaged default): integrity off (stls
+in its default whole segments: the behavior test, which chooses its spans, runs whatever
+``integrity`` says), the open-sky settings (``environment = "open"``: the packaged
 settings without the street-canyon ones), the defaults (``environment = "auto"``: the street-canyon
 settings when the file's WLS variance factor says so) and ``configs/urban.toml`` (``environment =
 "urban"``: the NLOS detector, nlos_dependent fixes and the levels' multi-satellite faults, always;
@@ -427,8 +428,7 @@ def notes(n_seeds: int, duration: float) -> str:
             "'configs/urban.toml': environment urban, always (the NLOS detector, protection levels over "
             "faults of up to three satellites at a prior of 1e-2, and ls/wls epochs whose fix rests on "
             "suspected reflections nlos_dependent: min_direct_dof 1). 'RMS / RMS integrity off' "
-            "compares with the same run with --integrity off (stls there in 15-epoch windows, as its warning "
-            "advises for a moving receiver). 'NLOS / LOS sat-epochs out': the "
+            "compares with the same run with --integrity off. 'NLOS / LOS sat-epochs out': the "
             "share of the drives' NLOS and LOS satellite-epochs WLS excluded or down-weighted "
             "below 10 %. 'NLOS removed by the labels (bound)': WLS with the open-sky settings after the "
             "simulator's NLOS satellite-epochs are taken out before the fix, against the full data's "

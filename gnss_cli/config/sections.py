@@ -64,10 +64,10 @@ class StlsConfig:
     kernel identified from the data by weighted Hankel STLS in whole segments (``window = 0``) or
     sliding windows of ``window`` epochs (``kernel`` shared or full; ``order = 0``: ``3 lag`` for a
     full kernel), each window's behavior tested at the false-alarm probability ``behavior_pfa``
-    (:mod:`gnss_cli.pipeline.spans`); where the spans are tied (range rates or phase),
-    ``latency_m`` is the standard deviation of the latent input that may drive the trajectory out
-    of each span's behavior (m; 0: exactly in it; :mod:`gnss_cli.behavior.piecewise`). The
-    defaults equal the packaged TOML.
+    (:mod:`gnss_cli.pipeline.spans`; 0: not tested, whatever ``integrity`` says); where the spans
+    are tied (range rates or phase), ``latency_m`` is the standard deviation of the latent input
+    that may drive the trajectory out of each span's behavior (m; 0: exactly in it;
+    :mod:`gnss_cli.behavior.piecewise`). The defaults equal the packaged TOML.
     """
 
     lag: int = 0
@@ -104,8 +104,9 @@ class StlsConfig:
         if not (self.latency_m == 0 or MIN_LATENCY_M <= self.latency_m < float("inf")):
             raise ConfigError(f"stls.latency_m: expected 0 (the exact behavior) or a finite value >= {MIN_LATENCY_M:g} m "
                               f"(smaller ones leave the tied system ill-conditioned); received {self.latency_m}")
-        if not 0 < self.behavior_pfa < 1:
-            raise ConfigError(f"stls.behavior_pfa: expected a probability between 0 and 1; received {self.behavior_pfa}")
+        if not 0 <= self.behavior_pfa < 1:
+            raise ConfigError(f"stls.behavior_pfa: expected 0 (no behavior test) or a probability below 1; "
+                              f"received {self.behavior_pfa}")
         if self.lag == 0:
             if self.order:
                 raise ConfigError(f"stls.order = {self.order} needs stls.lag >= 1 (lag 0 = single-epoch STLS)")

@@ -643,7 +643,7 @@ def alternate_windows(data: EpochData, wls: MethodSolution, config: ProcessingCo
                         run.history[b] = []
         if all(run.done.all() for run in runs):
             break
-    if config.integrity != "off":  # the behavior test, at the results (rows of every window that finished)
+    if config.stls.behavior_pfa > 0:  # the behavior test, at the results (rows of every window that finished)
         done = [run.done.copy() for run in runs]
         for run in runs:
             run.done = ~(run.converged & ~run.failed)

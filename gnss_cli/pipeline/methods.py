@@ -182,20 +182,23 @@ def settings_warnings(config: ProcessingConfig) -> list[str]:
 
     ``stls --lag L`` (L >= 2) in whole segments (``[stls] window = 0``, the default) relies on the
     behavior test to split a segment where one kernel does not hold
-    (:mod:`gnss_cli.pipeline.spans`). Where nothing is tested (``integrity = "off"``, or the full
-    kernel, which smooths the fixes in the position domain) a whole segment is one kernel: right
-    for a static antenna (L = 1), metres off on a moving receiver.
+    (:mod:`gnss_cli.pipeline.spans`). Where nothing is tested (``[stls] behavior_pfa = 0``, or the
+    full kernel, which smooths the fixes in the position domain) a whole segment is one kernel:
+    right for a static antenna (L = 1), metres off on a moving receiver. (``integrity = "off"``
+    leaves the behavior test on: it chooses the spans.)
 
     >>> from gnss_cli.config import load_config
-    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "integrity": "off"}))[0][:52]
-    'stls --lag 3 --window 0 with --integrity off: no beh'
-    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "stls.window": 15, "integrity": "off"}))
+    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "stls.behavior_pfa": 0}))[0][:58]
+    'stls --lag 3 --window 0 with [stls] behavior_pfa = 0: no b'
+    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "integrity": "off"}))
+    []
+    >>> settings_warnings(load_config(None, {"methods": "stls", "stls.lag": 3, "stls.window": 15, "stls.behavior_pfa": 0}))
     []
     """
     s = config.stls
     if "stls" not in config.methods or s.lag < 2 or s.window != 0:
         return []
-    why = [w for w, on in (("--integrity off", config.integrity == "off"), ("--kernel full", s.kernel == "full")) if on]
+    why = [w for w, on in (("[stls] behavior_pfa = 0", s.behavior_pfa == 0), ("--kernel full", s.kernel == "full")) if on]
     if not why:
         return []
     return [f"stls --lag {s.lag} --window 0 with {' and '.join(why)}: no behavior test splits a segment, so each "

@@ -108,14 +108,21 @@ def test_the_report_settings_name_what_each_method_ran() -> None:
 
 
 def test_untested_whole_segments_are_warned_about(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
-    """With ``--integrity off`` nothing splits a whole segment where one lag-3 kernel does not hold
-    (the default ``--window 0``): the run says so on stderr, as a warning, and still solves."""
-    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "stls", "--lag", "3", "--integrity", "off",
+    """With ``[stls] behavior_pfa = 0`` nothing splits a whole segment where one lag-3 kernel does
+    not hold (the default ``--window 0``): the run says so on stderr, as a warning, and still
+    solves. ``--integrity off`` keeps the behavior test (it chooses the spans): no warning."""
+    untested = tmp_path / "untested.toml"
+    untested.write_text("[stls]\nbehavior_pfa = 0\n")
+    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "stls", "--lag", "3", "--config", untested,
                          "-o", tmp_path / "p.csv"], capsys)
     assert code == 0, err
     warned = [line for line in err.splitlines() if line.startswith("gnss-solve: warning: stls --lag 3 --window 0")]
-    assert len(warned) == 1 and "--integrity off" in warned[0] and "--window N" in warned[0]
+    assert len(warned) == 1 and "behavior_pfa = 0" in warned[0] and "--window N" in warned[0]
     assert (tmp_path / "p.csv").stat().st_size > 0
+    code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "stls", "--lag", "3", "--integrity", "off",
+                         "-o", tmp_path / "q.csv"], capsys)
+    assert code == 0, err
+    assert "warning: stls" not in err
 
 
 def test_measurements_the_file_lacks_are_warned_about(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

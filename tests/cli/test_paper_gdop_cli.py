@@ -41,11 +41,14 @@ def test_stls_lag3_rows_have_the_papers_stls_gdop(tmp_path: Path, capsys: pytest
                                          "--seed", "3", "--errors", "noise", "--noise-sigma", "1", "--out-dir", sim,
                                          "--quiet"])
     out = tmp_path / "out"
-    # integrity off: no behavior test, so the windows are the fixed sliding ones computed below
-    # (the spans the test chooses are checked in tests/pipeline/test_spans.py)
+    # behavior_pfa 0: no behavior test, so the windows are the fixed sliding ones computed below
+    # (the spans the test chooses are checked in tests/pipeline/test_spans.py); integrity off: no
+    # residual gate, so each window's kernel is that of its WLS fixes
+    untested = tmp_path / "untested.toml"
+    untested.write_text("[stls]\nbehavior_pfa = 0\n")
     _run(solve.app, "gnss-solve", [sim / "obs.rnx", sim / "nav.rnx", "--method", "wls,stls", "--lag", "3",
                                    "--window", str(WINDOW), "--iono", "none", "--tropo", "none", "--integrity", "off",
-                                   "--out-dir", out, "-q"])
+                                   "--config", untested, "--out-dir", out, "-q"])
     capsys.readouterr()
     pos = pd.read_csv(out / "positions.csv")
     assert "gdop_paper" in pd.read_csv(out / "dop.csv").columns

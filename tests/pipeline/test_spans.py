@@ -110,7 +110,9 @@ def test_statistic_is_chi_square_where_the_behavior_holds(noisy_arc: Path) -> No
 def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path, measurements: str) -> None:
     """Noise-free, the windows whose behavior the manoeuvres break are rejected and their epochs
     solved in shorter spans (or kept at the exact WLS fix): stls --lag 3 is the truth to 1 cm, where
-    the same run without the test (one untested whole segment) is off by decimetres to metres."""
+    the same run without the test (``behavior_pfa = 0``: one untested whole segment) is off by
+    decimetres to metres. ``integrity = "off"`` leaves the test on (it chooses the spans): noise-free,
+    where no gate has anything to exclude, it gives the same trajectory."""
     cfg, data, wls, ref = _load(exact_flight, measurements)
     sol, models = solve_multi_epoch("stls", data, wls, cfg)
     err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
@@ -128,8 +130,11 @@ def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path,
         else:
             assert m.status == "rejected" and "solved again" in m.message and m.supplied_start_time_gps_s is None
     np.testing.assert_array_equal(answered, 1)
-    untested, _ = solve_multi_epoch("stls", data, wls, replace(cfg, integrity="off"))
+    untested, _ = solve_multi_epoch("stls", data, wls, replace(cfg, stls=replace(cfg.stls, behavior_pfa=0.0)))
     assert np.nanmax(np.linalg.norm(untested.x_ecef_m - ref, axis=1)) > 0.1
+    ungated, ungated_models = solve_multi_epoch("stls", data, wls, replace(cfg, integrity="off"))
+    assert np.nanmax(np.linalg.norm(ungated.x_ecef_m - ref, axis=1)) <= 0.01
+    assert any(m.status == "rejected" for m in ungated_models)
 
 
 @pytest.mark.parametrize("cross_faded", [False, True])
