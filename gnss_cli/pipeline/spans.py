@@ -49,10 +49,10 @@ left in the position domain have no measurement-domain misfit and no statistic.
 The test is how the windows' spans are chosen, part of the method, not a check on faulty
 measurements: it runs whatever ``integrity`` says (which switches the residual gates and the
 per-epoch tests) and only ``behavior_pfa = 0`` turns it off (then nothing is tested or split:
-each window, a whole segment with ``window = 0``, is one kernel). On the Yamatogawa walk with
-``integrity = "off"``, where the test used to be off too, a whole segment of the walk was one
-lag-3 kernel: horizontal RMS 4.60 m with the pseudoranges (0.91 m tested; kf ca 0.89 m), 4.61 m
-with Doppler (0.53 m) and 0.44 m with phase (0.34 m).
+each window, a whole segment with ``window = 0``, is one kernel). When ``integrity = "off"``
+turned the test off too, a whole segment of the Yamatogawa walk was one lag-3 kernel: 4.60 m
+horizontal RMS with the pseudoranges, 0.91 m tested (0.94 m with ``fde``); 4.61 m with Doppler,
+0.53 m tested (0.57 m; docs/multi-epoch.md gives the command).
 """
 
 from __future__ import annotations

@@ -48,6 +48,19 @@ def test_kf_with_phase_uses_the_phase_rows(rinex_dir: Path, tmp_path: Path, caps
     assert h["pseudorange,doppler,phase"] < 0.6 * h["pseudorange,doppler"], h
 
 
+def test_stls_chooses_its_spans_with_integrity_off(rinex_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--integrity off`` drops the residual gates, not stls's behavior test, which chooses its
+    spans: on the Yamatogawa walk stls --lag 3 stays near its ``fde`` result (measured 0.91 against
+    0.94 m horizontal RMS), where with the test off each whole segment was one lag-3 kernel (4.60 m)."""
+    h = {}
+    for integrity in ("fde", "off"):
+        errors, _ = _yamatogawa(rinex_dir, tmp_path / integrity, capsys, "--method", "stls", "--lag", "3",
+                                "--measurements", "pseudorange", "--integrity", integrity)
+        e = errors[errors["method"] == "stls"]
+        h[integrity] = float(np.sqrt(np.mean(e["e_err_m"] ** 2 + e["n_err_m"] ** 2)))
+    assert h["off"] <= 1.25 * h["fde"], h
+
+
 def test_smoother_keeps_the_former_default_numbers(rinex_dir: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
     """``--method smoother`` (quadrature, lag 3, every measurement) is the former default
     ``stls --lag 3`` on a file with Doppler: Yamatogawa 2.487 m 3D RMS with phase (measured on the
