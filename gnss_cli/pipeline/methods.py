@@ -46,7 +46,8 @@ class MethodSettings:
     estimator : what computes the rows, in words.
     model : motion model or kernel (``motion cv``, ``kernel shared r(z) I3``); empty for single epochs.
     lag : the kernel's or quadrature rule's lag (epochs), empty where none.
-    window : ``1 epoch``, ``15 epochs`` or ``whole segments``.
+    window : ``1 epoch``, ``15 epochs`` or ``whole segments``; ``stls --lag L`` adds ``, untested``
+        where no behavior test chooses its spans (``[stls] behavior_pfa = 0``).
     measurements : the measurement kinds used, ``+``-joined (``pseudorange+doppler``).
     integrity : how the rows are tested (``fde``, ``check``, ``gate``, ``off``, ...; ls/wls add
         ``robust huber`` and ``nlos arcs`` when those run).
@@ -131,7 +132,7 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
         if m == "stls" and config.stls.lag > 0:
             s = config.stls
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
-            window = f"{s.window} epochs" if s.window else "whole segments"
+            window = (f"{s.window} epochs" if s.window else "whole segments") + ("" if s.behavior_pfa else ", untested")
             if s.kernel == "shared":
                 from gnss_cli.behavior.piecewise import velocity_rule  # scipy: imported when stls runs
                 from gnss_cli.pipeline.behavioral import spans_tied

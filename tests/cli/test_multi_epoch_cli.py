@@ -132,6 +132,7 @@ def test_untested_whole_segments_are_warned_about(tmp_path: Path, capsys) -> Non
     warned = [line for line in err.splitlines() if line.startswith("gnss-solve: warning: stls --lag 3 --window 0")]
     assert len(warned) == 1 and "behavior_pfa = 0" in warned[0] and "--window N" in warned[0]
     assert (tmp_path / "p.csv").stat().st_size > 0
+    assert "lag 3, whole segments, untested," in err  # the run's line says what ran
     code, _, err = _run([SAMPLE / "obs.rnx", SAMPLE / "nav.rnx", "--method", "stls", "--lag", "3", "--integrity", "off",
                          "-o", tmp_path / "q.csv"], capsys)
     assert code == 0, err
