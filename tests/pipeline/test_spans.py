@@ -111,8 +111,8 @@ def test_noise_free_manoeuvring_flight_is_reproduced_to_1_cm(exact_flight: Path,
     """Noise-free, the windows whose behavior the manoeuvres break are rejected and their epochs
     solved in shorter spans (or kept at the exact WLS fix): stls --lag 3 is the truth to 1 cm, where
     the same run without the test (``behavior_pfa = 0``: one untested whole segment) is off by
-    decimetres to metres. ``integrity = "off"`` leaves the test on (it chooses the spans): noise-free,
-    where no gate has anything to exclude, it gives the same trajectory."""
+    decimetres to metres. ``integrity = "off"`` leaves the test on (it chooses the spans): without
+    the gates it still rejects windows and reproduces the truth to 1 cm."""
     cfg, data, wls, ref = _load(exact_flight, measurements)
     sol, models = solve_multi_epoch("stls", data, wls, cfg)
     err = np.linalg.norm(sol.x_ecef_m - ref, axis=1)
