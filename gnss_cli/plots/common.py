@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -113,6 +113,3 @@ def no_data(fig: Figure, message: str) -> Figure:
     ax.text(0.5, 0.5, message, transform=ax.transAxes, ha="center", va="center")
     return fig
 
-
-def method_list(methods: Sequence[str]) -> str:
-    return ", ".join(methods)
