@@ -47,7 +47,7 @@ class MethodSettings:
     model : motion model or kernel (``motion cv``, ``kernel shared r(z) I3``); empty for single epochs.
     lag : the kernel's or quadrature rule's lag (epochs), empty where none.
     window : ``1 epoch``, ``15 epochs`` or ``whole segments``; ``stls --lag L`` adds ``, untested``
-        where no behavior test chooses its spans (``[stls] behavior_pfa = 0``).
+        where no behavior test chooses its spans (``[stls] behavior_pfa = 0``, or ``kernel = "full"``).
     measurements : the measurement kinds used, ``+``-joined (``pseudorange+doppler``).
     integrity : how the rows are tested (``fde``, ``check``, ``gate``, ``off``, ...; ls/wls add
         ``robust huber`` and ``nlos arcs`` when those run).
@@ -132,7 +132,8 @@ def method_settings(config: ProcessingConfig, has_doppler: bool, has_phase: bool
         if m == "stls" and config.stls.lag > 0:
             s = config.stls
             kernel = "kernel shared r(z) I3" if s.kernel == "shared" else f"kernel full order {s.full_order}"
-            window = (f"{s.window} epochs" if s.window else "whole segments") + ("" if s.behavior_pfa else ", untested")
+            tested_spans = s.behavior_pfa > 0 and s.kernel == "shared"  # the full kernel has no behavior test
+            window = (f"{s.window} epochs" if s.window else "whole segments") + ("" if tested_spans else ", untested")
             if s.kernel == "shared":
                 from gnss_cli.behavior.piecewise import velocity_rule  # scipy: imported when stls runs
                 from gnss_cli.pipeline.behavioral import spans_tied

@@ -26,3 +26,16 @@ def test_smoother_and_kf_report_the_psd_of_their_motion(motion: str, key: str, v
 def test_the_quadrature_motion_has_no_process_noise_to_report() -> None:
     cfg = load_config(None, {"methods": "wls,smoother", "smoother.motion": "quadrature", "kalman.accel_psd_m2_s3": 0.1})
     assert method_settings(cfg, True, False)["smoother"].model == "motion quadrature"
+
+
+@pytest.mark.parametrize("overrides, window", [
+    ({}, "whole segments"),
+    ({"stls.window": 15}, "15 epochs"),
+    ({"stls.behavior_pfa": 0.0}, "whole segments, untested"),
+    ({"stls.kernel": "full", "stls.window": 30}, "30 epochs, untested"),
+])
+def test_stls_window_says_whether_a_behavior_test_chose_the_spans(overrides: dict, window: str) -> None:
+    """``window`` says ``untested`` exactly where no behavior test runs: ``behavior_pfa = 0`` and the
+    full kernel, which smooths the fixes without one (``pipeline.behavioral.smooth``)."""
+    cfg = load_config(None, {"methods": "wls,stls", "stls.lag": 3, **overrides})
+    assert method_settings(cfg, True, False)["stls"].window == window
