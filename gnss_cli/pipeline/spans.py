@@ -47,9 +47,10 @@ copy has its record, for the epochs it supplies. Windows
 left in the position domain have no measurement-domain misfit and no statistic.
 
 The test is how the windows' spans are chosen, part of the method, not a check on faulty
-measurements: it runs whatever ``integrity`` says (which switches the checks on the measurements:
-the per-epoch tests, the levels, the residual and innovation gates, docs/integrity.md) and only ``behavior_pfa = 0`` turns it off (then nothing is tested or split:
-each window, a whole segment with ``window = 0``, is one kernel). When ``integrity = "off"``
+measurements: it runs whatever ``integrity`` says (which switches the checks on the
+measurements: the per-epoch tests, the levels, the residual and innovation gates,
+docs/integrity.md), and only ``behavior_pfa = 0`` turns it off (then nothing is tested or
+split: each window, a whole segment with ``window = 0``, is one kernel). When ``integrity = "off"``
 turned the test off too, a whole segment of the Yamatogawa walk was one lag-3 kernel: 4.60 m
 horizontal RMS with the pseudoranges, 0.91 m tested (0.94 m with ``fde``); 4.61 m with Doppler,
 0.53 m tested (0.57 m; docs/multi-epoch.md gives the command).
