@@ -335,6 +335,10 @@ class Linearization:
     sv_col : ``(t, w)`` in the compact layout (``linearize(..., width=w)``): the satellite
         (column of ``data.sv``) of each of the ``w`` satellite rows, -1 for the padding rows
         (``mask`` False); None in the dense layout, where satellite row ``i`` is ``data.sv[i]``.
+    iono_m : ``(t, n [+ k])`` the modelled ionospheric delay of each row's signal (included in
+        ``q``'s computed value), m; 0 where none is modelled (``--iono none`` or ``iono-free``,
+        constraint rows, positions far from the Earth's surface). The carrier phase is advanced
+        by it where the pseudorange is delayed.
     """
 
     A: F64
@@ -345,6 +349,7 @@ class Linearization:
     range_m: F64
     rot: F64
     sv_col: NDArray[np.intp] | None = None
+    iono_m: F64 | None = None
 
     @property
     def sat_rows(self) -> int:
@@ -474,7 +479,7 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     sv_col = None
     if width is not None:  # the used observations only
         keep, col, sv_col = _compact_rows(ti, si, mask_u, t_n, width)
-        ti, si, mask_u, q_u, var_u, unit_u, rng_u = (v[keep] for v in (ti, si, mask_u, q_u, var_u, unit_u, rng_u))
+        ti, si, mask_u, q_u, var_u, unit_u, rng_u, iono = (v[keep] for v in (ti, si, mask_u, q_u, var_u, unit_u, rng_u, iono))
         n = width
     else:
         col = si
@@ -493,6 +498,8 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     unit_c[ti, col] = unit_u
     rng_c = np.ones((t_n, rows_n))
     rng_c[ti, col] = rng_u
+    iono_c = np.zeros((t_n, rows_n))
+    iono_c[ti, col] = np.where(mask_u, iono, 0.0)
     if k > 1:
         present = np.zeros((t_n, k), dtype=bool)
         present[ti[mask_u], sysidx[si[mask_u]]] = True
@@ -500,7 +507,7 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         q[:, n:] = np.where(~present, -b, 0.0)
         mask[:, n:] = ~present
         var[:, n:] = ISB_CONSTRAINT_VAR_M2
-    return Linearization(A, q, mask, var, unit_c, rng_c, rot, sv_col)
+    return Linearization(A, q, mask, var, unit_c, rng_c, rot, sv_col, iono_c)
 
 
 def _compact_rows(ti: NDArray[np.intp], si: NDArray[np.intp], used: NDArray[np.bool_], t_n: int, width: int

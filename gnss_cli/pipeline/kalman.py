@@ -166,12 +166,13 @@ class Measurements:
     used_rr: NDArray[np.bool_] | None = None
     phase: PhaseRows | None = None
     factors: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    iono_m: F64 | None = None  # (T, n) modelled ionospheric delay in y_pr's computed value, m
 
 
 def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> Measurements:
     """Linearize every epoch's pseudoranges (and range rates) at the nominal positions."""
     T, n = data.time_gps_s.size, data.sv.size
-    unit, y, var = np.zeros((T, n, 3)), np.zeros((T, n)), np.ones((T, n))
+    unit, y, var, iono = np.zeros((T, n, 3)), np.zeros((T, n)), np.ones((T, n)), np.zeros((T, n))
     used = np.zeros((T, n), dtype=bool)
     zero_clock = np.zeros((1, len(data.systems)))
     for start in range(0, T, _BLOCK):
@@ -182,8 +183,10 @@ def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingCon
         unit[rows] = e
         y[rows] = np.where(mask, lin.q[:, :n] - np.einsum("tnk,tk->tn", e, nominal[rows]), 0.0)
         var[rows] = np.where(mask, lin.var_m2[:, :n], 1.0)
+        assert lin.iono_m is not None
+        iono[rows] = np.where(mask, lin.iono_m[:, :n], 0.0)
         used[rows] = mask
-    out = Measurements(unit, y, var, used)
+    out = Measurements(unit, y, var, used, iono_m=iono)
     if config.uses("doppler") and data.range_rate_m_s is not None and data.sat_vel_ecef_m_s is not None:
         H, yr = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s,
                                   data.range_rate_m_s, nominal)

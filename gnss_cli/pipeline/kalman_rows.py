@@ -104,13 +104,16 @@ def gate_threshold(config: ProcessingConfig) -> float | None:
 
 
 def pseudorange_rows(data: EpochData, meas: Measurements, nominal: F64) -> dict[str, F64]:
-    """The pseudorange rows of the smoother's form (``P, w, y, C``:
-    :func:`~gnss_cli.pipeline.phase_rows.phase_pair_rows` takes them) at ``nominal``."""
+    """The pseudorange rows of the smoother's form at ``nominal``: coefficients ``P`` of the position
+    correction, weights ``w`` (0: not used), ``y`` the pseudorange minus its value at ``nominal``,
+    clock columns ``C``, and ``iono`` the modelled ionospheric delay in that value, m
+    (:func:`~gnss_cli.pipeline.phase_rows.phase_pair_rows` takes them)."""
     k = len(data.systems)
     sysidx = data.clock_index
     return {"P": -meas.unit, "w": np.where(meas.used, 1.0 / meas.var_pr, 0.0),
             "y": meas.y_pr + np.einsum("tni,ti->tn", meas.unit, nominal),
-            "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k))}
+            "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k)),
+            "iono": meas.iono_m if meas.iono_m is not None else np.zeros(meas.used.shape)}
 
 
 def filter_phase_rows(data: EpochData, meas: Measurements, nominal: F64, config: ProcessingConfig) -> PhaseRows | None:

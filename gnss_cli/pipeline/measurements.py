@@ -36,6 +36,7 @@ from gnss_cli.behavior.window_solve import EpochNormals, free_misfit, reduce_epo
 from gnss_cli.config import ProcessingConfig
 from gnss_cli.errors import ConfigError
 from gnss_cli.pipeline.kalman import linearized_measurements, nominal_trajectory
+from gnss_cli.pipeline.kalman_rows import pseudorange_rows
 from gnss_cli.pipeline.phase_rows import phase_pair_rows
 from gnss_cli.pipeline.results import PASSED_FIX, EpochData, MethodSolution, as_wls_used
 from gnss_cli.solvers.robust import m_estimator_weights
@@ -85,15 +86,12 @@ def checked_measurements(data: EpochData, measurements: Iterable[str]) -> frozen
 
 
 def measurement_rows(data: EpochData, nominal: F64, config: ProcessingConfig, doppler: bool) -> dict[str, F64]:
-    """Rows of every epoch at ``nominal``: pseudorange ``(P, w, y, C)`` and, with ``doppler``, range rate ``(H, wd, yd)``."""
+    """Rows of every epoch at ``nominal``: pseudorange (:func:`~gnss_cli.pipeline.kalman_rows.pseudorange_rows`) and,
+    with ``doppler``, range rate ``(H, wd, yd)``."""
     if config.uses("doppler") != doppler:
         config = replace(config, measurements=("pseudorange", "doppler") if doppler else ("pseudorange",))
     meas = linearized_measurements(data, nominal, config)
-    k = len(data.systems)
-    sysidx = data.clock_index
-    out = {"P": -meas.unit, "w": np.where(meas.used, 1.0 / meas.var_pr, 0.0),
-           "y": meas.y_pr + np.einsum("tni,ti->tn", meas.unit, nominal),  # pseudorange minus its value at nominal
-           "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k))}
+    out = pseudorange_rows(data, meas, nominal)
     if doppler:
         assert meas.used_rr is not None and meas.H_rr is not None and meas.y_rr is not None and meas.var_rr is not None
         out.update(H=meas.H_rr[..., :3], wd=np.where(meas.used_rr, 1.0 / meas.var_rr, 0.0), yd=meas.y_rr)

@@ -1,6 +1,6 @@
 """Time-differenced carrier phase in the ``smoother`` (``measurements`` with ``phase``).
 
-The simulator writes no carrier phase, so the phase is made here from a noise-free flight of the
+`simulate_flight` writes no carrier phase, so the phase is made here from a noise-free flight of the
 same seed (same orbits, trajectory and receiver clock): its corrected pseudorange is the exact
 range plus clock, and a constant per satellite (the unknown ambiguity) is added.
 """
@@ -189,3 +189,26 @@ def test_reader_gives_the_indicators_of_the_file(tmp_path: Path) -> None:
     np.testing.assert_array_equal(ds["L1lli"].values, [[2.0, 0.0], [1.0, 2.0]])
     assert float(ds["L1"].values[1, 0]) == -10597.328
     assert "L1lli" not in read_obs(path, codes=["C1", "L1"])
+
+
+def test_the_modelled_ionosphere_advances_the_carrier(tmp_path: Path) -> None:
+    """The carrier is advanced by the ionosphere that delays the code. A static GPS receiver at 30 s
+    through a morning (the Klobuchar delay rising by metres), simulated with exactly the broadcast
+    ionosphere and 1 m code noise: with the phase pairs the smoother and the kf average the noise away
+    (0.19 and 0.28 m 3D RMS measured, WLS 3.4 m). With the model's delay given the pseudorange's sign
+    in the phase, twice its change would accumulate into the track: 1.34 m for either."""
+    from gnss_cli.pipeline import process
+    from gnss_cli.sim.scenario import ScenarioConfig, config_from_mapping, run_scenario, write_scenario
+
+    sim = config_from_mapping({"simulate": {"trajectory": "static", "start": "2024-03-01T06:00:00",
+                                            "duration_s": 21600.0, "interval_s": 30.0, "phase": True,
+                                            "errors": "iono,noise"},
+                               "errors": {"iono_factor": 1.0}}, ScenarioConfig())
+    write_scenario(run_scenario(sim), tmp_path)
+    cfg = load_config(None, {"methods": "wls,smoother,kf", "tropo": "none", "measurements": "all"})
+    result = process(tmp_path / "obs.rnx", [tmp_path / "nav.rnx"], cfg)
+    assert result.settings["smoother"].measurements == "pseudorange+doppler+phase"
+    ref = reference_from_csv(tmp_path / "truth.csv", result.epochs.time_gps_s)
+    rms = {m: _rms(result.solutions[m].x_ecef_m, ref) for m in ("wls", "smoother", "kf")}
+    assert rms["wls"] > 2.0
+    assert rms["smoother"] < 0.3 and rms["kf"] < 0.4, rms
