@@ -81,6 +81,8 @@ class SatelliteArrays:
     p_if : ``(T, n)`` iono-free pseudorange without group delays, m (NaN: one frequency).
     vel, drift, freq : ``(T, n, 3)`` velocity m/s, ``(T, n)`` clock drift s/s and carrier
         frequency Hz (Doppler; None without).
+    freq2 : ``(T, n)`` carrier frequency of the second signal, Hz (iono-free with Doppler, for the
+        ionosphere-free carrier phase; None otherwise).
     """
 
     sat: F64
@@ -93,6 +95,7 @@ class SatelliteArrays:
     vel: F64 | None = None
     drift: F64 | None = None
     freq: F64 | None = None
+    freq2: F64 | None = None
 
     @classmethod
     def empty(cls, t_n: int, n: int, rates: bool = False) -> SatelliteArrays:
@@ -148,6 +151,8 @@ def satellites_at_transmit_time(
     t = prs.time_gps_s
     sys_of = np.array([sv[0] for sv in prs.sv])
     arrays = SatelliteArrays.empty(t.size, prs.sv.size, rates=rates)
+    if rates and prs2 is not None:
+        arrays.freq2 = np.full((t.size, prs.sv.size), np.nan)
     have_obs = np.isfinite(prs.pr_m)
     for system in systems:
         cols = np.flatnonzero(sys_of == system)
@@ -175,6 +180,8 @@ def _fill_system(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, 
     out.usable[ii, cc] = np.isfinite(st.clock_s) & np.isfinite(out.sat[ii, cc]).all(axis=-1)
     if out.vel is not None:
         _fill_rates(out, records, system, prs.code[ii, cc], (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
+    if out.freq2 is not None and prs2 is not None:
+        out.freq2[ii, cc] = _carrier_frequencies(records, system, prs2.code[ii, cc], kk)
     if prs2 is not None:
         out.p_if[ii, cc] = iono_free_pseudorange_m(
             system, prs.code[ii, cc], pr[ii, jj], prs2.code[ii, cc], prs2.pr_m[ii, cc], **records.delays(kk)
@@ -192,6 +199,13 @@ def _fill_rates(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, s
     ii, cc, kk = where
     out.vel[ii, cc] = st.vel_ecef_m_s
     out.drift[ii, cc] = (records.clock_s(kk, t_tx + _DRIFT_STEP_S) - st.clock_s) / _DRIFT_STEP_S
+    out.freq[ii, cc] = _carrier_frequencies(records, system, code, kk)
+
+
+def _carrier_frequencies(records: GlonassRecords | KeplerRecords, system: str, code: NDArray[np.str_],
+                         kk: NDArray[np.intp]) -> F64:
+    """Carrier frequency (Hz; GLONASS per the channel of record ``kk``) of each observation code
+    ``code``; NaN for a code of no known signal."""
     channel = np.asarray(records.delays(kk).get("glonass_channel", np.zeros(kk.shape)), dtype=np.float64)
     freq = np.full(kk.shape, np.nan)
     for c in np.unique(code):
@@ -199,7 +213,7 @@ def _fill_rates(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, s
         if signal is not None:
             sel = code == c
             freq[sel] = carrier_frequency_hz(signal, channel[sel])
-    out.freq[ii, cc] = freq
+    return freq
 
 
 # Satellite clock and group delay

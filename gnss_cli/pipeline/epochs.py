@@ -41,6 +41,7 @@ from gnss_cli.gnss.range_model import (
     corrected_pseudoranges,
     satellites_at_transmit_time,
 )
+from gnss_cli.gnss.signals import iono_free_combination_m
 from gnss_cli.gnss.time import gps_s2datetime
 from gnss_cli.io.fixed_width import lli_name
 from gnss_cli.io.navigation import navigation_files
@@ -183,10 +184,12 @@ def signal_setup(obs_path: str | Path, nav_paths: Sequence[str | Path], config: 
     priority2 = {**DEFAULT_SECOND_SIGNAL_PRIORITY, **{k: tuple(v) for k, v in config.signals_second.items()}}
     codes = codes_for(systems, priority)
     codes += [x(c) for x in (snr_code, doppler_code) for c in codes_for(systems, priority) if x(c) not in codes]  # C/N0, Doppler
+    iono_free = config.iono == "iono-free"
     if config.uses("phase") and config.multi_epoch_methods:  # phase_rows of smoother, kf and stls --lag L
         phases = [phase_code(c) for c in codes_for(systems, priority)]
+        phases += [phase_code(c) for c in codes_for(systems, priority2)] if iono_free else []  # iono-free phase
         codes += [c for c in phases + [lli_name(c) for c in phases] if c not in codes]
-    if config.iono == "iono-free":
+    if iono_free:
         codes += [c for c in codes_for(systems, priority2) if c not in codes]
     return EpochSetup(str(obs_path), tuple(str(p) for p in nav_paths), config, explicit, systems, priority, priority2, codes)
 
@@ -233,7 +236,7 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
         marker_name=str(obs.attrs.get("marker_name", "") or ""), obs_path=setup.obs_path, nav_paths=setup.nav_paths,
         iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused, leap_seconds=setup.leap_seconds,
         **_rates(arrays, doppler_hz, usable),
-        **_phases(obs, prs, arrays, doppler_hz, usable, t, config),
+        **_phases(obs, prs, prs2, arrays, doppler_hz, usable, t, config),
     )
     cov = Coverage(have_obs.any(axis=0), arrays.usable.any(axis=0), selected.any(axis=0), usable.any(axis=0),
                    float(t.min()), float(t.max()), data.range_rate_m_s is not None, data.phase_m is not None)
@@ -415,11 +418,17 @@ def _rates(arrays: SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.b
     return {"range_rate_m_s": rate, "sat_vel_ecef_m_s": arrays.vel, "sat_clock_drift_s_s": arrays.drift}
 
 
-def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: SatelliteArrays, doppler_hz: F64 | None,
-            usable: NDArray[np.bool_], t: F64, config: ProcessingConfig) -> dict[str, F64 | NDArray[np.bool_]]:
+def _phases(obs: xr.Dataset, prs: Pseudoranges, prs2: Pseudoranges | None, arrays: SatelliteArrays,
+            doppler_hz: F64 | None, usable: NDArray[np.bool_], t: F64, config: ProcessingConfig
+            ) -> dict[str, F64 | NDArray[np.bool_]]:
     """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
     have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler
-    (the wavelengths and the slip check come with it), or without ``phase`` in the measurements."""
+    (the wavelengths and the slip check come with it), or without ``phase`` in the measurements.
+
+    Iono-free (``prs2``, the second signals' pseudoranges): the ionosphere-free combination of the
+    two signals' phases, as the pseudoranges are combined (the ionosphere's change would otherwise
+    stay in every difference, the carrier's sign opposite to the code's); a loss of lock on either
+    signal breaks it. NaN where the second signal has no phase."""
     if not config.uses("phase") or doppler_hz is None or arrays.freq is None:
         return {}
     selected = select_phases(obs, prs)
@@ -427,6 +436,13 @@ def _phases(obs: xr.Dataset, prs: Pseudoranges, arrays: SatelliteArrays, doppler
         return {}
     cycles, lli = selected
     lam = C_M_S / arrays.freq
-    phase = np.where(usable, lam * cycles + C_M_S * arrays.clk, np.nan)
+    carrier_m = lam * cycles
+    if prs2 is not None:
+        second = select_phases(obs, prs2)
+        if second is None or arrays.freq2 is None:
+            return {}
+        carrier_m = iono_free_combination_m(carrier_m, C_M_S / arrays.freq2 * second[0], arrays.freq, arrays.freq2)
+        lli = (lli.astype(np.int64) | second[1].astype(np.int64)).astype(np.float64)
+    phase = np.where(usable, carrier_m + C_M_S * arrays.clk, np.nan)
     slip = phase_slips(t, phase, np.where(usable, -lam * doppler_hz, np.nan), lli, config.phase_slip_m)
     return {"phase_m": phase, "phase_slip": slip}

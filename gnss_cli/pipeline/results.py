@@ -300,7 +300,8 @@ class EpochData:
     """``(T, n)`` satellite clock drift at transmit time, s/s (broadcast clock with its
     relativistic term; with Doppler)."""
     phase_m: F64 | None = None
-    """``(T, n)`` carrier phase of the chosen code's signal times its wavelength, plus c times the
+    """``(T, n)`` carrier phase of the chosen code's signal times its wavelength (iono-free: the
+    ionosphere-free combination of both signals' phases, as ``pr_corrected_m``), plus c times the
     satellite clock (as ``pr_corrected_m``), m; its ambiguity is unknown, only time differences
     are used. NaN where there is no phase or the pseudorange is not usable. None when the file has
     no phase of any chosen code, or without Doppler (the wavelengths come with the range rates)."""

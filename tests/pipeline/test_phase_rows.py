@@ -212,3 +212,25 @@ def test_the_modelled_ionosphere_advances_the_carrier(tmp_path: Path) -> None:
     rms = {m: _rms(result.solutions[m].x_ecef_m, ref) for m in ("wls", "smoother", "kf")}
     assert rms["wls"] > 2.0
     assert rms["smoother"] < 0.3 and rms["kf"] < 0.4, rms
+
+
+def test_iono_free_uses_the_iono_free_carrier(tmp_path: Path) -> None:
+    """``--iono iono-free`` combines the two signals' phases as it combines the pseudoranges. A static
+    dual-frequency receiver at 30 s through a morning, the real ionosphere 1.25 x the broadcast one,
+    1 m code noise on each signal: the smoother with the phase pairs reaches 0.46 m 3D RMS (WLS with
+    the iono-free pseudoranges 10.9 m). With the first signal's phase alone the ionosphere's change
+    stays in every pair, and the smoother drifts to 3.6 m."""
+    from gnss_cli.pipeline import process
+    from gnss_cli.sim.scenario import ScenarioConfig, config_from_mapping, run_scenario, write_scenario
+
+    sim = config_from_mapping({"simulate": {"trajectory": "static", "start": "2024-03-01T06:00:00",
+                                            "duration_s": 21600.0, "interval_s": 30.0, "phase": True,
+                                            "dual_frequency": True, "errors": "iono,noise"}}, ScenarioConfig())
+    write_scenario(run_scenario(sim), tmp_path)
+    cfg = load_config(None, {"methods": "wls,smoother", "tropo": "none", "iono": "iono-free", "measurements": "all"})
+    result = process(tmp_path / "obs.rnx", [tmp_path / "nav.rnx"], cfg)
+    assert result.settings["smoother"].measurements == "pseudorange+doppler+phase"
+    ref = reference_from_csv(tmp_path / "truth.csv", result.epochs.time_gps_s)
+    rms = {m: _rms(result.solutions[m].x_ecef_m, ref) for m in ("wls", "smoother")}
+    assert rms["wls"] > 5.0
+    assert rms["smoother"] < 0.8, rms
