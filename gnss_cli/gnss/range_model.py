@@ -346,13 +346,13 @@ class Linearization:
     unit : ``(t, n [+ k], 3)`` line-of-sight unit vectors (0 for constraint rows).
     range_m : ``(t, n [+ k])`` geometric ranges, m (1 for constraint rows).
     rot : ``(t, 3, 3)`` ECEF -> local ENU rotation at each position.
-    sv_col : ``(t, w)`` in the compact layout (``linearize(..., width=w)``): the satellite
-        (column of ``data.sv``) of each of the ``w`` satellite rows, -1 for the padding rows
-        (``mask`` False); None in the dense layout, where satellite row ``i`` is ``data.sv[i]``.
     iono_m : ``(t, n [+ k])`` the modelled ionospheric delay of each row's signal (included in
         ``q``'s computed value), m; 0 where none is modelled (``--iono none`` or ``iono-free``,
         constraint rows, positions far from the Earth's surface). The carrier phase is advanced
         by it where the pseudorange is delayed.
+    sv_col : ``(t, w)`` in the compact layout (``linearize(..., width=w)``): the satellite
+        (column of ``data.sv``) of each of the ``w`` satellite rows, -1 for the padding rows
+        (``mask`` False); None in the dense layout, where satellite row ``i`` is ``data.sv[i]``.
     """
 
     A: F64
@@ -362,8 +362,8 @@ class Linearization:
     unit: F64
     range_m: F64
     rot: F64
+    iono_m: F64
     sv_col: NDArray[np.intp] | None = None
-    iono_m: F64 | None = None
 
     @property
     def sat_rows(self) -> int:
@@ -521,7 +521,7 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         q[:, n:] = np.where(~present, -b, 0.0)
         mask[:, n:] = ~present
         var[:, n:] = ISB_CONSTRAINT_VAR_M2
-    return Linearization(A, q, mask, var, unit_c, rng_c, rot, sv_col, iono_c)
+    return Linearization(A, q, mask, var, unit_c, rng_c, rot, iono_c, sv_col)
 
 
 def _compact_rows(ti: NDArray[np.intp], si: NDArray[np.intp], used: NDArray[np.bool_], t_n: int, width: int

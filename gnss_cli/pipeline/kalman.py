@@ -160,13 +160,13 @@ class Measurements:
     y_pr: F64  # q - e . x_nom: equals -e . x + b
     var_pr: F64
     used: NDArray[np.bool_]
+    iono_m: F64  # (T, n) modelled ionospheric delay in y_pr's computed value, m
     H_rr: F64 | None = None  # (T, n, 4): [v, d]
     y_rr: F64 | None = None
     var_rr: F64 | None = None
     used_rr: NDArray[np.bool_] | None = None
     phase: PhaseRows | None = None
     factors: tuple[float, float, float] = (1.0, 1.0, 1.0)
-    iono_m: F64 | None = None  # (T, n) modelled ionospheric delay in y_pr's computed value, m
 
 
 def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingConfig) -> Measurements:
@@ -183,10 +183,9 @@ def linearized_measurements(data: EpochData, nominal: F64, config: ProcessingCon
         unit[rows] = e
         y[rows] = np.where(mask, lin.q[:, :n] - np.einsum("tnk,tk->tn", e, nominal[rows]), 0.0)
         var[rows] = np.where(mask, lin.var_m2[:, :n], 1.0)
-        assert lin.iono_m is not None
         iono[rows] = np.where(mask, lin.iono_m[:, :n], 0.0)
         used[rows] = mask
-    out = Measurements(unit, y, var, used, iono_m=iono)
+    out = Measurements(unit, y, var, used, iono)
     if config.uses("doppler") and data.range_rate_m_s is not None and data.sat_vel_ecef_m_s is not None:
         H, yr = range_rate_system(data.sat_ecef_m, data.sat_vel_ecef_m_s, data.sat_clock_drift_s_s,
                                   data.range_rate_m_s, nominal)

@@ -113,7 +113,7 @@ def pseudorange_rows(data: EpochData, meas: Measurements, nominal: F64) -> dict[
     return {"P": -meas.unit, "w": np.where(meas.used, 1.0 / meas.var_pr, 0.0),
             "y": meas.y_pr + np.einsum("tni,ti->tn", meas.unit, nominal),
             "C": np.broadcast_to((sysidx[:, None] == np.arange(k)).astype(np.float64), (*meas.used.shape, k)),
-            "iono": meas.iono_m if meas.iono_m is not None else np.zeros(meas.used.shape)}
+            "iono": meas.iono_m}
 
 
 def filter_phase_rows(data: EpochData, meas: Measurements, nominal: F64, config: ProcessingConfig) -> PhaseRows | None:
