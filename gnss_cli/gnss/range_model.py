@@ -79,9 +79,10 @@ class SatelliteArrays:
     iono_scale : ``(T, n)`` factor of the L1 ionospheric delay for the observed frequency.
     usable : ``(T, n)`` a record was selected and its state is finite.
     p_if : ``(T, n)`` iono-free pseudorange without group delays, m (NaN: one frequency).
-    vel, drift, freq : ``(T, n, 3)`` velocity m/s, ``(T, n)`` clock drift s/s and carrier
-        frequency Hz (Doppler; None without).
-    freq2 : ``(T, n)`` carrier frequency of the second signal, Hz (iono-free with Doppler, for the
+    freq : ``(T, n)`` carrier frequency of each chosen code's signal, Hz (GLONASS per channel; NaN
+        for a code of no known signal): the wavelength of its Doppler and carrier phase.
+    vel, drift : ``(T, n, 3)`` velocity m/s and ``(T, n)`` clock drift s/s (Doppler; None without).
+    freq2 : ``(T, n)`` carrier frequency of the second signal, Hz (iono-free, for the
         ionosphere-free carrier phase; None otherwise).
     """
 
@@ -92,20 +93,20 @@ class SatelliteArrays:
     iono_scale: F64
     usable: NDArray[np.bool_]
     p_if: F64
+    freq: F64
     vel: F64 | None = None
     drift: F64 | None = None
-    freq: F64 | None = None
     freq2: F64 | None = None
 
     @classmethod
     def empty(cls, t_n: int, n: int, rates: bool = False) -> SatelliteArrays:
-        """NaN arrays; with ``rates`` also velocity, clock drift and carrier frequency (for Doppler)."""
+        """NaN arrays; with ``rates`` also velocity and clock drift (for Doppler)."""
         nan = np.full((t_n, n), np.nan)
         return cls(
             sat=np.full((t_n, n, 3), np.nan), clk=nan.copy(), tgd=nan.copy(),
             ura=nan.copy(), iono_scale=np.ones((t_n, n)), usable=np.zeros((t_n, n), dtype=bool),
-            p_if=nan.copy(), vel=np.full((t_n, n, 3), np.nan) if rates else None,
-            drift=nan.copy() if rates else None, freq=nan.copy() if rates else None,
+            p_if=nan.copy(), freq=nan.copy(), vel=np.full((t_n, n, 3), np.nan) if rates else None,
+            drift=nan.copy() if rates else None,
         )
 
 
@@ -133,7 +134,7 @@ def satellites_at_transmit_time(
     healthy_only
         Select healthy records only.
     rates
-        Also the satellite velocity, clock drift and carrier frequency (Doppler).
+        Also the satellite velocity and clock drift (Doppler).
 
     Returns
     -------
@@ -151,7 +152,7 @@ def satellites_at_transmit_time(
     t = prs.time_gps_s
     sys_of = np.array([sv[0] for sv in prs.sv])
     arrays = SatelliteArrays.empty(t.size, prs.sv.size, rates=rates)
-    if rates and prs2 is not None:
+    if prs2 is not None:
         arrays.freq2 = np.full((t.size, prs.sv.size), np.nan)
     have_obs = np.isfinite(prs.pr_m)
     for system in systems:
@@ -178,8 +179,9 @@ def _fill_system(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, 
     out.ura[ii, cc] = records.sigma_m(kk)
     out.iono_scale[ii, cc] = records.iono_scale(kk)
     out.usable[ii, cc] = np.isfinite(st.clock_s) & np.isfinite(out.sat[ii, cc]).all(axis=-1)
+    out.freq[ii, cc] = _carrier_frequencies(records, system, prs.code[ii, cc], kk)
     if out.vel is not None:
-        _fill_rates(out, records, system, prs.code[ii, cc], (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
+        _fill_rates(out, records, (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
     if out.freq2 is not None and prs2 is not None:
         out.freq2[ii, cc] = _carrier_frequencies(records, system, prs2.code[ii, cc], kk)
     if prs2 is not None:
@@ -191,15 +193,14 @@ def _fill_system(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, 
 _DRIFT_STEP_S = 1.0  # forward difference of the broadcast clock: af2 and relativistic curvature < 1e-15 s/s
 
 
-def _fill_rates(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, system: str, code: NDArray[np.str_],
+def _fill_rates(out: SatelliteArrays, records: GlonassRecords | KeplerRecords,
                 where: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]], t_tx: F64, st: SatelliteStates) -> None:
-    """Satellite velocity (m/s), clock drift (s/s, forward difference of the broadcast clock with its
-    relativistic term) and the carrier frequency (Hz; GLONASS per channel) of each chosen code."""
-    assert out.vel is not None and out.drift is not None and out.freq is not None
+    """Satellite velocity (m/s) and clock drift (s/s, forward difference of the broadcast clock with its
+    relativistic term)."""
+    assert out.vel is not None and out.drift is not None
     ii, cc, kk = where
     out.vel[ii, cc] = st.vel_ecef_m_s
     out.drift[ii, cc] = (records.clock_s(kk, t_tx + _DRIFT_STEP_S) - st.clock_s) / _DRIFT_STEP_S
-    out.freq[ii, cc] = _carrier_frequencies(records, system, code, kk)
 
 
 def _carrier_frequencies(records: GlonassRecords | KeplerRecords, system: str, code: NDArray[np.str_],

@@ -236,7 +236,7 @@ def build_epochs(obs: xr.Dataset, prs: Pseudoranges, setup: EpochSetup, systems:
         marker_name=str(obs.attrs.get("marker_name", "") or ""), obs_path=setup.obs_path, nav_paths=setup.nav_paths,
         iono_scale=arrays.iono_scale, snr_dbhz=snr, unused=unused, leap_seconds=setup.leap_seconds,
         **_rates(arrays, doppler_hz, usable),
-        **_phases(obs, prs, prs2, arrays, doppler_hz, usable, t, config),
+        **_phases(obs, prs, prs2, arrays, doppler_hz, pr_corr, usable, t, config),
     )
     cov = Coverage(have_obs.any(axis=0), arrays.usable.any(axis=0), selected.any(axis=0), usable.any(axis=0),
                    float(t.min()), float(t.max()), data.range_rate_m_s is not None, data.phase_m is not None)
@@ -412,24 +412,25 @@ def load_epochs(
 def _rates(arrays: SatelliteArrays, doppler_hz: F64 | None, usable: NDArray[np.bool_]) -> dict[str, F64 | None]:
     """The Doppler fields of :class:`EpochData`: range rate ``-lambda D`` (m/s; NaN where there is no
     Doppler or the pseudorange is not usable), satellite velocity and clock drift; empty without Doppler."""
-    if doppler_hz is None or arrays.freq is None:
+    if doppler_hz is None:
         return {}
     rate = np.where(usable, -C_M_S / arrays.freq * doppler_hz, np.nan)
     return {"range_rate_m_s": rate, "sat_vel_ecef_m_s": arrays.vel, "sat_clock_drift_s_s": arrays.drift}
 
 
 def _phases(obs: xr.Dataset, prs: Pseudoranges, prs2: Pseudoranges | None, arrays: SatelliteArrays,
-            doppler_hz: F64 | None, usable: NDArray[np.bool_], t: F64, config: ProcessingConfig
+            doppler_hz: F64 | None, pr_corr: F64, usable: NDArray[np.bool_], t: F64, config: ProcessingConfig
             ) -> dict[str, F64 | NDArray[np.bool_]]:
     """The carrier-phase fields of :class:`EpochData` (``lambda phi + c dt_sv``, m, and where it may
-    have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`); empty without phase or without Doppler
-    (the wavelengths and the slip check come with it), or without ``phase`` in the measurements.
+    have slipped, :func:`~gnss_cli.gnss.carrier.phase_slips`: against the range rates, or without
+    Doppler against ``pr_corr``, the corrected pseudoranges); empty without phase, or without
+    ``phase`` in the measurements.
 
     Iono-free (``prs2``, the second signals' pseudoranges): the ionosphere-free combination of the
     two signals' phases, as the pseudoranges are combined (the ionosphere's change would otherwise
     stay in every difference, the carrier's sign opposite to the code's); a loss of lock on either
     signal breaks it. NaN where the second signal has no phase."""
-    if not config.uses("phase") or doppler_hz is None or arrays.freq is None:
+    if not config.uses("phase"):
         return {}
     selected = select_phases(obs, prs)
     if selected is None:
@@ -444,5 +445,6 @@ def _phases(obs: xr.Dataset, prs: Pseudoranges, prs2: Pseudoranges | None, array
         carrier_m = iono_free_combination_m(carrier_m, C_M_S / arrays.freq2 * second[0], arrays.freq, arrays.freq2)
         lli = (lli.astype(np.int64) | second[1].astype(np.int64)).astype(np.float64)
     phase = np.where(usable, carrier_m + C_M_S * arrays.clk, np.nan)
-    slip = phase_slips(t, phase, np.where(usable, -lam * doppler_hz, np.nan), lli, config.phase_slip_m)
+    rate = np.where(usable, -lam * doppler_hz, np.nan) if doppler_hz is not None else np.full(phase.shape, np.nan)
+    slip = phase_slips(t, phase, rate, lli, config.phase_slip_m, pr_corr)
     return {"phase_m": phase, "phase_slip": slip}

@@ -304,7 +304,7 @@ class EpochData:
     ionosphere-free combination of both signals' phases, as ``pr_corrected_m``), plus c times the
     satellite clock (as ``pr_corrected_m``), m; its ambiguity is unknown, only time differences
     are used. NaN where there is no phase or the pseudorange is not usable. None when the file has
-    no phase of any chosen code, or without Doppler (the wavelengths come with the range rates)."""
+    no phase of any chosen code (or ``phase`` is not among the measurements)."""
     phase_slip: NDArray[np.bool_] | None = None
     """``(T, n)`` the phase may have slipped since the previous epoch: loss-of-lock indicator bit 0,
     or a jump against the Doppler (:func:`~gnss_cli.gnss.carrier.phase_slips`)."""
