@@ -471,18 +471,8 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
     az, el = azimuth_elevation(np.einsum("nij,nj->ni", rot[ti], unit_u))
     near_u = near[ti]
     mask_u = ~near_u | (el >= np.deg2rad(config.elevation_mask_deg))
-    corrected = near_u & mask_u
-    iono = np.zeros_like(rng_u)
-    if config.iono == "klobuchar" and data.klobuchar is not None and corrected.any():
-        alpha, beta = data.klobuchar
-        c = np.flatnonzero(corrected)
-        iono[c] = klobuchar_delay_m(alpha, beta, lat[ti[c]], lon[ti[c]], az[c], el[c], data.time_gps_s[tr[c]])
-        if data.iono_scale is not None:
-            iono[c] *= data.iono_scale[tr[c], si[c]]
-    tropo = np.zeros_like(rng_u)
-    if config.tropo == "saastamoinen" and corrected.any():
-        c = np.flatnonzero(corrected)
-        tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
+    iono, tropo = _atmosphere_m(data, config, np.flatnonzero(near_u & mask_u), (ti, si, tr),
+                                (lat, lon, h), (az, el))
     sysidx = data.system_index if data.system_index is not None else np.zeros(n, dtype=np.int64)
     efact = np.where(np.array([sv[0] for sv in data.sv]) == "R", 1.5, 1.0)  # RTKLIB EFACT_GLO
     cn0 = data.snr_dbhz  # C/N0 of each pseudorange's signal, dB-Hz (None: the file has no S code)
@@ -523,6 +513,27 @@ def linearize(data: EpochArrays, rows: NDArray[np.intp], x: F64, b: F64, config:
         mask[:, n:] = ~present
         var[:, n:] = ISB_CONSTRAINT_VAR_M2
     return Linearization(A, q, mask, var, unit_c, rng_c, rot, iono_c, sv_col)
+
+
+def _atmosphere_m(data: EpochArrays, config: ProcessingConfig, c: NDArray[np.intp],
+                  where: tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]],
+                  geodetic: tuple[F64, F64, F64], az_el: tuple[F64, F64]) -> tuple[F64, F64]:
+    """Ionospheric (Klobuchar, scaled to each signal) and tropospheric (Saastamoinen) delays (m) of
+    the usable observations ``where = (ti, si, tr)`` (epoch in the block, satellite, epoch of the
+    file) at the receivers' ``geodetic`` (lat, lon rad; h m) and the satellites' ``az_el`` (rad);
+    0 but at the observations ``c`` that are corrected (near the Earth's surface, above the mask)."""
+    ti, si, tr = where
+    lat, lon, h = geodetic
+    az, el = az_el
+    iono, tropo = np.zeros(ti.size), np.zeros(ti.size)
+    if config.iono == "klobuchar" and data.klobuchar is not None and c.size:
+        alpha, beta = data.klobuchar
+        iono[c] = klobuchar_delay_m(alpha, beta, lat[ti[c]], lon[ti[c]], az[c], el[c], data.time_gps_s[tr[c]])
+        if data.iono_scale is not None:
+            iono[c] *= data.iono_scale[tr[c], si[c]]
+    if config.tropo == "saastamoinen" and c.size:
+        tropo[c] = saastamoinen_delay_m(lat[ti[c]], h[ti[c]], el[c])
+    return iono, tropo
 
 
 def _compact_rows(ti: NDArray[np.intp], si: NDArray[np.intp], used: NDArray[np.bool_], t_n: int, width: int
