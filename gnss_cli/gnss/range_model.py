@@ -182,9 +182,9 @@ def _fill_system(out: SatelliteArrays, records: GlonassRecords | KeplerRecords, 
     out.freq[ii, cc] = _carrier_frequencies(records, system, prs.code[ii, cc], kk)
     if out.vel is not None:
         _fill_rates(out, records, (ii, cc, kk), t[ii] - pr[ii, jj] / C_M_S, st)
-    if out.freq2 is not None and prs2 is not None:
-        out.freq2[ii, cc] = _carrier_frequencies(records, system, prs2.code[ii, cc], kk)
     if prs2 is not None:
+        assert out.freq2 is not None  # allocated with prs2
+        out.freq2[ii, cc] = _carrier_frequencies(records, system, prs2.code[ii, cc], kk)
         out.p_if[ii, cc] = iono_free_pseudorange_m(
             system, prs.code[ii, cc], pr[ii, jj], prs2.code[ii, cc], prs2.pr_m[ii, cc], **records.delays(kk)
         )
