@@ -29,6 +29,15 @@ off: the same measurements as that peer, the behavior deciding none of them. A d
 residual gate is not changed by it), run with range rates or phase, where stls's spans are solved
 together through that gate.
 
+Last, every method given exactly the same rows (:func:`solve_same_rows`): the multi-epoch gates
+off (the kf's innovation gate, the smoother's and stls's residual gate:
+:func:`multi_epoch_gates_off`), the snapshot fixes' FDE at the default threshold and the cycle-slip
+checks as they ship, so that no method leaves out a row another keeps. The gates test different
+statistics (innovations before an update, residuals after a fit), so at one threshold they leave
+out different rows: equal information in measurements and threshold, not in the rows used. This
+row is equal information in the rows too, at the price of each method's own defence against a
+faulty row.
+
 Usage: ``python benchmarks/real_set_gate.py [--rinex DIR]``; prints the table and writes
 ``benchmarks/results/real_set_gate.json``. About 10-15 minutes on two cores.
 """
@@ -50,8 +59,11 @@ from multi_epoch_fair import (OUT as FAIR, PEERS, RINEX, REAL_CASES, SETS, evalu
 
 import numpy as np  # noqa: E402
 
+import gnss_cli.pipeline.identified as identified  # noqa: E402
+import gnss_cli.pipeline.kalman as kalman  # noqa: E402
 import gnss_cli.pipeline.smoother as smoother  # noqa: E402
 from gnss_cli.behavior.piecewise import VELOCITY_RULE_LAG  # noqa: E402
+from gnss_cli.pipeline.kalman_rows import gate_threshold  # noqa: E402
 from gnss_cli.pipeline.measurements import gate_rows  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "real_set_gate.json"
@@ -130,6 +142,38 @@ def gated_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> di
     return out
 
 
+@contextmanager
+def multi_epoch_gates_off() -> Iterator[None]:
+    """No multi-epoch gate: the kf's innovation gate and the smoother's and stls's residual gate
+    take no threshold (as with ``integrity = "off"``), while the snapshot FDE, which ``integrity``
+    also governs, runs as configured."""
+    users = (kalman, smoother, identified)
+    for module in users:
+        module.gate_threshold = lambda config: None  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        for module in users:
+            module.gate_threshold = gate_threshold  # type: ignore[attr-defined]
+
+
+def solve_same_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
+    """:func:`solve_case` at the default threshold with :func:`multi_epoch_gates_off`: every
+    method the same rows (module docstring)."""
+    with multi_epoch_gates_off():
+        return {**solve_case(rinex, case, label, 1e-3, chosen), "multi_epoch_gates": "off"}
+
+
+def same_rows_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The table of :func:`solve_same_rows`' rows."""
+    return {"title": "Every method the same rows: no multi-epoch gate, the snapshot FDE at the default threshold",
+            "columns": ["case", "measurements", "best peer", "best peer H RMS (m)", "stls lag 3", "stls / best peer",
+                        "95 % interval", "stls defaults", "defaults / best peer"],
+            "rows": [[r["case"], r["measurements"], r["best_peer"], round(r["best_peer_m"], 3), round(r["stls_m"], 3),
+                      round(r["ratio_stls_best_peer"], 3), "{:.2f}-{:.2f}".format(*r["ratio_interval_95"]),
+                      round(r["stls_defaults_m"], 3), round(r["ratio_stls_defaults_best_peer"], 3)] for r in rows]}
+
+
 def with_smoothers_exclusions(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
     """Horizontal RMS (m) of stls and stls defaults with the quadrature smoother's exclusions
     (module docstring); as they ship, they are the default-threshold rows of :func:`solve_case`."""
@@ -195,6 +239,8 @@ def main() -> None:
     tied_sets = [label for label in SETS if label != "pr"]
     exclusions = in_parallel(lambda job: with_smoothers_exclusions(args.rinex, *job, chosen),
                              [(c, label) for c in diagnosed for label in tied_sets])
+    same_rows = in_parallel(lambda job: solve_same_rows(args.rinex, *job, chosen),
+                            [(case, label) for case in cases for label in SETS])
     best = {(r["case"], r["measurements"]): r for r in rows if r["integrity_pfa"] == 1e-3}
     data = {"title": "Real sets: the ratios stls / best peer at each shared gate threshold",
             "command": "python benchmarks/real_set_gate.py",
@@ -208,10 +254,13 @@ def main() -> None:
                      "in the last pass of each method's residual gate, each method solved alone. Third table: stls as it "
                      "ships and with the quadrature smoother's exclusions in place of its own gate (a diagnostic). "
                      "Second and third table on the walk only: tst2 is solved in overlapping pieces and again without "
-                     "its reflection spans, so no single pass of its gate is the file's. "
+                     "its reflection spans, so no single pass of its gate is the file's. Fourth table: every method "
+                     "the same rows (the kf's innovation gate and the smoother's and stls's residual gate off, the "
+                     "snapshot FDE and the slip checks as shipped), both real sets. "
                      f"Whole run {(time.perf_counter() - t0) / 60:.1f} min.",
-            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated), exclusions_table(exclusions, best)],
-            "rows": rows, "gated": gated, "with_smoothers_exclusions": exclusions, "seconds": time.perf_counter() - t0}
+            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated), exclusions_table(exclusions, best),
+                                                       same_rows_table(same_rows)],
+            "rows": rows, "gated": gated, "with_smoothers_exclusions": exclusions, "same_rows": same_rows, "seconds": time.perf_counter() - t0}
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     print(" | ".join(data["table"]["columns"]))
