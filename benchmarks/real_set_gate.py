@@ -2,7 +2,7 @@
 
 ``benchmarks/multi_epoch_fair.py`` compares ``kf``, ``smoother`` and the identified ``stls`` on
 equal information, its settings chosen on training seeds; on the two real sets (the Yamatogawa
-walk, tst2 solved as a moving receiver) its ratios stls / best peer lie near 1 (0.83-1.28). Every
+walk, tst2 solved as a moving receiver) its ratios stls / best peer lie near 1 (0.83-1.08). Every
 method there is given the same false-alarm probability ``integrity_pfa`` (default 1e-3): the
 snapshot fixes' FDE, the kf's innovation gate, the smoother's and stls's residual gate all take
 their thresholds from it. This script solves both real sets again with that one shared setting at
