@@ -19,10 +19,14 @@ the method left out (the WLS exclusions, its gate and the spans).
 Rule: the allowed candidates have no more misleading epochs (summed over the cases with a
 reference and both methods) than ``off``, leave out at most 5 % of the drives' LOS
 satellite-epochs, and keep the availability of tst2 and smartloc-berlin within 2 points of
-``off``'s; among them the one with the lowest score, the mean over cases with a reference and
-both methods of the 3D RMS over every epoch against ``off``'s (over every epoch: the spans also
-change which epochs pass the test, and the RMS of the ``ok`` ones alone would reward a candidate
-for failing the hard ones). Prints a table and writes
+``off``'s. Each is scored by the mean over cases with a reference and both methods of the 3D RMS
+over every epoch against ``off``'s (over every epoch: the spans also change which epochs pass the
+test, and the RMS of the ``ok`` ones alone would reward a candidate for failing the hard ones).
+Chosen (:func:`choose`), as ``multi_epoch_fair.py`` chooses its settings: of the allowed
+candidates whose score is within one standard error of the best allowed one's (the error of
+their paired difference over the scored cases), the gentlest, the one that leaves out the fewest
+of the drives' LOS satellite-epochs. A plain minimum let a 7 % difference over six training
+cases decide, and it moved with the code (k 1.5 / h 5, then k 0.5 / h 10). Prints a table and writes
 ``benchmarks/results/choose_multi_epoch_spans.json``. About 6 minutes on one core.
 """
 
@@ -87,7 +91,8 @@ def run_candidates(candidates: dict[str, dict[str, object]], seeds: list[int], d
 
 def summarize(results: dict[str, dict[str, dict[str, dict[str, object]]]]) -> dict[str, dict[str, object]]:
     """Per candidate: ``score`` (mean over cases with a reference and both methods of the 3D RMS
-    over every epoch against the first candidate's), ``misleading`` (summed), the drives' pooled
+    over every epoch against the first candidate's; ``ratios``, those ratios, case by case),
+    ``misleading`` (summed), the drives' pooled
     ``nlos`` and ``los`` shares left out (%), and ``allowed`` (no more misleading epochs than the
     first candidate, at most 5 % of the LOS out, the real sets' availability within 2 points)."""
     first = next(iter(results))
@@ -103,13 +108,29 @@ def summarize(results: dict[str, dict[str, dict[str, dict[str, object]]]]) -> di
     out: dict[str, dict[str, object]] = {}
     for c, rows in results.items():
         misleading = int(sum(rows[n][m].get("misleading", 0) for n in names for m in METHODS))  # type: ignore[arg-type]
-        out[c] = {"score": float(np.mean([rows[n][m]["rms_3d_all_m"] / off[n][m]["rms_3d_all_m"] for n, m in scored])),
+        ratios = [rows[n][m]["rms_3d_all_m"] / off[n][m]["rms_3d_all_m"] for n, m in scored]
+        out[c] = {"score": float(np.mean(ratios)), "ratios": [float(r) for r in ratios],  # type: ignore[arg-type]
                   "misleading": misleading, "nlos": pooled(c, "nlos"), "los": pooled(c, "los")}
     for c, rows in results.items():
         out[c]["allowed"] = (out[c]["misleading"] <= out[first]["misleading"] and out[c]["los"] <= MAX_LOS_PCT
                              and all(rows[n][m]["availability"] >= off[n][m]["availability"] - MAX_AVAILABILITY_LOSS
                                      for n in REAL if n in off for m in METHODS))
     return out
+
+
+def choose(summary: dict[str, dict[str, object]]) -> str:
+    """The rule of the module docstring: of the ``allowed`` candidates of :func:`summarize` whose
+    mean ratio exceeds the best allowed one's by at most the standard error of their paired
+    difference, the one with the smallest ``los`` share left out."""
+    allowed = [c for c, s in summary.items() if s["allowed"]]
+    best = min(allowed, key=lambda c: float(summary[c]["score"]))  # type: ignore[arg-type]
+    ref = np.asarray(summary[best]["ratios"])
+
+    def within(c: str) -> bool:
+        d = np.asarray(summary[c]["ratios"]) - ref
+        return bool(d.mean() <= (d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else 0.0))
+
+    return min((c for c in allowed if within(c)), key=lambda c: float(summary[c]["los"]))  # type: ignore[arg-type]
 
 
 def table(results: dict[str, dict[str, dict[str, dict[str, object]]]], summary: dict[str, dict[str, object]]
@@ -137,8 +158,7 @@ def main() -> None:
     t0 = time.perf_counter()
     results = run_candidates(CANDIDATES, seeds, duration, quick, "choose_multi_epoch_spans")
     summary = summarize(results)
-    scores = {c: s["score"] for c, s in summary.items()}
-    chosen = min([c for c in CANDIDATES if summary[c]["allowed"]], key=lambda c: scores[c])  # type: ignore[arg-type, return-value]
+    chosen = choose(summary)
     columns, table_rows = table(results, summary)
     report_choice(OUT, "Choosing the multi-epoch methods' reflection spans on training data",
                   "python benchmarks/choose_multi_epoch_spans.py", columns, table_rows, chosen,
