@@ -21,13 +21,16 @@ phase-pair rows; each method solved alone, the gate's calls recorded; on the set
 :data:`DIAGNOSED`). The gate standardizes a
 residual by its measurement's standard deviation, not by the residual's own, so a stiffer fit (one
 whose residuals keep more of the noise) has more rows above one threshold; the kf's innovation
-gate, standardized by the innovation's predicted variance, is not counted there. And what that
-costs stls (:func:`with_smoothers_exclusions`): stls solved again with the rows its gate leaves
-out replaced by those the quadrature smoother's gate leaves out (``smoother --motion quadrature``
-at stls's velocity rule, :data:`~gnss_cli.behavior.piecewise.VELOCITY_RULE_LAG`), its own gate
-off: the same measurements as that peer, the behavior deciding none of them. A diagnostic (the
-residual gate is not changed by it), run with range rates or phase, where stls's spans are solved
-together through that gate.
+gate, standardized by the innovation's predicted variance, is not counted there.
+
+Then every method given the rows one peer's gate decided (:func:`one_gates_rows`, on the sets of
+:data:`DIAGNOSED` with range rates or phase): the rows the kf with constant acceleration left out
+(its innovation gate; a phase pair's row by its w-test) and those the quadrature smoother at stls's
+velocity rule left out (:data:`~gnss_cli.behavior.piecewise.VELOCITY_RULE_LAG`: the measurements of
+stls's tied spans, the behavior deciding none of them) are each taken out of every method, whose own
+multi-epoch gate is then off (:func:`rows_given`). stls's windows keep their own gate while the
+kernels are identified: the rows of its result are those of the tied solve, which takes the given
+ones. With the pseudoranges alone stls's windows are its result, so that set is not run.
 
 Last, every method given exactly the same rows (:func:`solve_same_rows`): the multi-epoch gates
 off (the kf's innovation gate, the smoother's and stls's residual gate:
@@ -50,6 +53,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -74,10 +78,10 @@ NAMES = (*PEERS, "stls", "stls defaults")
 GATED = ("smoother quadrature", "smoother cv", "smoother ca", "stls", "stls defaults")
 """The methods whose residual gate :func:`gated_rows` counts (those that test residuals after their fit)."""
 KINDS = ("pseudorange", "range rate", "phase pair")
-EXCLUSION_COLUMNS = ("stls", "stls with the smoother's exclusions", "stls defaults",
-                     "stls defaults with the smoother's exclusions")
+ROW_SOURCES = ("kf ca", "smoother quadrature")
+"""Whose gate decides every method's rows in :func:`one_gates_rows` (:func:`source_variant`)."""
 DIAGNOSED = ("yamatogawa",)
-"""The real sets of the two diagnostics: those solved in one piece by one solve, whose gate's last
+"""The real sets of the gate's counts and of :func:`one_gates_rows`: those solved in one piece by one solve, whose gate's last
 pass is the file's. tst2 (986 epochs) is solved in overlapping pieces and again without its
 reflection spans (:func:`gnss_cli.pipeline.methods.solve_multi_epoch`), so no single pass is its."""
 
@@ -174,33 +178,121 @@ def same_rows_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
                       round(r["stls_defaults_m"], 3), round(r["ratio_stls_defaults_best_peer"], 3)] for r in rows]}
 
 
-def with_smoothers_exclusions(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> dict[str, Any]:
-    """Horizontal RMS (m) of stls and stls defaults with the quadrature smoother's exclusions
-    (module docstring); as they ship, they are the default-threshold rows of :func:`solve_case`."""
+@contextmanager
+def recorded_kf_gate() -> Iterator[list[np.ndarray]]:
+    """The kf's innovation gate as it is, the rows it left out in each gated pass over the file
+    recorded ((kinds, T, n) bool, in pass order): a pseudorange or range rate whose innovation it
+    rejected, a phase pair's row whose w-test it rejected."""
+    passes: list[tuple[Any, np.ndarray]] = []
+    results: list[Any] = []
+    run_segment, kalman_filter = kalman._run_segment, kalman.kalman_filter  # type: ignore[attr-defined]
+
+    def filter_kept(*args: Any, **kwargs: Any) -> Any:
+        results.append(kalman_filter(*args, **kwargs))
+        return results[-1]
+
+    def segment_recorded(seg: Any, data: Any, meas: Any, *args: Any) -> Any:
+        before = (meas.used.copy(), None if meas.used_rr is None else meas.used_rr.copy(),
+                  None if meas.phase is None else meas.phase.used.copy())
+        out = run_segment(seg, data, meas, *args)
+        if len(args) < 5 or args[4] is None:  # an ungated pass
+            return out
+        if not passes or passes[-1][0] is not meas:
+            passes.append((meas, np.zeros((len(KINDS), *meas.used.shape), dtype=bool)))
+        excluded, res = passes[-1][1], results[-1]
+        for j, i in enumerate(seg):
+            pr = np.flatnonzero(before[0][i])
+            nu = res.innovations[j]
+            excluded[0, i, pr[np.isnan(nu[:pr.size])]] = True
+            if before[1] is not None:
+                rr = np.flatnonzero(before[1][i])
+                excluded[1, i, rr[np.isnan(nu[pr.size:pr.size + rr.size])]] = True
+            if before[2] is not None and j > 0:  # a segment's first epoch has no pair
+                ph = np.flatnonzero(before[2][i])
+                excluded[2, i, ph[np.isnan(res.free_tests[j])]] = True
+        return out
+
+    kalman._run_segment, kalman.kalman_filter = segment_recorded, filter_kept  # type: ignore[attr-defined]
+    recorded: list[np.ndarray] = []
+    try:
+        yield recorded
+    finally:
+        kalman._run_segment, kalman.kalman_filter = run_segment, kalman_filter  # type: ignore[attr-defined]
+        recorded.extend(excluded for _, excluded in passes)
+
+
+@contextmanager
+def rows_given(excluded: np.ndarray) -> Iterator[None]:
+    """Every multi-epoch method without the rows ``excluded`` ((kinds, T, n) bool, another solve of
+    the same file) and without a gate of its own: the smoother's and stls's residual gate
+    :func:`fixed` to them, the kf's innovation gate off and the rows taken out of its measurements
+    before it filters."""
+    linearized, pairs, threshold = kalman.linearized_measurements, kalman.filter_phase_rows, kalman.gate_threshold  # type: ignore[attr-defined]
+
+    def linearized_without(*args: Any, **kwargs: Any) -> Any:
+        meas = linearized(*args, **kwargs)
+        meas.used &= ~excluded[0]
+        if meas.used_rr is not None:
+            meas.used_rr &= ~excluded[1]
+        return meas
+
+    def pairs_without(*args: Any, **kwargs: Any) -> Any:
+        rows = pairs(*args, **kwargs)
+        return None if rows is None else replace(rows, used=rows.used & ~excluded[2])
+
+    kalman.linearized_measurements, kalman.filter_phase_rows = linearized_without, pairs_without  # type: ignore[attr-defined]
+    kalman.gate_threshold = lambda config: None  # type: ignore[attr-defined]
+    try:
+        with gate_replaced(fixed(excluded)):
+            yield
+    finally:
+        kalman.linearized_measurements, kalman.filter_phase_rows = linearized, pairs  # type: ignore[attr-defined]
+        kalman.gate_threshold = threshold  # type: ignore[attr-defined]
+
+
+def source_variant(source: str, label: str, chosen: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The solve whose gate decides the rows: the kf ca as chosen for the set; the quadrature
+    smoother at stls's velocity rule (module docstring)."""
+    if source == "smoother quadrature":
+        return {"smoother": {"smoother.motion": "quadrature", "smoother.lag": VELOCITY_RULE_LAG}}
+    return variants_for(chosen[label]["choice"], (source,))
+
+
+def source_rows(rinex: Path, case: str, label: str, source: str, chosen: dict[str, Any]) -> np.ndarray:
+    """The rows (kinds, T, n) that ``source``'s gate left out in its last pass, solved alone."""
     common = {"measurements": SETS[label]}
+    if source.startswith("kf"):
+        with recorded_kf_gate() as passes:
+            solve_real(rinex, case, source_variant(source, label, chosen), common)
+        return passes[-1]
     with recorded_gate() as calls:
-        solve_real(rinex, case, {"smoother": {"smoother.motion": "quadrature", "smoother.lag": VELOCITY_RULE_LAG}}, common)
-    out: dict[str, Any] = {"case": case, "measurements": label}
-    for name in ("stls", "stls defaults"):
-        with gate_replaced(fixed(calls[-1][0])):
-            run = solve_real(rinex, case, variants_for(chosen[label]["choice"], (name,)), common)
-        out[f"{name} with the smoother's exclusions"] = evaluate_real(case, run)[name]["rms_h_m"]
+        solve_real(rinex, case, source_variant(source, label, chosen), common)
+    return calls[-1][0]
+
+
+def one_gates_rows(rinex: Path, case: str, label: str, chosen: dict[str, Any]) -> list[dict[str, Any]]:
+    """:func:`solve_case` at the default threshold with every method given the rows of each of
+    :data:`ROW_SOURCES` (:func:`rows_given`), and how many of each kind that source left out."""
+    out = []
+    for source in ROW_SOURCES:
+        excluded = source_rows(rinex, case, label, source, chosen)
+        with rows_given(excluded):
+            row = solve_case(rinex, case, label, 1e-3, chosen)
+        out.append({**row, "rows_of": source, "excluded": [int(k.sum()) for k in excluded]})
     return out
 
 
-def exclusions_table(rows: list[dict[str, Any]], best: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:
-    """The table of :func:`with_smoothers_exclusions`' rows beside the default-threshold summary rows
-    ``best`` (by case and set: the best peer, stls and stls defaults as they ship), with the ratios
-    to the best peer."""
-    table_rows = []
-    for r in rows:
-        b = best[(r["case"], r["measurements"])]
-        rms = {"stls": b["stls_m"], "stls defaults": b["stls_defaults_m"], **r}
-        table_rows.append([r["case"], r["measurements"], b["best_peer"], round(b["best_peer_m"], 3),
-                           *[f"{rms[n]:.3f} ({rms[n] / b['best_peer_m']:.3f}x)" for n in EXCLUSION_COLUMNS]])
-    return {"title": "stls with the quadrature smoother's exclusions (default threshold; H RMS, m, and x best peer)",
-            "columns": ["case", "measurements", "best peer", "best peer H RMS (m)", *EXCLUSION_COLUMNS],
-            "rows": table_rows}
+def one_gates_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The table of :func:`one_gates_rows`' rows."""
+    return {"title": "Every method the rows one gate left out (its own multi-epoch gate off; default threshold)",
+            "columns": ["case", "measurements", "rows of", "left out (pr, rr, pairs)", "kf ca", "smoother quadrature",
+                        "best peer", "best peer H RMS (m)", "stls lag 3", "stls / best peer", "95 % interval",
+                        "stls defaults", "defaults / best peer"],
+            "rows": [[r["case"], r["measurements"], r["rows_of"], ", ".join(map(str, r["excluded"])),
+                      round(r["rms_h_m"]["kf ca"], 3), round(r["rms_h_m"]["smoother quadrature"], 3), r["best_peer"],
+                      round(r["best_peer_m"], 3), round(r["stls_m"], 3), round(r["ratio_stls_best_peer"], 3),
+                      "{:.2f}-{:.2f}".format(*r["ratio_interval_95"]), round(r["stls_defaults_m"], 3),
+                      round(r["ratio_stls_defaults_best_peer"], 3)] for r in rows]}
 
 
 def gated_table(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -237,11 +329,10 @@ def main() -> None:
     diagnosed = [c for c in cases if c in DIAGNOSED]
     gated = in_parallel(lambda job: gated_rows(args.rinex, *job, chosen), [(c, label) for c in diagnosed for label in SETS])
     tied_sets = [label for label in SETS if label != "pr"]
-    exclusions = in_parallel(lambda job: with_smoothers_exclusions(args.rinex, *job, chosen),
-                             [(c, label) for c in diagnosed for label in tied_sets])
+    one_gate = [r for rs in in_parallel(lambda job: one_gates_rows(args.rinex, *job, chosen),
+                                        [(c, label) for c in diagnosed for label in tied_sets]) for r in rs]
     same_rows = in_parallel(lambda job: solve_same_rows(args.rinex, *job, chosen),
                             [(case, label) for case in cases for label in SETS])
-    best = {(r["case"], r["measurements"]): r for r in rows if r["integrity_pfa"] == 1e-3}
     data = {"title": "Real sets: the ratios stls / best peer at each shared gate threshold",
             "command": "python benchmarks/real_set_gate.py",
             "notes": "Every method of a row gets the same integrity_pfa (the snapshot FDE, the kf's innovation gate and "
@@ -251,16 +342,17 @@ def main() -> None:
                      + ", ".join(PEERS) + ", at that row's threshold. 95 % interval: moving-block bootstrap (20 epochs) "
                      "of stls / best peer. Nothing is chosen here; the package's default is 1e-3. Second table: "
                      "excluded / tested rows of each kind the set has (pseudoranges, range rates, phase-pair rows) "
-                     "in the last pass of each method's residual gate, each method solved alone. Third table: stls as it "
-                     "ships and with the quadrature smoother's exclusions in place of its own gate (a diagnostic). "
+                     "in the last pass of each method's residual gate, each method solved alone. Third table: every method "
+                     "given the rows the kf ca's gate, or the quadrature smoother's at stls's velocity rule (lag 2), left "
+                     "out, its own multi-epoch gate off (stls's windows keep theirs while its kernels are identified). "
                      "Second and third table on the walk only: tst2 is solved in overlapping pieces and again without "
                      "its reflection spans, so no single pass of its gate is the file's. Fourth table: every method "
                      "the same rows (the kf's innovation gate and the smoother's and stls's residual gate off, the "
                      "snapshot FDE and the slip checks as shipped), both real sets. "
                      f"Whole run {(time.perf_counter() - t0) / 60:.1f} min.",
-            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated), exclusions_table(exclusions, best),
+            "pfas": list(PFAS), "table": table(rows), "more_tables": [gated_table(gated), one_gates_table(one_gate),
                                                        same_rows_table(same_rows)],
-            "rows": rows, "gated": gated, "with_smoothers_exclusions": exclusions, "same_rows": same_rows, "seconds": time.perf_counter() - t0}
+            "rows": rows, "gated": gated, "one_gates_rows": one_gate, "same_rows": same_rows, "seconds": time.perf_counter() - t0}
     OUT.parent.mkdir(exist_ok=True)
     OUT.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
     print(" | ".join(data["table"]["columns"]))
